@@ -1,0 +1,36 @@
+# Two commands set up a fresh machine:
+#   make demo   # create .venv, install zcomp, composite the shipped example -> out/demo
+#   make test   # create .venv, install zcomp with test extras, run the test suite
+PYTHON ?= python3.11
+VENV   ?= .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.zcomp-installed
+
+.PHONY: venv demo test test-fast bench bench-intrinsics clean
+
+$(STAMP): pyproject.toml setup.py
+	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info[:2] == (3, 11) else 1)' 2>/dev/null || \
+	  { echo "zcomp needs Python 3.11 (bpy 5.0.1 ships wheels for CPython 3.11 only)."; \
+	    echo "Set PYTHON=/path/to/python3.11, e.g. 'make test PYTHON=~/.pyenv/versions/3.11.7/bin/python'."; exit 1; }
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -e ".[test]"
+	@touch $@
+
+venv: $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/zcomp composite examples/jobs.yaml --out out/demo --overwrite
+	@echo "Composites written under out/demo/ (composite.png per job)."
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q -ra
+
+test-fast: $(STAMP)
+	$(BIN)/python -m pytest -q -ra -m "not blender and not slow"
+
+bench-intrinsics: $(STAMP)
+	$(BIN)/python benchmarks/bench_render_intrinsics.py
+
+clean:
+	rm -rf out .pytest_cache

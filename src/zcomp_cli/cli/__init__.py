@@ -1,0 +1,110 @@
+"""The ``zcomp`` command group.
+
+One module per command (``zcomp_cli.cli.<command>``), loaded lazily so that
+``zcomp --help`` never imports numpy, torch or bpy. Typed ``ZcompError`` exceptions
+become a one-line message and an exit code (1: failed run, 2: usage); a Python
+traceback is shown only with ``-v``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import sys
+
+import click
+
+from zcomp_cli import __version__
+
+# command name -> (module, attribute, one-line help shown by `zcomp --help`)
+_COMMANDS: dict[str, tuple[str, str, str]] = {
+    "render-intrinsics": (
+        "zcomp_cli.cli.render_intrinsics",
+        "render_intrinsics",
+        "Render object intrinsics (depth, normals, albedo, mask, footprint) with Blender.",
+    ),
+    "composite": (
+        "zcomp_cli.cli.composite",
+        "composite",
+        "Composite objects into scenes for every job of a manifest.",
+    ),
+    "eval": ("zcomp_cli.cli.eval", "eval_cmd", "Score composites against references."),
+    "make-benchmark": (
+        "zcomp_cli.cli.make_benchmark",
+        "make_benchmark",
+        "Build a benchmark with physically rendered ground truth.",
+    ),
+    "estimate": (
+        "zcomp_cli.cli.estimate",
+        "estimate",
+        "Estimate missing background intrinsics of a manifest's scenes.",
+    ),
+    "train": ("zcomp_cli.cli.train", "train", "Train the ZeroComp ControlNet."),
+}
+
+
+class LazyGroup(click.Group):
+    """A click group whose sub-commands are imported only when invoked."""
+
+    def list_commands(self, ctx):
+        return [n for n in _COMMANDS if _available(n)]
+
+    def get_command(self, ctx, name):
+        if name not in _COMMANDS or not _available(name):
+            return None
+        module, attr, _ = _COMMANDS[name]
+        return getattr(importlib.import_module(module), attr)
+
+    def format_commands(self, ctx, formatter):
+        # Short help from the table: listing commands must not import them.
+        rows = [(n, _COMMANDS[n][2]) for n in self.list_commands(ctx)]
+        if rows:
+            with formatter.section("Commands"):
+                formatter.write_dl(rows)
+
+
+def _available(name: str) -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec(_COMMANDS[name][0]) is not None
+
+
+@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, "--version", prog_name="zcomp")
+@click.option("-v", "--verbose", count=True, help="More output; -v also shows tracebacks.")
+@click.option("-q", "--quiet", is_flag=True, help="Only errors and the final summary.")
+@click.pass_context
+def cli(ctx, verbose: int, quiet: bool):
+    """zcomp: composite 3D objects into photographs with realistic shading and shadows."""
+    level = logging.WARNING if quiet else (logging.DEBUG if verbose > 1 else logging.INFO)
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    ctx.ensure_object(dict)
+    ctx.obj["verbose"] = verbose
+    ctx.obj["quiet"] = quiet
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Entry point: run the group, turning typed errors into exit codes."""
+    from zcomp_cli.errors import ZcompError
+
+    verbose = any(a in ("-v", "-vv", "--verbose") for a in (argv or sys.argv[1:]))
+    try:
+        cli.main(args=argv, prog_name="zcomp", standalone_mode=False)
+    except ZcompError as exc:
+        if verbose:
+            import traceback
+
+            traceback.print_exc()
+        click.secho(f"Error: {exc}", fg="red", err=True)
+        sys.exit(exc.exit_code)
+    except click.exceptions.Abort:
+        click.echo("Aborted.", err=True)
+        sys.exit(1)
+    except click.ClickException as exc:
+        exc.show()
+        sys.exit(exc.exit_code)
+    except KeyboardInterrupt:
+        click.echo("Interrupted.", err=True)
+        sys.exit(130)
+    except click.exceptions.Exit as exc:
+        sys.exit(exc.exit_code)

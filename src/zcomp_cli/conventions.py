@@ -1,0 +1,178 @@
+"""Conversions between the conventions of DESIGN.md section 3, as small pure functions.
+
+Conventions kept everywhere inside zcomp:
+
+* images: float32 H x W x C, **linear** RGB unless a name says ``_srgb``;
+* camera frame: right-handed OpenGL/Blender, x right, y up, z toward the viewer
+  (the camera looks along -z);
+* depth: z-depth along the optical axis in metres (positive), invalid = 0 or non-finite;
+* normals: camera frame, unit vectors; a surface facing the camera has n = (0, 0, 1);
+* pixels: ``[x, y] = [column, row]`` from the top-left corner, pixel centres at +0.5.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "srgb_to_linear",
+    "linear_to_srgb",
+    "luminance",
+    "K_from_fov",
+    "fov_from_K",
+    "blender_depth_to_z_depth",
+    "ray_distance_to_z_depth",
+    "z_depth_to_ray_distance",
+    "world_to_camera_normals",
+    "normalize",
+    "camera_normals_to_openrooms",
+    "valid_depth_mask",
+    "REC601",
+    "REC709",
+]
+
+REC601 = np.array([0.299, 0.587, 0.114], dtype=np.float32)
+REC709 = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+
+
+def _as_float(x) -> np.ndarray:
+    x = np.asarray(x)
+    if not np.issubdtype(x.dtype, np.floating):
+        x = x.astype(np.float32)
+    return x
+
+
+def srgb_to_linear(x_srgb) -> np.ndarray:
+    """Exact sRGB (IEC 61966-2-1) decoding.
+
+    Args:
+        x_srgb: any shape, sRGB-encoded values, nominally in [0, 1]. Values are
+            clipped to [0, 1] first (8/16-bit inputs cannot exceed it).
+    Returns:
+        Linear values in [0, 1], same shape, float32 (float64 kept).
+    """
+    x = np.clip(_as_float(x_srgb), 0.0, 1.0)
+    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4).astype(x.dtype)
+
+
+def linear_to_srgb(x_lin) -> np.ndarray:
+    """Exact sRGB encoding of linear values; input clipped to [0, 1] (NaN -> 0)."""
+    x = np.nan_to_num(_as_float(x_lin), nan=0.0, posinf=1.0, neginf=0.0)
+    x = np.clip(x, 0.0, 1.0)
+    return np.where(x <= 0.0031308, x * 12.92, 1.055 * np.power(x, 1.0 / 2.4) - 0.055).astype(
+        x.dtype
+    )
+
+
+def luminance(rgb, weights=REC601) -> np.ndarray:
+    """Weighted grey of an ``(..., 3)`` array (Rec.601 luma weights by default, as the
+    official ZeroComp compositor uses). Returns shape ``(...)``."""
+    rgb = _as_float(rgb)
+    if rgb.shape[-1] != 3:
+        raise ValueError(f"luminance expects (..., 3), got {rgb.shape}")
+    return rgb @ np.asarray(weights, dtype=rgb.dtype)
+
+
+def K_from_fov(fov_deg: float, width: int, height: int) -> np.ndarray:
+    """Pinhole intrinsics from the **horizontal** field of view, square pixels,
+    principal point at the image centre (``cx = W / 2``, pixel centres at +0.5).
+
+    Returns a float64 3x3 matrix. Raises ValueError outside 0 < fov < 180 or for a
+    non-positive size.
+    """
+    if not (np.isfinite(fov_deg) and 0.0 < fov_deg < 180.0):
+        raise ValueError(f"fov_deg must be in (0, 180), got {fov_deg}")
+    if width <= 0 or height <= 0:
+        raise ValueError(f"image size must be positive, got {width}x{height}")
+    fx = (width / 2.0) / np.tan(np.radians(fov_deg) / 2.0)
+    return np.array([[fx, 0.0, width / 2.0], [0.0, fx, height / 2.0], [0.0, 0.0, 1.0]])
+
+
+def fov_from_K(K, width: int) -> float:
+    """Horizontal field of view in degrees of intrinsics ``K`` for an image ``width`` wide."""
+    K = np.asarray(K, dtype=np.float64)
+    return float(np.degrees(2.0 * np.arctan((width / 2.0) / K[0, 0])))
+
+
+def valid_depth_mask(depth) -> np.ndarray:
+    """True where a z-depth is usable: finite and > 0."""
+    depth = np.asarray(depth)
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(depth) & (depth > 0)
+
+
+def blender_depth_to_z_depth(z_pass, far: float = 1e9) -> np.ndarray:
+    """Blender's Z pass is z-depth with 1e10 on empty pixels: map those (and anything
+    non-finite, negative or beyond ``far``) to 0, the invalid value. float32 out."""
+    z = np.asarray(z_pass, dtype=np.float32)
+    out = np.where(valid_depth_mask(z) & (z < far), z, 0.0)
+    return out.astype(np.float32)
+
+
+def _pixel_rays(K, width: int, height: int) -> np.ndarray:
+    """Camera-frame directions through pixel centres with z = -1 (OpenGL), (H, W, 3)."""
+    K = np.asarray(K, dtype=np.float64)
+    u = np.arange(width) + 0.5
+    v = np.arange(height) + 0.5
+    uu, vv = np.meshgrid(u, v)
+    x = (uu - K[0, 2]) / K[0, 0]
+    y = -(vv - K[1, 2]) / K[1, 1]
+    return np.stack([x, y, -np.ones_like(x)], axis=-1)
+
+
+def ray_distance_to_z_depth(dist, K) -> np.ndarray:
+    """Euclidean distance from the camera centre -> z-depth along the optical axis.
+
+    Args:
+        dist: (H, W) distances in metres; invalid (0/non-finite) stays 0.
+        K: 3x3 intrinsics of that image.
+    """
+    dist = np.asarray(dist, dtype=np.float32)
+    h, w = dist.shape
+    norm = np.linalg.norm(_pixel_rays(K, w, h), axis=-1)
+    out = np.where(valid_depth_mask(dist), dist / norm, 0.0)
+    return out.astype(np.float32)
+
+
+def z_depth_to_ray_distance(depth, K) -> np.ndarray:
+    """Inverse of :func:`ray_distance_to_z_depth`."""
+    depth = np.asarray(depth, dtype=np.float32)
+    h, w = depth.shape
+    norm = np.linalg.norm(_pixel_rays(K, w, h), axis=-1)
+    out = np.where(valid_depth_mask(depth), depth * norm, 0.0)
+    return out.astype(np.float32)
+
+
+def normalize(v, axis: int = -1, eps: float = 1e-12) -> np.ndarray:
+    """Unit vectors along ``axis``; zero or non-finite vectors become 0."""
+    v = np.nan_to_num(np.asarray(v, dtype=np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+    n = np.linalg.norm(v, axis=axis, keepdims=True)
+    return np.where(n > eps, v / np.maximum(n, eps), 0.0).astype(np.float32)
+
+
+def world_to_camera_normals(normals_world, cam_to_world) -> np.ndarray:
+    """Rotate world-space normals (e.g. Blender's Normal pass) into the camera frame.
+
+    Args:
+        normals_world: (..., 3) world-space normals.
+        cam_to_world: 4x4 (or 3x3) camera-to-world matrix of a Blender camera (its
+            ``matrix_world``); only the rotation is used (scale removed).
+    Returns:
+        (..., 3) unit camera-frame normals (OpenGL: a face toward the camera is +z);
+        zero-length input normals stay 0.
+    """
+    M = np.asarray(cam_to_world, dtype=np.float64)[:3, :3]
+    # Remove any scale of the camera object: orthonormalise via SVD.
+    u, _, vt = np.linalg.svd(M)
+    R = u @ vt
+    n = np.asarray(normals_world, dtype=np.float64)
+    # world->camera rotation is R^T; for row vectors: n_cam = n_world @ R
+    return normalize(n @ R)
+
+
+def camera_normals_to_openrooms(normals_cam) -> np.ndarray:
+    """Camera-frame (OpenGL) unit normals -> the official ZeroComp conditioning encoding:
+    negate z (OpenRooms camera convention), then map [-1, 1] to [0, 1]."""
+    n = np.asarray(normals_cam, dtype=np.float32).copy()
+    n[..., 2] = -n[..., 2]
+    return n * 0.5 + 0.5

@@ -1,0 +1,90 @@
+"""The renderer interface shared by ``physical`` and ``zerocomp`` (DESIGN.md section 5).
+
+A job calls its renderer once with two requests, the background ``i_bg`` and the
+composite ``i_comp``, which share the shading mask, the camera and the seed. The
+renderer returns one linear RGB image per request.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from zcomp_cli.camera import Camera
+
+
+@dataclass
+class SceneMaps:
+    """Intrinsic maps of one view, all H x W float32, in zcomp's conventions.
+
+    depth: z-depth in metres, 0 where invalid. normals: camera-frame (OpenGL) unit
+    vectors, 0 where invalid. albedo: linear RGB in [0, 1]. roughness/metallic: [0, 1],
+    optional (13-channel zerocomp checkpoints).
+    """
+
+    depth: np.ndarray
+    normals: np.ndarray
+    albedo: np.ndarray
+    roughness: np.ndarray | None = None
+    metallic: np.ndarray | None = None
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return tuple(self.depth.shape[:2])
+
+
+@dataclass
+class RenderRequest:
+    """One renderer pass.
+
+    Attributes:
+        maps: the (background or composite) intrinsic maps.
+        shading: H x W x 3 linear shading (image / albedo, clamped to [1e-5, 1e3]);
+            meaningful only where ``known``.
+        known: H x W bool, True where the shading is known (outside the shading mask).
+        camera: intrinsics of this view.
+        roi: ``(x0, y0, x1, y1)`` pixel window (half-open) where the output is needed;
+            ``None`` = the whole frame. Outside it the output must be finite but is
+            not used.
+        image: H x W x 3 linear background photograph (x_bg) for context, optional.
+        scene_key: a key identifying the background scene (same key = same background),
+            so a renderer may cache per-scene work such as lighting estimation.
+    """
+
+    maps: SceneMaps
+    shading: np.ndarray
+    known: np.ndarray
+    camera: Camera
+    roi: tuple[int, int, int, int] | None = None
+    image: np.ndarray | None = None
+    scene_key: str | None = None
+
+
+@dataclass
+class RenderOutput:
+    """Renderer result: one H x W x 3 linear RGB float32 image per request, plus
+    ``info`` (settings, estimates and fallbacks for the job report) and ``timings``
+    (seconds per stage)."""
+
+    images: list[np.ndarray]
+    info: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
+
+
+class Renderer(ABC):
+    """Maps intrinsics + shading mask to linear RGB. Implementations must be
+    deterministic for a given seed and must never return non-finite pixels (raise
+    ``NumericalError`` instead)."""
+
+    name: str = "renderer"
+
+    @abstractmethod
+    def render(self, requests: Sequence[RenderRequest], *, seed: int = 469) -> RenderOutput:
+        """Render every request (typically [background, composite]) in one call."""
+
+    def settings(self) -> dict:
+        """Settings recorded in each job report (and part of cache keys)."""
+        return {"name": self.name}
