@@ -1,0 +1,183 @@
+"""Run a Blender script over a batch of items in ONE subprocess (BlenderProc's lesson:
+bpy never in the main process, one Blender start-up per batch).
+
+Protocol between this module and a script in ``blender_scripts/``:
+
+* The script is run as ``python SCRIPT JOB.json`` with the same interpreter (bpy is a
+  Python module). ``JOB.json`` is ``{"common": {...}, "items": [{"id": str, ...}, ...]}``.
+* The script prints one line per event on stdout, prefixed with ``EVENT_PREFIX`` and
+  followed by a JSON object:
+  ``{"event": "ready", "startup_s": float}`` once bpy is imported and reset,
+  ``{"event": "start", "id": ...}`` before an item,
+  ``{"event": "done", "id": ..., "seconds": float, ...}`` after a successful item,
+  ``{"event": "error", "id": ..., "error": "message"}`` after a failed item.
+  Anything else on stdout/stderr is Blender's chatter, kept in a log file.
+* If the process dies (segfault, out of memory) in the middle of an item, that item is
+  reported failed ("Blender crashed ...") and a fresh process takes the remaining items,
+  so a bad mesh never loses the rest of the batch.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Callable
+
+from zcomp_cli.errors import RenderError
+
+EVENT_PREFIX = "@@ZCOMP@@ "
+
+
+def script_path(name: str) -> Path:
+    """Absolute path of ``blender_scripts/<name>`` (works installed or editable)."""
+    p = Path(str(resources.files("zcomp_cli.blender_scripts").joinpath(name)))
+    if not p.is_file():
+        raise RenderError(f"Blender script {name!r} not found (looked at {p})")
+    return p
+
+
+@dataclass
+class BatchResult:
+    """Per-item events of a batch (``done`` or ``error`` event dicts keyed by id),
+    Blender start-up seconds per process, and the log file of Blender's output."""
+
+    results: dict[str, dict] = field(default_factory=dict)
+    startup_s: list[float] = field(default_factory=list)
+    log_path: Path | None = None
+    restarts: int = 0
+
+
+def run_blender_batch(
+    script: str,
+    items: list[dict],
+    *,
+    common: dict | None = None,
+    on_event: Callable[[dict], None] | None = None,
+    log_path: str | Path | None = None,
+    item_timeout_s: float = 1800.0,
+    max_restarts: int | None = None,
+) -> BatchResult:
+    """Run ``blender_scripts/<script>`` over ``items`` in as few processes as possible.
+
+    Args:
+        script: file name inside ``blender_scripts/``.
+        items: JSON-serialisable dicts, each with a unique string ``"id"``.
+        common: settings shared by every item.
+        on_event: called with every event dict as it arrives (progress bars).
+        log_path: where Blender's own output goes (default: a temporary file).
+        item_timeout_s: a single item taking longer kills the process (item failed).
+        max_restarts: how many crashed processes to replace (default: one per item).
+    Returns:
+        A ``BatchResult``; every item id has a ``done`` or ``error`` event.
+    """
+    ids = [str(it["id"]) for it in items]
+    if len(set(ids)) != len(ids):
+        raise ValueError("item ids must be unique")
+    path = script_path(script)
+    result = BatchResult()
+    if log_path is None:
+        fd, tmp = tempfile.mkstemp(prefix="zcomp-blender-", suffix=".log")
+        os.close(fd)
+        log_path = tmp
+    result.log_path = Path(log_path)
+    pending = list(items)
+    max_restarts = len(items) if max_restarts is None else max_restarts
+    with open(result.log_path, "a", encoding="utf-8", errors="replace") as log:
+        while pending:
+            started = _run_one_process(path, pending, common or {}, on_event, log, result, item_timeout_s)
+            pending = [it for it in pending if str(it["id"]) not in result.results]
+            if not pending:
+                break
+            # The process ended early: the item it was working on crashed it.
+            if started is not None and started not in result.results:
+                ev = {"event": "error", "id": started,
+                      "error": f"Blender crashed while processing this item (log: {result.log_path})"}
+                result.results[started] = ev
+                if on_event:
+                    on_event(ev)
+                pending = [it for it in pending if str(it["id"]) != started]
+            elif started is None:
+                # Died before starting any item: Blender itself does not start.
+                for it in pending:
+                    ev = {"event": "error", "id": str(it["id"]),
+                          "error": f"Blender failed to start (log: {result.log_path})"}
+                    result.results[str(it["id"])] = ev
+                    if on_event:
+                        on_event(ev)
+                pending = []
+            result.restarts += 1
+            if result.restarts > max_restarts and pending:
+                for it in pending:
+                    ev = {"event": "error", "id": str(it["id"]), "error": "too many Blender crashes"}
+                    result.results[str(it["id"])] = ev
+                pending = []
+    return result
+
+
+def _run_one_process(path, items, common, on_event, log, result, item_timeout_s) -> str | None:
+    """Run one Blender process over ``items``; return the id of the item in progress
+    when it ended (None if none started)."""
+    with tempfile.TemporaryDirectory(prefix="zcomp-job-") as tmpdir:
+        job = Path(tmpdir) / "job.json"
+        job.write_text(json.dumps({"common": common, "items": items}))
+        env = dict(os.environ)
+        env.setdefault("PYTHONUNBUFFERED", "1")
+        proc = subprocess.Popen(
+            [sys.executable, str(path), str(job)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            text=True,
+            errors="replace",
+            env=env,
+            bufsize=1,
+        )
+        current: str | None = None
+        t_item = time.monotonic()
+        try:
+            assert proc.stdout is not None
+            for line in proc.stdout:
+                if not line.startswith(EVENT_PREFIX):
+                    log.write(line)
+                    continue
+                try:
+                    ev = json.loads(line[len(EVENT_PREFIX):])
+                except json.JSONDecodeError:
+                    log.write(line)
+                    continue
+                kind = ev.get("event")
+                if kind == "ready":
+                    result.startup_s.append(float(ev.get("startup_s", float("nan"))))
+                elif kind == "start":
+                    current = str(ev.get("id"))
+                    t_item = time.monotonic()
+                elif kind in ("done", "error"):
+                    result.results[str(ev.get("id"))] = ev
+                    current = None
+                if on_event:
+                    on_event(ev)
+                if current is not None and time.monotonic() - t_item > item_timeout_s:
+                    proc.kill()
+                    break
+        finally:
+            try:
+                proc.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        if proc.returncode not in (0, None):
+            log.write(f"\n[zcomp] Blender process exited with code {proc.returncode}\n")
+        return current
+
+
+def emit(event: dict) -> None:
+    """For scripts: print one protocol event (flushes)."""
+    sys.stdout.write(EVENT_PREFIX + json.dumps(event) + "\n")
+    sys.stdout.flush()
