@@ -1,0 +1,90 @@
+"""``zcomp composite jobs.yaml --out DIR``: the product's main job."""
+
+from __future__ import annotations
+
+import click
+
+from zcomp_cli.cli.options import debug_opt, out_dir_opt, overwrite_opt, resume_opt
+
+
+@click.command("composite")
+@click.argument("manifest", type=click.Path(dir_okay=False))
+@out_dir_opt
+@click.option("--renderer", type=click.Choice(["physical", "zerocomp"]), default=None,
+              help="Override the manifest's renderer (default: physical).")
+@click.option("--weights", type=click.Path(file_okay=False), default=None,
+              help="zerocomp: the ControlNet checkpoint directory (holding controlnet/).")
+@click.option("--base", "base_dir", type=click.Path(file_okay=False), default=None,
+              help="zerocomp: the Stable Diffusion 2.1 base directory (unet, vae, text_encoder, scheduler).")
+@click.option("--steps", type=int, default=None, help="zerocomp: DDIM steps (default 20).")
+@click.option("--jobs", "jobs_subset", default=None, metavar="SUBSET",
+              help="Only these jobs: indices, ranges a-b and names, comma-separated.")
+@resume_opt
+@overwrite_opt
+@debug_opt
+@click.option("--cache-dir", type=click.Path(file_okay=False), default=None,
+              help="Cache for object renders and estimates (default $ZCOMP_CACHE_DIR or ~/.cache/zcomp).")
+@click.pass_context
+def composite(ctx, manifest, out_dir, renderer, weights, base_dir, steps, jobs_subset, resume, overwrite,
+              debug, cache_dir):
+    """Composite objects into scenes for every job of MANIFEST (jobs.yaml).
+
+    Each job writes OUT/<job>/composite.png (sRGB), composite.exr (linear) and
+    report.json; a failed job is reported and the batch goes on (exit code 1 at the end).
+    """
+    from zcomp_cli.errors import UsageError
+    from zcomp_cli.pipeline.batch import run_batch
+    from zcomp_cli.pipeline.manifest import RendererSpec, load_manifest
+
+    if resume and overwrite:
+        raise UsageError("--resume and --overwrite exclude each other")
+    quiet = bool(ctx.obj and ctx.obj.get("quiet"))
+    m = load_manifest(manifest)
+    spec = m.defaults.renderer
+    if renderer is not None and renderer != spec.name:
+        spec = RendererSpec(renderer, {})
+    settings = dict(spec.settings)
+    if weights is not None:
+        settings["controlnet"] = weights
+    if base_dir is not None:
+        settings["base"] = base_dir
+    if steps is not None:
+        settings["steps"] = steps
+    if (weights or base_dir or steps) and spec.name != "zerocomp":
+        raise UsageError("--weights, --base and --steps apply to --renderer zerocomp")
+    spec = RendererSpec(spec.name, settings)
+
+    from zcomp_cli.cli.progress import StageProgress
+
+    with StageProgress(disable=quiet) as prog:
+        summary = run_batch(m, out_dir, renderer_spec=spec, jobs_subset=jobs_subset, resume=resume,
+                            overwrite=overwrite, debug=debug, cache_dir=cache_dir, progress=prog.update)
+    _print_summary(summary, out_dir, quiet)
+    if not summary.ok:
+        ctx.exit(1)
+
+
+def _print_summary(summary, out_dir, quiet: bool) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    console = Console(stderr=True)
+    if not quiet:
+        table = Table(title=f"zcomp composite -> {out_dir}", show_lines=False)
+        table.add_column("#", justify="right")
+        table.add_column("job")
+        table.add_column("status")
+        table.add_column("seconds", justify="right")
+        table.add_column("reason", overflow="fold")
+        colours = {"done": "green", "skipped": "yellow", "failed": "red"}
+        for s in summary.statuses:
+            table.add_row(str(s.job.index), s.job.name, f"[{colours[s.status]}]{s.status}[/]",
+                          f"{s.seconds:.2f}", s.reason or "")
+        console.print(table)
+    line = (f"{summary.count('done')} done, {summary.count('skipped')} skipped, "
+            f"{summary.count('failed')} failed in {summary.seconds:.1f} s")
+    console.print(line if summary.ok else f"[red]{line}[/]")
+    if not summary.ok and quiet:
+        for s in summary.statuses:
+            if s.status == "failed":
+                console.print(f"[red]failed[/] {s.job.name}: {s.reason}")

@@ -1,0 +1,164 @@
+"""One compositing job (DESIGN.md section 2), in numbered steps:
+
+1. align the object's depth to the background on its footprint;
+2. occlusion by nearer background geometry, then the intrinsic composite (eq. 1);
+3. the shading mask s (eq. 3) and the region of interest the renderer must produce;
+4. the background shading, masked by s for both passes;
+5. the renderer, both passes in one call;
+6. the shadow-opacity compositor (eq. 4-5).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from zcomp_cli.bundle import ObjectBundle
+from zcomp_cli.compositing import (
+    align_depth,
+    apply_alignment,
+    composite,
+    composite_intrinsics,
+    occlusion_mask,
+    shading_from_image,
+    shading_mask,
+)
+from zcomp_cli.compositing.compositor import BLUR_SIZE
+from zcomp_cli.conventions import valid_depth_mask
+from zcomp_cli.errors import GeometryError, NumericalError
+from zcomp_cli.pipeline.scene import Scene
+from zcomp_cli.renderers.base import Renderer, RenderRequest, SceneMaps
+
+ROI_CONTEXT_PX = 16
+
+
+@dataclass
+class JobOutput:
+    """Everything a job produced: the composite and, for --debug, the intermediates."""
+
+    image: np.ndarray  # (H, W, 3) linear composite
+    report: dict
+    debug: dict = field(default_factory=dict)
+
+
+def roi_around(mask: np.ndarray, margin: int) -> tuple[int, int, int, int]:
+    """Half-open box ``(x0, y0, x1, y1)`` around True pixels, grown by ``margin``."""
+    rows = np.flatnonzero(mask.any(axis=1))
+    cols = np.flatnonzero(mask.any(axis=0))
+    h, w = mask.shape
+    if rows.size == 0:
+        return (0, 0, 0, 0)
+    return (max(0, int(cols[0]) - margin), max(0, int(rows[0]) - margin),
+            min(w, int(cols[-1]) + 1 + margin), min(h, int(rows[-1]) + 1 + margin))
+
+
+def run_job(
+    scene: Scene,
+    bundle: ObjectBundle,
+    renderer: Renderer,
+    *,
+    shading_radius: float = 1.0,
+    seed: int = 469,
+    debug: bool = False,
+) -> JobOutput:
+    """Composite one object bundle into one scene. Raises ZcompError subclasses for
+    per-job failures (the batch records them and goes on)."""
+    timings: dict[str, float] = {}
+    notes: list[str] = list(scene.notes)
+    cam = scene.camera
+    H, W = cam.height, cam.width
+    if (bundle.camera.width, bundle.camera.height) != (W, H):
+        raise GeometryError(
+            f"object intrinsics are {bundle.camera.width}x{bundle.camera.height}, scene is {W}x{H}")
+    if not np.allclose(bundle.camera.K, cam.K, rtol=1e-4, atol=1e-3):
+        raise GeometryError("object intrinsics were rendered with another camera K than the scene's")
+    bg = scene.maps
+    obj_mask = np.clip(np.nan_to_num(bundle.mask), 0.0, 1.0)
+    if not (obj_mask > 0).any():
+        raise GeometryError("the object lies fully outside the frame")
+
+    # 1. Depth alignment on the footprint.
+    t = time.perf_counter()
+    alignment = align_depth(bg.depth, bundle.footprint_depth)
+    if alignment.fallback:
+        notes.append(f"depth alignment: {alignment.fallback}")
+    obj_depth = apply_alignment(bundle.depth, alignment)
+    timings["align_s"] = time.perf_counter() - t
+
+    # 2. Occlusion and intrinsic composite.
+    t = time.perf_counter()
+    m = occlusion_mask(obj_mask, obj_depth, bg.depth)
+    if not (m > 0).any():
+        raise GeometryError("the object is fully occluded by the background")
+    obj_maps = SceneMaps(depth=obj_depth, normals=bundle.normals, albedo=np.clip(np.nan_to_num(bundle.albedo), 0, 1),
+                         roughness=bundle.roughness, metallic=bundle.metallic)
+    comp = composite_intrinsics(bg, obj_maps, m)
+    timings["composite_intrinsics_s"] = time.perf_counter() - t
+
+    # 3. Shading mask and region of interest.
+    t = time.perf_counter()
+    sm = shading_mask(bg.depth, obj_depth, m, cam, radius_scale=shading_radius)
+    s = sm.mask
+    roi = roi_around(s | (m > 0), BLUR_SIZE // 2 + ROI_CONTEXT_PX)
+    timings["shading_mask_s"] = time.perf_counter() - t
+
+    # 4. Background shading, known outside s (and where the albedo/depth are valid).
+    t = time.perf_counter()
+    shading = shading_from_image(scene.image, bg.albedo)
+    known = ~s & valid_depth_mask(bg.depth)
+    timings["shading_s"] = time.perf_counter() - t
+
+    # 5. Renderer: background and composite in one call, same mask, same seed.
+    t = time.perf_counter()
+    common = dict(shading=shading, known=known, camera=cam, roi=roi, image=scene.image, scene_key=scene.key)
+    out = renderer.render([RenderRequest(maps=bg, **common), RenderRequest(maps=comp, **common)], seed=seed)
+    f_bg, f_comp = (np.asarray(im, dtype=np.float32) for im in out.images)
+    for name, im in (("f(i_bg)", f_bg), ("f(i_comp)", f_comp)):
+        if im.shape != (H, W, 3):
+            raise NumericalError(f"renderer returned {name} of shape {im.shape}, expected {(H, W, 3)}")
+        if not np.all(np.isfinite(im)):
+            raise NumericalError(f"renderer {renderer.name} returned non-finite values in {name}")
+    timings["render_s"] = time.perf_counter() - t
+
+    # 6. Compositor.
+    t = time.perf_counter()
+    x0, y0, x1, y1 = roi
+    region = np.zeros((H, W), bool)
+    region[y0:y1, x0:x1] = True
+    res = composite(scene.image, f_bg, f_comp, s, m, balance_region=region & ~s)
+    notes.extend(res.notes)
+    if not np.all(np.isfinite(res.image)):
+        raise NumericalError("the composite has non-finite values")
+    timings["compositor_s"] = time.perf_counter() - t
+
+    roi_area = (x1 - x0) * (y1 - y0)
+    report = {
+        "alignment": alignment.to_dict(),
+        "object_pixels": int((m > 0).sum()),
+        "object_coverage_frac": float((m > 0).mean()),
+        "occluded_pixels": int(((obj_mask > 0) & (m == 0)).sum()),
+        "shading_mask": {
+            "pixels": int(s.sum()),
+            "frac": float(s.mean()),
+            "radius_m": sm.radius_m,
+            "object_extent_m": sm.object_extent_m,
+            "lambda": shading_radius,
+        },
+        "roi": {"box": list(roi), "frac": roi_area / float(H * W)},
+        "colour_balance": res.balance.tolist(),
+        "renderer": {"settings": renderer.settings(), "info": out.info, "timings": out.timings},
+        "seed": seed,
+        "timings": timings,
+        "notes": notes,
+    }
+    dbg = {}
+    if debug:
+        dbg = {
+            "f_bg": f_bg, "f_comp": f_comp, "ratio": res.ratio, "ratio_blurred": res.ratio_blurred,
+            "shading_mask": s.astype(np.float32), "object_mask": m, "weight": res.weight,
+            "comp_depth": comp.depth, "comp_normals": comp.normals, "comp_albedo": comp.albedo,
+            "shading": shading,
+        }
+    return JobOutput(res.image, report, dbg)

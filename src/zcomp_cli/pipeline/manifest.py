@@ -1,0 +1,466 @@
+"""``jobs.yaml`` (manifest version 1): parsing and whole-manifest validation.
+
+    version: 1
+    defaults: {renderer: physical, resolution: [512, 512], shading_radius: 1.0, seed: 469}
+    scenes:
+      kitchen:
+        image: scenes/kitchen.png        # sRGB PNG/JPEG or linear EXR
+        fov_deg: 50                      # horizontal; or K: [[fx,0,cx],[0,fy,cy],[0,0,1]]
+        depth: scenes/kitchen_depth.exr  # provided maps, or an estimator mapping
+        normals: scenes/kitchen_normals.exr
+        albedo: scenes/kitchen_albedo.exr
+    objects:
+      chair: {mesh: objects/chair.glb}   # or {bundle: DIR} or {image: PNG, mask: PNG}
+    jobs:
+      - {scene: kitchen, object: chair, pose: {position: [0.1, -0.9, -3.0], rotation_deg: [0, 35, 0], height: 0.9}}
+      - {scene: kitchen, object: chair, placement: {pixel: [300, 410], yaw_deg: 20, height: 0.9}}
+
+Paths are relative to the manifest. Every problem is collected with its line and its
+path in the YAML, and reported together before anything renders.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from zcomp_cli.errors import ManifestError
+from zcomp_cli.pose import Pose
+from zcomp_cli.yamlloc import LocDict, LocList, line_of, load_yaml
+
+MESH_EXTS = {".obj", ".glb", ".gltf", ".ply", ".stl"}
+IMAGE_EXTS = {".png", ".jpg", ".jpeg", ".exr", ".hdr", ".tif", ".tiff"}
+MAP_CHANNELS = {"depth": 1, "normals": 3, "albedo": 3, "roughness": 1, "metallic": 1}
+DEFAULT_SEED = 469
+DEFAULT_RADIUS = 1.0
+DEFAULT_SAMPLES = 32
+NAME_RE = re.compile(r"^[A-Za-z0-9_.\-]+$")
+
+
+@dataclass
+class RendererSpec:
+    name: str = "physical"
+    settings: dict = field(default_factory=dict)
+
+
+@dataclass
+class Defaults:
+    renderer: RendererSpec = field(default_factory=RendererSpec)
+    resolution: tuple[int, int] | None = None  # (W, H); None = the scene's own size
+    shading_radius: float = DEFAULT_RADIUS
+    seed: int = DEFAULT_SEED
+    samples: int = DEFAULT_SAMPLES  # Cycles samples for object passes
+
+
+@dataclass
+class SceneSpec:
+    name: str
+    image: Path
+    width: int
+    height: int
+    fov_deg: float | None = None
+    K: np.ndarray | None = None
+    maps: dict[str, Path] = field(default_factory=dict)  # provided map files
+    estimators: dict[str, dict] = field(default_factory=dict)  # map -> estimator spec
+
+
+@dataclass
+class ObjectSpec:
+    name: str
+    kind: str  # "mesh" | "bundle" | "image"
+    mesh: Path | None = None
+    bundle: Path | None = None
+    image: Path | None = None
+    mask: Path | None = None
+
+
+@dataclass
+class Placement:
+    pixel: tuple[float, float]  # [x, y] = [column, row]
+    yaw_deg: float = 0.0
+    height: float | None = None
+    scale: float = 1.0
+
+
+@dataclass
+class JobSpec:
+    index: int
+    name: str  # output folder name
+    scene: str
+    object: str
+    pose: Pose | None = None
+    placement: Placement | None = None
+    reference: Path | None = None
+    shading_radius: float = DEFAULT_RADIUS
+    seed: int = DEFAULT_SEED
+    line: int | None = None
+
+    def describe(self) -> str:
+        return f"job {self.index} ({self.name})"
+
+
+@dataclass
+class Manifest:
+    path: Path
+    defaults: Defaults
+    scenes: dict[str, SceneSpec]
+    objects: dict[str, ObjectSpec]
+    jobs: list[JobSpec]
+
+    @property
+    def root(self) -> Path:
+        return self.path.parent
+
+
+class _Problems:
+    def __init__(self, path: Path):
+        self.path = path
+        self.items: list[str] = []
+
+    def add(self, container, key, where: str, msg: str):
+        line = line_of(container, key)
+        loc = f"{self.path.name}:{line}" if line else self.path.name
+        self.items.append(f"{loc}: {where}: {msg}")
+
+
+def image_header(path: Path) -> tuple[int, int, int]:
+    """(width, height, channels) of an image file, reading only its header."""
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise ValueError(oiio.geterror() or "unreadable image")
+    try:
+        spec = inp.spec()
+        return int(spec.width), int(spec.height), int(spec.nchannels)
+    finally:
+        inp.close()
+
+
+def _check_keys(d, allowed: set[str], where: str, probs: _Problems, required=()):
+    for k in d:
+        if k not in allowed:
+            probs.add(d, k, f"{where}.{k}", f"unknown key (allowed: {', '.join(sorted(allowed))})")
+    for k in required:
+        if k not in d:
+            probs.add(d, None, where, f"missing required key {k!r}")
+
+
+def _num(v) -> float | None:
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return None
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
+def _file(root: Path, value, container, key, where, probs, exts=None) -> Path | None:
+    if not isinstance(value, str) or not value:
+        probs.add(container, key, where, f"expected a file path, got {value!r}")
+        return None
+    p = (root / value).resolve() if not Path(value).is_absolute() else Path(value)
+    if not p.exists():
+        probs.add(container, key, where, f"file not found: {p}")
+        return None
+    if exts and p.suffix.lower() not in exts and not p.is_dir():
+        probs.add(container, key, where, f"unsupported format {p.suffix!r} (supported: {', '.join(sorted(exts))})")
+        return None
+    return p
+
+
+def parse_renderer(value, container, key, where, probs) -> RendererSpec | None:
+    if isinstance(value, str):
+        return RendererSpec(value, {})
+    if isinstance(value, dict):
+        if "name" not in value or not isinstance(value["name"], str):
+            probs.add(container, key, where, "renderer mapping needs a 'name'")
+            return None
+        settings = {k: v for k, v in value.items() if k != "name"}
+        return RendererSpec(value["name"], dict(settings))
+    probs.add(container, key, where, f"expected a renderer name or mapping, got {value!r}")
+    return None
+
+
+def load_manifest(path, *, check_files: bool = True) -> Manifest:
+    """Load and validate a manifest; raise ManifestError listing every problem."""
+    path = Path(path).resolve()
+    data = load_yaml(path)
+    probs = _Problems(path)
+    root = path.parent
+    if not isinstance(data, dict):
+        raise ManifestError(f"{path.name}: the manifest must be a mapping with version, scenes, objects, jobs")
+    _check_keys(data, {"version", "defaults", "scenes", "objects", "jobs"}, "manifest", probs,
+                required=("scenes", "objects", "jobs"))
+    version = data.get("version", 1)
+    if version != 1:
+        probs.add(data, "version", "version", f"unsupported manifest version {version!r} (this zcomp reads version 1)")
+
+    defaults = _parse_defaults(data.get("defaults") or LocDict(), data, probs)
+    scenes = _parse_scenes(data.get("scenes"), data, root, probs, check_files, defaults)
+    objects = _parse_objects(data.get("objects"), data, root, probs, check_files)
+    jobs = _parse_jobs(data.get("jobs"), data, root, probs, scenes, objects, defaults, check_files)
+    if probs.items:
+        raise ManifestError(probs.items, source=str(path))
+    return Manifest(path, defaults, scenes, objects, jobs)
+
+
+def _parse_defaults(d, parent, probs) -> Defaults:
+    out = Defaults()
+    if not isinstance(d, dict):
+        probs.add(parent, "defaults", "defaults", "expected a mapping")
+        return out
+    _check_keys(d, {"renderer", "resolution", "shading_radius", "seed", "samples"}, "defaults", probs)
+    if "renderer" in d:
+        r = parse_renderer(d["renderer"], d, "renderer", "defaults.renderer", probs)
+        if r:
+            out.renderer = r
+    if "resolution" in d:
+        res = d["resolution"]
+        if res in (None, "native"):
+            out.resolution = None
+        elif (isinstance(res, list) and len(res) == 2 and all(isinstance(v, int) and not isinstance(v, bool) for v in res)
+              and res[0] > 0 and res[1] > 0):
+            out.resolution = (int(res[0]), int(res[1]))
+        else:
+            probs.add(d, "resolution", "defaults.resolution", f"expected [width, height] positive integers or 'native', got {res!r}")
+    if "shading_radius" in d:
+        v = _num(d["shading_radius"])
+        if v is None or v < 0:
+            probs.add(d, "shading_radius", "defaults.shading_radius", f"expected a number >= 0, got {d['shading_radius']!r}")
+        else:
+            out.shading_radius = v
+    if "seed" in d:
+        if not isinstance(d["seed"], int) or isinstance(d["seed"], bool):
+            probs.add(d, "seed", "defaults.seed", f"expected an integer, got {d['seed']!r}")
+        else:
+            out.seed = int(d["seed"])
+    if "samples" in d:
+        if not isinstance(d["samples"], int) or d["samples"] < 1:
+            probs.add(d, "samples", "defaults.samples", f"expected an integer >= 1, got {d['samples']!r}")
+        else:
+            out.samples = int(d["samples"])
+    return out
+
+
+def _parse_K(value, container, key, where, probs) -> np.ndarray | None:
+    try:
+        K = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        K = None
+    if K is None or K.shape != (3, 3) or not np.all(np.isfinite(K)):
+        probs.add(container, key, where, "expected a 3x3 matrix [[fx,0,cx],[0,fy,cy],[0,0,1]]")
+        return None
+    if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0, 0, 1]):
+        probs.add(container, key, where, "focal lengths must be positive and the last row [0, 0, 1]")
+        return None
+    return K
+
+
+def _parse_scenes(d, parent, root, probs, check_files, defaults) -> dict[str, SceneSpec]:
+    out: dict[str, SceneSpec] = {}
+    if not isinstance(d, dict) or not d:
+        if "scenes" in parent:
+            probs.add(parent, "scenes", "scenes", "expected a non-empty mapping of scene name -> scene")
+        return out
+    for name, s in d.items():
+        where = f"scenes.{name}"
+        if not isinstance(name, str) or not NAME_RE.match(name):
+            probs.add(d, name, where, "scene names may use letters, digits, '_', '-' and '.'")
+            continue
+        if not isinstance(s, dict):
+            probs.add(d, name, where, "expected a mapping with at least 'image'")
+            continue
+        _check_keys(s, {"image", "fov_deg", "K", *MAP_CHANNELS}, where, probs, required=("image",))
+        if "fov_deg" in s and "K" in s:
+            probs.add(s, "K", where, "give fov_deg or K, not both")
+        image = _file(root, s["image"], s, "image", f"{where}.image", probs, IMAGE_EXTS) if "image" in s else None
+        w = h = 0
+        if image is not None and check_files:
+            try:
+                w, h, c = image_header(image)
+                if c not in (1, 2, 3, 4):
+                    probs.add(s, "image", f"{where}.image", f"unexpected channel count {c}")
+            except ValueError as exc:
+                probs.add(s, "image", f"{where}.image", f"cannot read image: {exc}")
+                image = None
+        spec = SceneSpec(name=name, image=image, width=w, height=h)
+        if "fov_deg" in s:
+            v = _num(s["fov_deg"])
+            if v is None or not (0 < v < 180):
+                probs.add(s, "fov_deg", f"{where}.fov_deg", f"expected degrees in (0, 180), got {s['fov_deg']!r}")
+            else:
+                spec.fov_deg = v
+        if "K" in s:
+            spec.K = _parse_K(s["K"], s, "K", f"{where}.K", probs)
+        for m, ch in MAP_CHANNELS.items():
+            if m not in s:
+                continue
+            v = s[m]
+            if isinstance(v, dict):
+                spec.estimators[m] = dict(v)
+                continue
+            p = _file(root, v, s, m, f"{where}.{m}", probs, IMAGE_EXTS)
+            if p is None:
+                continue
+            if check_files and image is not None:
+                try:
+                    mw, mh, mc = image_header(p)
+                except ValueError as exc:
+                    probs.add(s, m, f"{where}.{m}", f"cannot read map: {exc}")
+                    continue
+                if (mw, mh) != (w, h):
+                    probs.add(s, m, f"{where}.{m}", f"size {mw}x{mh} differs from the image's {w}x{h}")
+                if ch == 3 and mc < 3:
+                    probs.add(s, m, f"{where}.{m}", f"expected 3 channels, found {mc}")
+                if ch == 1 and mc not in (1, 2, 3, 4):
+                    probs.add(s, m, f"{where}.{m}", f"unexpected channel count {mc}")
+            spec.maps[m] = p
+        if "depth" not in spec.maps and "depth" not in spec.estimators and "depth" not in s:
+            probs.add(s, None, where, "no depth: give a depth map file or an estimator "
+                      "(e.g. depth: {proxy: ground_plane, camera_height: 1.5, pitch_deg: -10})")
+        if defaults.resolution is not None and image is not None and w and h:
+            W, H = defaults.resolution
+            if abs(W / H - w / h) > 0.01 * (w / h):
+                probs.add(parent.get("defaults", parent), "resolution", "defaults.resolution",
+                          f"{W}x{H} does not have the aspect ratio of scene {name!r} ({w}x{h}); "
+                          "use a matching size or 'native'")
+        out[name] = spec
+    return out
+
+
+def _parse_objects(d, parent, root, probs, check_files) -> dict[str, ObjectSpec]:
+    out: dict[str, ObjectSpec] = {}
+    if not isinstance(d, dict) or not d:
+        if "objects" in parent:
+            probs.add(parent, "objects", "objects", "expected a non-empty mapping of object name -> object")
+        return out
+    for name, o in d.items():
+        where = f"objects.{name}"
+        if not isinstance(name, str) or not NAME_RE.match(name):
+            probs.add(d, name, where, "object names may use letters, digits, '_', '-' and '.'")
+            continue
+        if not isinstance(o, dict):
+            probs.add(d, name, where, "expected a mapping with 'mesh', 'bundle' or 'image' + 'mask'")
+            continue
+        _check_keys(o, {"mesh", "bundle", "image", "mask"}, where, probs)
+        kinds = [k for k in ("mesh", "bundle", "image") if k in o]
+        if len(kinds) != 1:
+            probs.add(o, None, where, "give exactly one of 'mesh', 'bundle' or 'image' (+ 'mask')")
+            continue
+        kind = kinds[0]
+        spec = ObjectSpec(name=name, kind=kind)
+        if kind == "mesh":
+            spec.mesh = _file(root, o["mesh"], o, "mesh", f"{where}.mesh", probs, MESH_EXTS)
+        elif kind == "bundle":
+            p = _file(root, o["bundle"], o, "bundle", f"{where}.bundle", probs)
+            if p is not None and not (p / "meta.json").is_file():
+                probs.add(o, "bundle", f"{where}.bundle", f"not an intrinsics bundle (no meta.json in {p})")
+            spec.bundle = p
+        else:
+            spec.image = _file(root, o["image"], o, "image", f"{where}.image", probs, IMAGE_EXTS)
+            if "mask" not in o:
+                probs.add(o, None, where, "an image object needs a 'mask'")
+            else:
+                spec.mask = _file(root, o["mask"], o, "mask", f"{where}.mask", probs, IMAGE_EXTS)
+        out[name] = spec
+    return out
+
+
+def _parse_jobs(d, parent, root, probs, scenes, objects, defaults, check_files) -> list[JobSpec]:
+    out: list[JobSpec] = []
+    if not isinstance(d, list) or not d:
+        if "jobs" in parent:
+            probs.add(parent, "jobs", "jobs", "expected a non-empty list of jobs")
+        return out
+    names: dict[str, int] = {}
+    for i, j in enumerate(d):
+        where = f"jobs[{i}]"
+        if not isinstance(j, dict):
+            probs.add(d, i, where, "expected a mapping with scene, object and pose or placement")
+            continue
+        _check_keys(j, {"scene", "object", "pose", "placement", "output", "reference", "shading_radius", "seed"},
+                    where, probs, required=("scene", "object"))
+        scene = j.get("scene")
+        obj = j.get("object")
+        if "scene" in j and scene not in scenes:
+            probs.add(j, "scene", f"{where}.scene", f"unknown scene {scene!r} (defined: {', '.join(map(str, scenes)) or 'none'})")
+        if "object" in j and obj not in objects:
+            probs.add(j, "object", f"{where}.object", f"unknown object {obj!r} (defined: {', '.join(map(str, objects)) or 'none'})")
+        job = JobSpec(index=i, name="", scene=str(scene), object=str(obj), line=line_of(d, i),
+                      shading_radius=defaults.shading_radius, seed=defaults.seed)
+        has_pose, has_place = "pose" in j, "placement" in j
+        if has_pose == has_place:
+            probs.add(j, None, where, "give exactly one of 'pose' (camera frame) or 'placement' (pixel)")
+        elif has_pose:
+            try:
+                job.pose = Pose.from_dict(j["pose"], where=f"{where}.pose")
+            except ManifestError as exc:
+                for problem in exc.problems:
+                    probs.items.append(f"{probs.path.name}:{line_of(j, 'pose')}: {problem}")
+        else:
+            job.placement = _parse_placement(j["placement"], j, f"{where}.placement", probs, scenes.get(scene))
+        if "output" in j:
+            o = j["output"]
+            if not isinstance(o, str) or not NAME_RE.match(o):
+                probs.add(j, "output", f"{where}.output", "expected a folder name (letters, digits, '_', '-', '.')")
+            else:
+                job.name = o
+        if "reference" in j:
+            job.reference = _file(root, j["reference"], j, "reference", f"{where}.reference", probs, IMAGE_EXTS)
+        if "shading_radius" in j:
+            v = _num(j["shading_radius"])
+            if v is None or v < 0:
+                probs.add(j, "shading_radius", f"{where}.shading_radius", "expected a number >= 0")
+            else:
+                job.shading_radius = v
+        if "seed" in j:
+            if not isinstance(j["seed"], int) or isinstance(j["seed"], bool):
+                probs.add(j, "seed", f"{where}.seed", "expected an integer")
+            else:
+                job.seed = int(j["seed"])
+        if not job.name:
+            job.name = f"{i:03d}_{job.scene}_{job.object}"
+        if job.name in names:
+            probs.add(j, "output", f"{where}.output", f"output {job.name!r} is also used by jobs[{names[job.name]}]")
+        names[job.name] = i
+        out.append(job)
+    return out
+
+
+def _parse_placement(p, parent, where, probs, scene: SceneSpec | None) -> Placement | None:
+    if not isinstance(p, dict):
+        probs.add(parent, "placement", where, "expected a mapping {pixel: [x, y], yaw_deg, height}")
+        return None
+    _check_keys(p, {"pixel", "yaw_deg", "height", "scale"}, where, probs, required=("pixel",))
+    px = p.get("pixel")
+    if "pixel" in p:
+        if not (isinstance(px, list) and len(px) == 2 and all(_num(v) is not None for v in px)):
+            probs.add(p, "pixel", f"{where}.pixel", f"expected [x, y] (column, row), got {px!r}")
+            return None
+        if scene is not None and scene.width and not (0 <= px[0] < scene.width and 0 <= px[1] < scene.height):
+            probs.add(p, "pixel", f"{where}.pixel",
+                      f"{px} is outside the {scene.width}x{scene.height} image of scene {scene.name!r}")
+    yaw = _num(p.get("yaw_deg", 0.0))
+    if yaw is None:
+        probs.add(p, "yaw_deg", f"{where}.yaw_deg", "expected a number (degrees)")
+        yaw = 0.0
+    height = p.get("height")
+    if height is not None and (_num(height) is None or height <= 0):
+        probs.add(p, "height", f"{where}.height", "expected metres > 0")
+        height = None
+    scale = p.get("scale", 1.0)
+    if _num(scale) is None or scale <= 0:
+        probs.add(p, "scale", f"{where}.scale", "expected a number > 0")
+        scale = 1.0
+    if px is None:
+        return None
+    return Placement(pixel=(float(px[0]), float(px[1])), yaw_deg=float(yaw),
+                     height=None if height is None else float(height), scale=float(scale))
+
+
+def manifest_summary(m: Manifest) -> dict[str, Any]:
+    return {"scenes": len(m.scenes), "objects": len(m.objects), "jobs": len(m.jobs)}

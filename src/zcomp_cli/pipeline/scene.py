@@ -1,0 +1,157 @@
+"""Load a scene once per batch: the photograph (linear), its camera, and its intrinsic
+maps (provided files win; missing maps come from the estimators)."""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from zcomp_cli.camera import DEFAULT_FOV_DEG, Camera
+from zcomp_cli.conventions import normalize, valid_depth_mask
+from zcomp_cli.errors import InputError
+from zcomp_cli.pipeline.manifest import SceneSpec
+from zcomp_cli.renderers.base import SceneMaps
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Scene:
+    name: str
+    image: np.ndarray  # (H, W, 3) linear, finite, >= 0
+    maps: SceneMaps
+    camera: Camera
+    key: str  # content hash of image + maps + camera + working size
+    sources: dict = field(default_factory=dict)  # map -> "provided: path" | estimator
+    notes: list = field(default_factory=list)
+    timings: dict = field(default_factory=dict)
+
+
+def _hash_files(paths: list[Path], extra: str) -> str:
+    h = hashlib.sha256(extra.encode())
+    for p in paths:
+        h.update(str(p).encode())
+        with open(p, "rb") as f:
+            for chunk in iter(lambda: f.read(1 << 20), b""):
+                h.update(chunk)
+    return h.hexdigest()[:16]
+
+
+def _resize(arr: np.ndarray, size: tuple[int, int], kind: str) -> np.ndarray:
+    import cv2
+
+    W, H = size
+    if arr.shape[1] == W and arr.shape[0] == H:
+        return arr
+    if kind == "image":
+        interp = cv2.INTER_AREA if W < arr.shape[1] else cv2.INTER_LINEAR
+    else:
+        interp = cv2.INTER_NEAREST  # never blend depths or normals across edges
+    out = cv2.resize(arr, (W, H), interpolation=interp)
+    if arr.ndim == 3 and out.ndim == 2:
+        out = out[..., None]
+    return out
+
+
+def sanitize_maps(image, depth, normals, albedo, where: str) -> tuple[np.ndarray, ...]:
+    """Make provided data safe: non-finite image values -> 0 (noted), depth invalid -> 0,
+    normals renormalised (invalid -> 0), albedo clipped to [0, 1]."""
+    notes = []
+    bad = ~np.isfinite(image)
+    if bad.any():
+        notes.append(f"{where}: {int(bad.any(-1).sum())} non-finite image pixels set to 0")
+    image = np.clip(np.nan_to_num(image, nan=0.0, posinf=0.0, neginf=0.0), 0.0, None)
+    dv = valid_depth_mask(depth)
+    if (~dv).any():
+        frac = float((~dv).mean())
+        if frac > 0:
+            notes.append(f"{where}: {frac:.1%} of depth pixels invalid (0, negative or non-finite)")
+    depth = np.where(dv, depth, 0.0).astype(np.float32)
+    normals = normalize(normals)
+    normals = np.where(dv[..., None], normals, 0.0).astype(np.float32)
+    nonfinite_alb = ~np.isfinite(albedo)
+    if nonfinite_alb.any():
+        notes.append(f"{where}: non-finite albedo values set to 0.5")
+    albedo = np.clip(np.nan_to_num(albedo, nan=0.5, posinf=1.0, neginf=0.0), 0.0, 1.0).astype(np.float32)
+    return image.astype(np.float32), depth, normals, albedo, notes
+
+
+def load_scene(spec: SceneSpec, resolution: tuple[int, int] | None, *, cache_dir=None) -> Scene:
+    """Read a scene's files, resample to the working ``resolution`` (W, H) if given, and
+    fill missing maps from estimators."""
+    import time
+
+    from zcomp_cli.imageio import read_image, read_map
+
+    t0 = time.perf_counter()
+    where = f"scene {spec.name!r}"
+    image = read_image(spec.image)
+    h0, w0 = image.shape[:2]
+    if spec.K is not None:
+        camera = Camera(spec.K, w0, h0)
+    else:
+        camera = Camera.from_fov(spec.fov_deg if spec.fov_deg is not None else DEFAULT_FOV_DEG, w0, h0)
+    size = resolution or (w0, h0)
+    if size != (w0, h0):
+        image = _resize(image, size, "image")
+        camera = camera.resized(*size)
+    W, H = size
+    maps: dict[str, np.ndarray] = {}
+    sources: dict[str, str] = {}
+    for name, path in spec.maps.items():
+        ch = 3 if name in ("normals", "albedo") else 1
+        arr = read_map(path, channels=ch)
+        if arr.shape[:2] != (h0, w0):
+            raise InputError(f"{name} map is {arr.shape[1]}x{arr.shape[0]}, image is {w0}x{h0}", where=str(path))
+        maps[name] = _resize(arr.astype(np.float32), size, name)
+        sources[name] = f"provided: {path}"
+    timings = {"read_s": time.perf_counter() - t0}
+
+    missing = [m for m in ("depth", "normals", "albedo") if m not in maps]
+    if missing:
+        t1 = time.perf_counter()
+        maps, sources = _estimate_missing(spec, image, camera, maps, sources, cache_dir)
+        timings["estimate_s"] = time.perf_counter() - t1
+
+    image, depth, normals, albedo, notes = sanitize_maps(
+        image, maps["depth"], maps["normals"], maps["albedo"], where
+    )
+    if not valid_depth_mask(depth).any():
+        raise InputError("the depth map has no valid pixel", where=where)
+    rough = maps.get("roughness")
+    metal = maps.get("metallic")
+    scene_maps = SceneMaps(
+        depth=depth, normals=normals, albedo=albedo,
+        roughness=None if rough is None else np.clip(np.nan_to_num(rough), 0, 1).astype(np.float32),
+        metallic=None if metal is None else np.clip(np.nan_to_num(metal), 0, 1).astype(np.float32),
+    )
+    files = [spec.image] + [spec.maps[k] for k in sorted(spec.maps)]
+    key = _hash_files(files, f"{size}|{camera.K.tolist()}|{sorted(spec.estimators.items())!r}")
+    return Scene(spec.name, image, scene_maps, camera, key, sources, notes, timings)
+
+
+def _estimate_missing(spec, image, camera, maps, sources, cache_dir):
+    try:
+        from zcomp_cli.estimators import estimate_scene_maps
+    except ImportError as exc:  # pragma: no cover - estimators ship with zcomp
+        raise InputError(
+            f"maps {sorted(set(('depth', 'normals', 'albedo')) - set(maps))} are missing and the "
+            f"estimators are unavailable ({exc})", where=f"scene {spec.name!r}") from exc
+    est = estimate_scene_maps(
+        image, camera,
+        depth_spec=spec.estimators.get("depth"),
+        normals_spec=spec.estimators.get("normals"),
+        albedo_spec=spec.estimators.get("albedo"),
+        provided=dict(maps),
+        cache_dir=cache_dir,
+    )
+    out = dict(maps)
+    for name in ("depth", "normals", "albedo"):
+        if name not in out:
+            out[name] = getattr(est, name)
+            sources[name] = est.sources.get(name, "estimated")
+    return out, sources
