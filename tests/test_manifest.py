@@ -1,0 +1,101 @@
+"""jobs.yaml validation: every problem reported at once, with its line and location."""
+
+import numpy as np
+import pytest
+
+from zcomp_cli.errors import ManifestError
+from zcomp_cli.imageio import write_exr, write_png
+from zcomp_cli.pipeline.manifest import load_manifest
+
+
+@pytest.fixture
+def scene_dir(tmp_path):
+    (tmp_path / "scenes").mkdir()
+    (tmp_path / "objects").mkdir()
+    write_png(tmp_path / "scenes/room.png", np.full((30, 40, 3), 0.5, np.float32))
+    write_exr(tmp_path / "scenes/depth.exr", np.full((30, 40), 2.0, np.float32))
+    write_exr(tmp_path / "scenes/normals.exr", np.tile(np.float32([0, 1, 0]), (30, 40, 1)))
+    write_exr(tmp_path / "scenes/albedo.exr", np.full((30, 40, 3), 0.5, np.float32))
+    write_exr(tmp_path / "scenes/small_albedo.exr", np.full((10, 40, 3), 0.5, np.float32))
+    (tmp_path / "objects/chair.glb").write_bytes(b"glTF")
+    return tmp_path
+
+
+GOOD = """\
+version: 1
+defaults: {renderer: physical, shading_radius: 1.0, seed: 469}
+scenes:
+  room:
+    image: scenes/room.png
+    fov_deg: 50
+    depth: scenes/depth.exr
+    normals: scenes/normals.exr
+    albedo: scenes/albedo.exr
+objects:
+  chair: {mesh: objects/chair.glb}
+jobs:
+  - {scene: room, object: chair, pose: {position: [0.1, -0.9, -3.0], rotation_deg: [0, 35, 0], height: 0.9}}
+  - {scene: room, object: chair, placement: {pixel: [20, 25], yaw_deg: 20, height: 0.9}, output: placed}
+"""
+
+
+def test_good_manifest(scene_dir):
+    p = scene_dir / "jobs.yaml"
+    p.write_text(GOOD)
+    m = load_manifest(p)
+    assert list(m.scenes) == ["room"] and m.scenes["room"].width == 40 and m.scenes["room"].height == 30
+    assert m.scenes["room"].maps["depth"] == (scene_dir / "scenes/depth.exr").resolve()
+    assert m.jobs[0].name == "000_room_chair" and m.jobs[1].name == "placed"
+    assert m.jobs[0].pose.height == 0.9
+    np.testing.assert_allclose(m.jobs[0].pose.position, [0.1, -0.9, -3.0])
+    assert m.jobs[1].placement.pixel == (20.0, 25.0)
+    assert m.defaults.seed == 469 and m.defaults.renderer.name == "physical"
+
+
+def test_all_problems_reported_with_lines(scene_dir):
+    bad = GOOD.replace("albedo: scenes/albedo.exr", "albedo: scenes/small_albedo.exr")
+    bad = bad.replace("fov_deg: 50", "fov_deg: 50\n    colour: red")
+    bad = bad.replace("objects/chair.glb", "objects/missing.glb")
+    bad = bad.replace("position: [0.1, -0.9, -3.0]", "position: [0.1, -0.9]")
+    bad = bad.replace("pixel: [20, 25]", "pixel: [200, 25]")
+    p = scene_dir / "jobs.yaml"
+    p.write_text(bad)
+    with pytest.raises(ManifestError) as ei:
+        load_manifest(p)
+    msg = str(ei.value)
+    probs = ei.value.problems
+    assert len(probs) == 5, msg
+    assert any("scenes.room.colour" in x and "unknown key" in x and "jobs.yaml:7" in x for x in probs), msg
+    assert any("scenes.room.albedo" in x and "40x10" in x for x in probs), msg
+    assert any("objects.chair.mesh" in x and "file not found" in x for x in probs), msg
+    assert any("jobs[0].pose.position" in x for x in probs), msg
+    assert any("jobs[1].placement.pixel" in x and "outside" in x for x in probs), msg
+    assert ei.value.exit_code == 2
+
+
+@pytest.mark.parametrize(
+    "text, needle",
+    [
+        ("version: 1\nscenes: {}\nobjects: {}\njobs: []\n", "non-empty"),
+        ("- a\n- b\n", "must be a mapping"),
+        ("version: 2\n" + GOOD.split("\n", 1)[1], "unsupported manifest version"),
+        (GOOD.replace("scene: room, object: chair, pose", "scene: kitchen, object: chair, pose"), "unknown scene"),
+        (GOOD.replace(", output: placed", ", output: 000_room_chair"), "also used by"),
+        (GOOD + "  - {scene: room, object: chair}\n", "exactly one of 'pose'"),
+        (GOOD.replace("seed: 469", "seed: abc"), "defaults.seed"),
+        ("version: 1\nscenes: [\n", "invalid YAML"),
+        (GOOD.replace("fov_deg: 50", "fov_deg: 50\n    K: [[1,0,0],[0,1,0],[0,0,1]]"), "not both"),
+        (GOOD.replace("defaults: {", "defaults: {resolution: [64, 64], "), "aspect ratio"),
+    ],
+)
+def test_manifest_problems(scene_dir, text, needle):
+    p = scene_dir / "jobs.yaml"
+    p.write_text(text)
+    with pytest.raises(ManifestError) as ei:
+        load_manifest(p)
+    assert needle in str(ei.value)
+
+
+def test_missing_manifest(tmp_path):
+    with pytest.raises(ManifestError, match="file not found"):
+        load_manifest(tmp_path / "nope.yaml")
