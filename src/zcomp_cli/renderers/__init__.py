@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from zcomp_cli.renderers.base import Renderer, RenderOutput, RenderRequest, SceneMaps
 
-RENDERERS = ("physical", "zerocomp")
+RENDERERS = ("physical", "zerocomp", "naive")
 
 
 def get_renderer(name: str, **settings) -> Renderer:
@@ -21,6 +21,10 @@ def get_renderer(name: str, **settings) -> Renderer:
         from zcomp_cli.renderers.zerocomp import ZeroCompRenderer
 
         return ZeroCompRenderer(**settings)
+    if name == "naive":
+        from zcomp_cli.renderers.naive import NaiveRenderer
+
+        return NaiveRenderer(**settings)
     raise UsageError(f"unknown renderer {name!r}; choose one of {', '.join(RENDERERS)}")
 
 
