@@ -10,8 +10,8 @@ from zcomp_cli.cli.options import debug_opt, out_dir_opt, overwrite_opt, resume_
 @click.command("composite")
 @click.argument("manifest", type=click.Path(dir_okay=False))
 @out_dir_opt
-@click.option("--renderer", type=click.Choice(["physical", "zerocomp"]), default=None,
-              help="Override the manifest's renderer (default: physical).")
+@click.option("--renderer", type=click.Choice(["physical", "zerocomp", "naive"]), default=None,
+              help="Override the manifest's renderer (default: physical; naive = baseline paste).")
 @click.option("--weights", type=click.Path(file_okay=False), default=None,
               help="zerocomp: the ControlNet checkpoint directory (holding controlnet/).")
 @click.option("--base", "base_dir", type=click.Path(file_okay=False), default=None,
