@@ -24,6 +24,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import dataclass, field
 from importlib import resources
@@ -140,7 +141,20 @@ def _run_one_process(path, items, common, on_event, log, result, item_timeout_s)
             bufsize=1,
         )
         current: str | None = None
-        t_item = time.monotonic()
+        # A watchdog, not the reading loop, enforces the per-item limit: a hung Blender
+        # prints nothing, so a check between lines would never run.
+        state = {"current": None, "t": time.monotonic(), "stop": False}
+
+        def _watchdog():
+            while not state["stop"] and proc.poll() is None:
+                if state["current"] is not None and time.monotonic() - state["t"] > item_timeout_s:
+                    log.write(f"\n[zcomp] item {state['current']} exceeded {item_timeout_s:.0f} s: killing Blender\n")
+                    proc.kill()
+                    return
+                time.sleep(0.5)
+
+        watchdog = threading.Thread(target=_watchdog, daemon=True)
+        watchdog.start()
         try:
             assert proc.stdout is not None
             for line in proc.stdout:
@@ -157,16 +171,16 @@ def _run_one_process(path, items, common, on_event, log, result, item_timeout_s)
                     result.startup_s.append(float(ev.get("startup_s", float("nan"))))
                 elif kind == "start":
                     current = str(ev.get("id"))
-                    t_item = time.monotonic()
+                    state["t"] = time.monotonic()
+                    state["current"] = current
                 elif kind in ("done", "error"):
                     result.results[str(ev.get("id"))] = ev
                     current = None
+                    state["current"] = None
                 if on_event:
                     on_event(ev)
-                if current is not None and time.monotonic() - t_item > item_timeout_s:
-                    proc.kill()
-                    break
         finally:
+            state["stop"] = True
             try:
                 proc.wait(timeout=60)
             except subprocess.TimeoutExpired:

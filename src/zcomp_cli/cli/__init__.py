@@ -89,7 +89,7 @@ def main(argv: list[str] | None = None) -> None:
 
     verbose = any(a in ("-v", "-vv", "--verbose") for a in (argv or sys.argv[1:]))
     try:
-        cli.main(args=argv, prog_name="zcomp", standalone_mode=False)
+        rv = cli.main(args=argv, prog_name="zcomp", standalone_mode=False)
     except ZcompError as exc:
         if verbose:
             import traceback
@@ -108,3 +108,5 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(130)
     except click.exceptions.Exit as exc:
         sys.exit(exc.exit_code)
+    # With standalone_mode=False, click returns ctx.exit()'s code instead of exiting.
+    sys.exit(rv if isinstance(rv, int) else 0)

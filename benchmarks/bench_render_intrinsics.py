@@ -1,0 +1,94 @@
+"""Benchmark ``render_object_intrinsics``: seconds per object-pose in one Blender batch
+(excluding Blender start-up) and the start-up cost itself.
+
+    .venv/bin/python benchmarks/bench_render_intrinsics.py [--n 20] [--res 512] [--samples 16]
+
+The mesh is generated (an icosphere, a torus and a base slab from trimesh primitives,
+~27k triangles, random vertex colours, saved as GLB), so the benchmark needs no data. The cache is bypassed (``use_cache=False``). Start-up is the time
+from process launch to bpy imported and reset, as reported by the script's ``ready``
+event; per-item time is the batch wall time minus start-up, divided by the item count
+(it includes the parent's EXR conversion and bundle writing, which overlap Blender).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+
+def make_mesh(path: Path) -> int:
+    import numpy as np
+    import trimesh
+
+    parts = [
+        trimesh.creation.icosphere(subdivisions=5, radius=0.5),
+        trimesh.creation.torus(major_radius=0.6, minor_radius=0.15, major_sections=96, minor_sections=32),
+        trimesh.creation.box(extents=(1.4, 0.1, 1.4)),
+    ]
+    parts[0].apply_translation((0, 0.6, 0))
+    parts[1].apply_translation((0, 0.6, 0))
+    parts[2].apply_translation((0, 0.05, 0))
+    mesh = trimesh.util.concatenate(parts)
+    rng = np.random.default_rng(0)
+    mesh.visual.vertex_colors = (rng.random((len(mesh.vertices), 4)) * 255).astype(np.uint8)
+    mesh.export(path)
+    return len(mesh.faces)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n", type=int, default=20, help="object-poses in the batch")
+    ap.add_argument("--res", type=int, default=512, help="square resolution")
+    ap.add_argument("--samples", type=int, default=16)
+    ap.add_argument("--json", type=str, default=None, help="also write the figures here")
+    args = ap.parse_args(argv)
+
+    from zcomp_cli.blender.intrinsics import IntrinsicsRequest, render_object_intrinsics
+    from zcomp_cli.camera import Camera
+    from zcomp_cli.pose import Pose, euler_deg_to_matrix
+
+    with tempfile.TemporaryDirectory(prefix="zcomp-bench-") as tmp:
+        tmp = Path(tmp)
+        faces = make_mesh(tmp / "bench.glb")
+        cam = Camera.from_fov(50.0, args.res, args.res)
+        reqs = []
+        for i in range(args.n):
+            pose = Pose(position=(0.3 * ((i % 5) - 2) / 2, -0.6, -3.0 - 0.1 * i),
+                        rotation=euler_deg_to_matrix(0, 360.0 * i / args.n, 0), height=1.0)
+            reqs.append(IntrinsicsRequest(f"item{i:02d}", tmp / "bench.glb", pose, cam, tmp / "out" / f"{i:02d}"))
+        stats: dict = {}
+        t0 = time.monotonic()
+        res = render_object_intrinsics(reqs, samples=args.samples, use_cache=False, stats=stats)
+        wall = time.monotonic() - t0
+    failed = [r for r in res if not r.ok]
+    if failed:
+        print(f"{len(failed)} items failed, e.g. {failed[0].id}: {failed[0].error}", file=sys.stderr)
+        return 1
+    startup = sum(stats.get("startup_s", [])) or float("nan")
+    figures = {
+        "items": args.n,
+        "resolution": args.res,
+        "samples": args.samples,
+        "mesh_faces": faces,
+        "batch_wall_s": round(wall, 3),
+        "blender_startup_s": round(startup, 3),
+        "seconds_per_item_excl_startup": round((wall - startup) / args.n, 3),
+        "median_item_seconds_reported": round(statistics.median(r.seconds for r in res), 3),
+        "cpu_count": os.cpu_count(),
+        "machine": platform.processor() or platform.machine(),
+    }
+    print(json.dumps(figures, indent=2))
+    if args.json:
+        Path(args.json).write_text(json.dumps(figures, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

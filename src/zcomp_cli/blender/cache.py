@@ -1,0 +1,95 @@
+"""On-disk cache of object intrinsics bundles.
+
+Key: sha256 of (mesh content hash, pose, K, resolution, render settings, script
+version). An entry is a bundle folder ``<cache>/<key[:2]>/<key>/``; it is complete only
+when its ``meta.json`` exists (written last), so entries left by a crash are ignored and
+overwritten. Entries are created in a temporary sibling folder and renamed into place.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+from pathlib import Path
+
+from zcomp_cli.bundle import ObjectBundle
+
+ENV_VAR = "ZCOMP_CACHE_DIR"
+
+
+def default_cache_dir() -> Path:
+    """``$ZCOMP_CACHE_DIR`` or ``~/.cache/zcomp/intrinsics``."""
+    env = os.environ.get(ENV_VAR)
+    return Path(env).expanduser() if env else Path.home() / ".cache" / "zcomp" / "intrinsics"
+
+
+def _canon(x):
+    """JSON-stable form: floats rounded to 1e-9 absolute and 12 significant digits, -0.0
+    made 0.0 (so that float noise such as 0.1 + 0.2 vs 0.3 does not change a key)."""
+    if isinstance(x, float):
+        return float(f"{round(x, 9):.12g}") + 0.0
+    if isinstance(x, dict):
+        return {str(k): _canon(v) for k, v in sorted(x.items())}
+    if isinstance(x, (list, tuple)):
+        return [_canon(v) for v in x]
+    if hasattr(x, "tolist"):
+        return _canon(x.tolist())
+    return x
+
+
+def cache_key(*, mesh_hash: str, pose: dict, K, resolution, settings: dict, version: str) -> str:
+    """sha256 hex of everything a render depends on."""
+    payload = {"mesh": mesh_hash, "pose": pose, "K": K, "resolution": list(resolution),
+               "settings": settings, "version": version}
+    blob = json.dumps(_canon(payload), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(blob.encode()).hexdigest()
+
+
+def entry_dir(cache_dir, key: str) -> Path:
+    return Path(cache_dir) / key[:2] / key
+
+
+def lookup(cache_dir, key: str) -> Path | None:
+    """The complete cache entry for ``key``, or None."""
+    d = entry_dir(cache_dir, key)
+    return d if ObjectBundle.is_complete(d) else None
+
+
+def copy_bundle(src, dst) -> None:
+    """Copy a bundle folder's files into ``dst`` (hard links when possible), meta.json
+    last so a reader never sees a complete-looking partial copy. Stale optional maps
+    already in ``dst`` are removed."""
+    src, dst = Path(src), Path(dst)
+    dst.mkdir(parents=True, exist_ok=True)
+    stale_meta = dst / "meta.json"
+    if stale_meta.exists():
+        stale_meta.unlink()
+    names = {p.name for p in src.iterdir() if p.is_file()}
+    for name in ("roughness.exr", "metallic.exr"):
+        if name not in names and (dst / name).exists():
+            (dst / name).unlink()
+    for name in sorted(names - {"meta.json"}) + (["meta.json"] if "meta.json" in names else []):
+        target = dst / name
+        tmp = dst / f".{name}.tmp"
+        if tmp.exists():
+            tmp.unlink()
+        try:
+            os.link(src / name, tmp)
+        except OSError:
+            shutil.copy2(src / name, tmp)
+        os.replace(tmp, target)
+
+
+def store(cache_dir, key: str, bundle_folder) -> Path:
+    """Move a finished bundle folder into the cache under ``key``; returns the entry."""
+    final = entry_dir(cache_dir, key)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    if final.exists():
+        shutil.rmtree(final, ignore_errors=True)
+    try:
+        os.replace(bundle_folder, final)
+    except OSError:  # another filesystem: copy instead
+        copy_bundle(bundle_folder, final)
+    return final

@@ -1,0 +1,390 @@
+"""Object intrinsics (depth, normals, albedo, mask, footprint) rendered by Blender.
+
+The Python API the compositing pipeline and ``zcomp render-intrinsics`` use::
+
+    results = render_object_intrinsics([IntrinsicsRequest(id, mesh, pose, camera, out_dir)])
+
+Steps for a batch:
+
+1. prepare every request in the parent: read and hash the mesh (trimesh), place it
+   (``Pose.object_to_camera`` on its bounding box), refuse objects behind the camera
+   or outside the view, derive the Blender camera from K, compute the cache key;
+2. answer cache hits by copying (hard-linking) the cached bundle;
+3. render the rest in ONE Blender process (``blender_scripts/render_intrinsics.py``
+   through ``runner.run_blender_batch``): appearance, geometry and footprint passes;
+4. as each item finishes, convert its passes in numpy (``passes``) into an
+   ``ObjectBundle``, store it in the cache, copy it to the item's output folder.
+
+A failure of one item (bad mesh, Blender crash, object out of view) is reported in its
+``IntrinsicsResult``; the function never raises for a per-item failure.
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from zcomp_cli.camera import Camera
+from zcomp_cli.errors import InputError, ZcompError
+from zcomp_cli.pose import Pose, transform_points
+
+from . import cache as _cache
+from .meshes import MeshInfo, check_in_view, load_mesh_info
+
+__all__ = [
+    "IntrinsicsRequest",
+    "IntrinsicsResult",
+    "render_object_intrinsics",
+    "blender_camera_from_K",
+    "footprint_matrix",
+    "SCRIPT",
+    "SCRIPT_VERSION",
+    "DEFAULT_SAMPLES",
+]
+
+SCRIPT = "render_intrinsics.py"
+# Bump when the script or the conversions change what a bundle holds: old cache
+# entries then stop matching.
+SCRIPT_VERSION = "1"
+DEFAULT_SAMPLES = 16
+# The footprint is the mesh squashed to this fraction of its height onto its base plane
+# (not exactly 0, which would give Blender a singular object matrix).
+FOOTPRINT_FLATTEN = 1e-6
+
+
+@dataclass(frozen=True)
+class IntrinsicsRequest:
+    """One object x pose x camera to render. ``out_dir`` None: the bundle stays in the
+    cache (or a temporary folder without a cache) and its path is returned."""
+
+    id: str
+    mesh: Path
+    pose: Pose
+    camera: Camera
+    out_dir: Path | None = None
+
+
+@dataclass
+class IntrinsicsResult:
+    """Outcome of one request: ``bundle_dir`` holds an ``ObjectBundle`` when ``ok``."""
+
+    id: str
+    ok: bool
+    bundle_dir: Path | None = None
+    error: str | None = None
+    cached: bool = False
+    seconds: float = 0.0
+
+
+@dataclass
+class _Prepared:
+    index: int
+    request: IntrinsicsRequest
+    mesh: MeshInfo
+    mesh_to_camera: np.ndarray
+    footprint_to_camera: np.ndarray
+    blender_camera: dict
+    key: str
+    meta: dict = field(default_factory=dict)
+    t0: float = 0.0
+
+
+def blender_camera_from_K(K, width: int, height: int, *, sensor_width_mm: float = 36.0) -> dict:
+    """Blender camera settings reproducing pinhole ``K`` for a ``width`` x ``height`` image.
+
+    With ``sensor_fit = 'HORIZONTAL'`` the focal length is ``fx * sensor_width / width``
+    and both lens shifts are fractions of the image width: ``shift_x = (W/2 - cx) / W``,
+    ``shift_y = (cy - H/2) / W`` (pixel rows grow downward, Blender's y upward).
+
+    Returns ``{"lens_mm", "sensor_width_mm", "shift_x", "shift_y"}``.
+    Raises InputError for non-square pixels (fx != fy) or a skewed K, which a Blender
+    camera with square pixels cannot represent.
+    """
+    K = np.asarray(K, dtype=np.float64)
+    if K.shape != (3, 3) or not np.all(np.isfinite(K)):
+        raise InputError(f"K must be a finite 3x3 matrix, got {K.tolist()}")
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    if fx <= 0 or fy <= 0:
+        raise InputError(f"K focal lengths must be positive, got fx={fx}, fy={fy}")
+    if abs(fx - fy) > 1e-6 * max(fx, fy):
+        raise InputError(f"non-square pixels are not supported (fx={fx:g} != fy={fy:g})")
+    if abs(K[0, 1]) > 1e-9 or np.any(np.abs(K[2] - [0, 0, 1]) > 1e-9) or abs(K[1, 0]) > 1e-9:
+        raise InputError("K must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (no skew)")
+    if width <= 0 or height <= 0:
+        raise InputError(f"resolution must be positive, got {width}x{height}")
+    return {
+        "lens_mm": float(fx * sensor_width_mm / width),
+        "sensor_width_mm": float(sensor_width_mm),
+        "shift_x": float((width / 2.0 - cx) / width),
+        "shift_y": float((cy - height / 2.0) / width),
+    }
+
+
+def footprint_matrix(mesh_to_camera, bbox_min, *, flatten: float = FOOTPRINT_FLATTEN) -> np.ndarray:
+    """4x4 mesh->camera matrix of the mesh flattened onto its support plane.
+
+    In mesh coordinates (Y-up) the flattening keeps x and z and maps
+    ``y -> min_y + flatten * (y - min_y)``; ``mesh_to_camera`` then carries the plane
+    ``y = min_y`` to the support plane through the pose's base point, perpendicular to
+    ``Pose.up``.
+    """
+    M = np.asarray(mesh_to_camera, dtype=np.float64)
+    min_y = float(np.asarray(bbox_min, dtype=np.float64)[1])
+    flat = np.eye(4)
+    flat[1, 1] = flatten
+    flat[1, 3] = (1.0 - flatten) * min_y
+    return M @ flat
+
+
+def _prepare(i: int, req: IntrinsicsRequest, settings: dict, mesh_cache: dict) -> _Prepared:
+    if not isinstance(req.camera, Camera):
+        raise InputError("camera must be a zcomp_cli.camera.Camera")
+    if not isinstance(req.pose, Pose):
+        raise InputError("pose must be a zcomp_cli.pose.Pose")
+    mesh_path = Path(req.mesh)
+    # One read and hash per mesh file, however many poses use it.
+    ck = str(mesh_path.resolve()) if mesh_path.exists() else str(mesh_path)
+    if ck not in mesh_cache:
+        try:
+            mesh_cache[ck] = load_mesh_info(mesh_path)
+        except ZcompError as exc:
+            mesh_cache[ck] = exc
+    info = mesh_cache[ck]
+    if isinstance(info, Exception):
+        raise info
+    cam = req.camera
+    bcam = blender_camera_from_K(cam.K, cam.width, cam.height)
+    M = req.pose.object_to_camera(info.bbox_min, info.bbox_max)
+    check_in_view(transform_points(M, info.vertices), cam)
+    F = footprint_matrix(M, info.bbox_min)
+    key = _cache.cache_key(
+        mesh_hash=info.content_hash, pose=req.pose.to_dict(), K=cam.K,
+        resolution=(cam.width, cam.height), settings=settings, version=SCRIPT_VERSION,
+    )
+    s = req.pose.uniform_scale(info.bbox_min, info.bbox_max)
+    meta = {
+        "id": req.id,
+        "mesh": str(info.path),
+        "mesh_hash": info.content_hash,
+        "mesh_format": info.format,
+        "mesh_bbox_min": info.bbox_min.tolist(),
+        "mesh_bbox_max": info.bbox_max.tolist(),
+        "pose": req.pose.to_dict(),
+        "object_to_camera": M.tolist(),
+        "object_height_m": float(s * (info.bbox_max[1] - info.bbox_min[1])),
+        "up_camera": req.pose.up.tolist(),
+        "base_point_camera": list(req.pose.position),
+        "render_settings": settings,
+        "script_version": SCRIPT_VERSION,
+        "cache_key": key,
+        "conventions": {
+            "depth": "z-depth, metres, 0 = no surface at the pixel centre",
+            "normals": "camera frame, OpenGL (x right, y up, +z toward the viewer), unit",
+            "albedo": "linear RGB base colour",
+            "mask": "anti-aliased coverage",
+            "footprint_depth": "z-depth of the mesh flattened on its support plane, 0 outside",
+        },
+    }
+    return _Prepared(i, req, info, M, F, bcam, key, meta)
+
+
+def _finish(p: _Prepared, event: dict, work_dir: Path) -> Path:
+    """Convert a finished render into a bundle folder inside ``work_dir``."""
+    from zcomp_cli.bundle import ObjectBundle
+
+    from .passes import appearance_maps, footprint_depth, geometry_maps, read_multilayer_exr
+
+    files = event.get("files") or {}
+    try:
+        app = appearance_maps(read_multilayer_exr(files["appearance"]))
+        depth, normals, _ = geometry_maps(read_multilayer_exr(files["geometry"]))
+        fp = footprint_depth(read_multilayer_exr(files["footprint"]))
+    except KeyError as exc:
+        raise InputError(f"Blender reported no {exc} render") from exc
+    if float(app["mask"].max(initial=0.0)) <= 0.0 and not np.any(depth > 0):
+        from zcomp_cli.errors import GeometryError
+
+        raise GeometryError("object covers no pixel of the image (too small or out of view)")
+    meta = dict(p.meta)
+    meta["blender_version"] = event.get("blender_version")
+    meta["render_seconds"] = float(event.get("seconds", float("nan")))
+    bundle = ObjectBundle(
+        depth=depth, normals=normals, albedo=app["albedo"], mask=app["mask"],
+        footprint_depth=fp, camera=p.request.camera, meta=meta,
+        roughness=app.get("roughness") if event.get("has_roughness") else None,
+        metallic=app.get("metallic") if event.get("has_metallic") else None,
+    )
+    folder = work_dir / f"bundle-{p.index}"
+    bundle.save(folder)
+    return folder
+
+
+def _deliver(bundle_folder: Path, p: _Prepared, cache_dir: Path | None) -> Path:
+    """Put a finished bundle into the cache and/or the request's output folder."""
+    out = Path(p.request.out_dir) if p.request.out_dir is not None else None
+    if cache_dir is not None:
+        entry = _cache.store(cache_dir, p.key, bundle_folder)
+        if out is None:
+            return entry
+        _cache.copy_bundle(entry, out)
+        return out
+    if out is None:
+        keep = Path(tempfile.mkdtemp(prefix=f"zcomp-intrinsics-{_safe(p.request.id)}-"))
+        _cache.copy_bundle(bundle_folder, keep)
+        return keep
+    _cache.copy_bundle(bundle_folder, out)
+    return out
+
+
+def _safe(s: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in str(s))[:40]
+
+
+def render_object_intrinsics(
+    requests: list[IntrinsicsRequest],
+    *,
+    cache_dir: str | Path | None = None,
+    samples: int = DEFAULT_SAMPLES,
+    progress: Callable[[int, int, str], None] | None = None,
+    use_cache: bool = True,
+    log_path: str | Path | None = None,
+    stats: dict | None = None,
+) -> list[IntrinsicsResult]:
+    """Render (or fetch from the cache) the intrinsics bundle of every request.
+
+    Args:
+        requests: items with unique ids.
+        cache_dir: cache folder (default ``$ZCOMP_CACHE_DIR`` or
+            ``~/.cache/zcomp/intrinsics``); ignored when ``use_cache`` is False.
+        samples: Cycles samples of the anti-aliased pass (mask, albedo); depth and
+            normals always come from one sample through each pixel centre.
+        progress: called as ``progress(done_count, total, id)`` after every item.
+        use_cache: False renders everything and stores nothing in the cache.
+        log_path: where Blender's own output goes (default: a temporary file).
+        stats: if given, filled with ``startup_s`` (Blender start-up seconds per
+            process), ``restarts`` and ``log_path`` of the batch (benchmarks, reports).
+    Returns:
+        One ``IntrinsicsResult`` per request, in the same order.
+    """
+    ids = [str(r.id) for r in requests]
+    if len(set(ids)) != len(ids):
+        dup = sorted({i for i in ids if ids.count(i) > 1})
+        raise InputError(f"request ids must be unique, repeated: {dup}")
+    if not (isinstance(samples, int) and samples >= 1):
+        raise InputError(f"samples must be an integer >= 1, got {samples!r}")
+    total = len(requests)
+    results: list[IntrinsicsResult | None] = [None] * total
+    done = 0
+
+    def report(i: int, res: IntrinsicsResult) -> None:
+        nonlocal done
+        results[i] = res
+        done += 1
+        if progress is not None:
+            progress(done, total, res.id)
+
+    settings = {"engine": "CYCLES", "samples": int(samples), "geometry_samples": 1,
+                "filter_width": 1.5, "footprint_flatten": FOOTPRINT_FLATTEN}
+    cdir = Path(cache_dir).expanduser() if cache_dir is not None else _cache.default_cache_dir()
+    cdir = cdir if use_cache else None
+
+    # 1. prepare
+    prepared: list[_Prepared] = []
+    mesh_cache: dict = {}
+    for i, req in enumerate(requests):
+        t0 = time.monotonic()
+        try:
+            p = _prepare(i, req, settings, mesh_cache)
+            p.t0 = t0
+        except (ZcompError, ValueError) as exc:
+            report(i, IntrinsicsResult(str(req.id), False, error=str(exc), seconds=time.monotonic() - t0))
+            continue
+        # 2. cache hits
+        hit = _cache.lookup(cdir, p.key) if cdir is not None else None
+        if hit is not None:
+            try:
+                bundle_dir = hit
+                if req.out_dir is not None:
+                    _cache.copy_bundle(hit, req.out_dir)
+                    bundle_dir = Path(req.out_dir)
+                report(i, IntrinsicsResult(str(req.id), True, bundle_dir, cached=True,
+                                           seconds=time.monotonic() - t0))
+            except OSError as exc:
+                report(i, IntrinsicsResult(str(req.id), False, error=f"cannot copy cached bundle: {exc}"))
+            continue
+        prepared.append(p)
+    if not prepared:
+        return results  # type: ignore[return-value]
+
+    # 3. render the rest in one Blender process
+    from .runner import run_blender_batch
+
+    if cdir is not None:
+        cdir.mkdir(parents=True, exist_ok=True)
+    # Work folder on the cache's filesystem so finished bundles move in by rename.
+    work = Path(tempfile.mkdtemp(prefix=".work-", dir=cdir)) if cdir is not None else Path(
+        tempfile.mkdtemp(prefix="zcomp-intrinsics-work-"))
+    by_id = {str(p.request.id): p for p in prepared}
+    items = []
+    for p in prepared:
+        wd = work / f"item-{p.index}"
+        wd.mkdir()
+        items.append({
+            "id": str(p.request.id), "mesh": str(p.mesh.path), "format": p.mesh.format,
+            "mesh_to_camera": p.mesh_to_camera.tolist(),
+            "footprint_to_camera": p.footprint_to_camera.tolist(),
+            "K": p.request.camera.K.tolist(), "width": p.request.camera.width,
+            "height": p.request.camera.height, "camera": p.blender_camera, "work_dir": str(wd),
+        })
+
+    def on_event(ev: dict) -> None:
+        kind, iid = ev.get("event"), str(ev.get("id"))
+        if kind == "start" and iid in by_id:
+            by_id[iid].t0 = time.monotonic()
+        if kind not in ("done", "error") or iid not in by_id:
+            return
+        p = by_id[iid]
+        if results[p.index] is not None:
+            return
+        if kind == "error":
+            report(p.index, IntrinsicsResult(iid, False, error=f"Blender: {ev.get('error')}",
+                                             seconds=time.monotonic() - p.t0))
+            return
+        # 4. convert, cache, deliver -- while Blender renders the next item
+        t_conv = time.monotonic()
+        blender_s = float(ev.get("seconds", 0.0))
+        try:
+            folder = _finish(p, ev, work)
+            bundle_dir = _deliver(folder, p, cdir)
+            report(p.index, IntrinsicsResult(iid, True, bundle_dir,
+                                             seconds=blender_s + time.monotonic() - t_conv))
+        except (ZcompError, OSError, ValueError) as exc:
+            report(p.index, IntrinsicsResult(iid, False, error=str(exc),
+                                             seconds=blender_s + time.monotonic() - t_conv))
+
+    try:
+        batch = run_blender_batch(SCRIPT, items, common={"samples": int(samples)},
+                                  on_event=on_event, log_path=log_path)
+        if stats is not None:
+            stats.update(startup_s=list(batch.startup_s), restarts=batch.restarts,
+                         log_path=str(batch.log_path))
+        for p in prepared:  # anything the runner settled without telling on_event
+            if results[p.index] is None:
+                ev = batch.results.get(str(p.request.id), {"event": "error", "error": "no result"})
+                on_event({**ev, "id": str(p.request.id)})
+                if results[p.index] is None:
+                    report(p.index, IntrinsicsResult(str(p.request.id), False,
+                                                     error=f"Blender: {ev.get('error', 'no result')}"))
+    except Exception as exc:  # noqa: BLE001 -- the batch as a whole failed to run
+        for p in prepared:
+            if results[p.index] is None:
+                report(p.index, IntrinsicsResult(str(p.request.id), False, error=f"Blender batch failed: {exc}"))
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    return results  # type: ignore[return-value]
