@@ -55,6 +55,21 @@ class LazyGroup(click.Group):
         module, attr, _ = _COMMANDS[name]
         return getattr(importlib.import_module(module), attr)
 
+    def invoke(self, ctx):
+        # Typed errors become a clean message and exit code here (not only in main()),
+        # so that click's test runner and `python -m zcomp_cli` behave the same.
+        from zcomp_cli.errors import ZcompError
+
+        try:
+            return super().invoke(ctx)
+        except ZcompError as exc:
+            if (ctx.obj or {}).get("verbose"):
+                import traceback
+
+                traceback.print_exc()
+            click.secho(f"Error: {exc}", fg="red", err=True)
+            ctx.exit(exc.exit_code)
+
     def format_commands(self, ctx, formatter):
         # Short help from the table: listing commands must not import them.
         rows = [(n, _COMMANDS[n][2]) for n in self.list_commands(ctx)]

@@ -1,0 +1,105 @@
+"""`zcomp composite` end to end on the shipped example (Blender renders the objects)."""
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from click.testing import CliRunner
+
+from zcomp_cli.cli import cli
+from zcomp_cli.imageio import read_image
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+pytestmark = [pytest.mark.blender]
+
+
+def _small_example(tmp_path: Path, jobs=None) -> Path:
+    """A copy of the example manifest working at 256 x 192, with absolute paths."""
+    m = yaml.safe_load((EXAMPLES / "jobs.yaml").read_text())
+    m["defaults"]["resolution"] = [256, 192]
+    m["defaults"]["samples"] = 4
+    for s in m["scenes"].values():
+        for k in ("image", "depth", "normals", "albedo"):
+            s[k] = str(EXAMPLES / s[k])
+    for o in m["objects"].values():
+        o["mesh"] = str(EXAMPLES / o["mesh"])
+    for j in m["jobs"]:
+        if "reference" in j:
+            j["reference"] = str(EXAMPLES / j["reference"])
+        if "placement" in j:
+            j["placement"]["pixel"] = [v / 2 for v in j["placement"]["pixel"]]
+    if jobs is not None:
+        m["jobs"] = [m["jobs"][i] for i in jobs]
+    p = tmp_path / "jobs.yaml"
+    p.write_text(yaml.safe_dump(m))
+    return p
+
+
+def _run(*args):
+    return CliRunner().invoke(cli, list(args), catch_exceptions=False)
+
+
+def test_naive_batch_outputs_resume_overwrite(tmp_path):
+    manifest = _small_example(tmp_path, jobs=[0, 2])
+    out = tmp_path / "out"
+    r = _run("composite", str(manifest), "--out", str(out), "--renderer", "naive", "--debug")
+    assert r.exit_code == 0, r.output
+    jobs = sorted(p.name for p in out.iterdir() if p.is_dir())
+    assert len(jobs) == 2
+    for name in jobs:
+        d = out / name
+        for f in ("composite.png", "composite.exr", "report.json", "grid.png", "debug/f_bg.exr"):
+            assert (d / f).is_file(), f
+        rep = json.loads((d / "report.json").read_text())
+        assert rep["status"] == "done" and rep["renderer"]["settings"]["name"] == "naive"
+        assert set(rep["timings"]) >= {"align_s", "shading_mask_s", "render_s", "compositor_s"}
+        img = read_image(d / "composite.exr")
+        assert img.shape == (192, 256, 3) and np.all(np.isfinite(img))
+    assert not list(out.rglob("*.tmp*")), "temporary files left behind"
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["done"] == 2 and summary["failed"] == 0
+
+    # Existing outputs are never replaced silently.
+    r = _run("composite", str(manifest), "--out", str(out), "--renderer", "naive")
+    assert r.exit_code == 2 and "--resume" in r.output
+    # --resume skips both.
+    r = _run("composite", str(manifest), "--out", str(out), "--renderer", "naive", "--resume")
+    assert r.exit_code == 0 and "2 skipped" in r.output
+    # --overwrite redoes them.
+    r = _run("composite", str(manifest), "--out", str(out), "--renderer", "naive", "--overwrite", "--jobs", "1")
+    assert r.exit_code == 0 and "1 done" in r.output
+
+
+def test_failed_job_does_not_stop_batch(tmp_path):
+    manifest = _small_example(tmp_path, jobs=[0, 1])
+    m = yaml.safe_load(manifest.read_text())
+    bad = tmp_path / "broken.glb"
+    bad.write_bytes(b"this is not a glb file")
+    m["objects"]["broken"] = {"mesh": str(bad)}
+    m["jobs"].insert(1, {"scene": "room", "object": "broken", "pose": {"position": [0, -0.5, -3]}})
+    # an object fully outside the frame
+    m["jobs"].append({"scene": "room", "object": "vase", "pose": {"position": [40, 0, -3]}, "output": "outside"})
+    manifest.write_text(yaml.safe_dump(m))
+    out = tmp_path / "out"
+    r = _run("composite", str(manifest), "--out", str(out), "--renderer", "naive")
+    assert r.exit_code == 1, r.output
+    summary = json.loads((out / "summary.json").read_text())
+    st = {j["name"]: j for j in summary["jobs"]}
+    assert summary["done"] == 2 and summary["failed"] == 2
+    assert "broken" in st["001_room_broken"]["reason"]
+    assert st["outside"]["status"] == "failed" and "outside" in st["outside"]["reason"].lower()
+    assert not (out / "001_room_broken" / "report.json").exists()
+
+
+def test_usage_errors(tmp_path):
+    manifest = _small_example(tmp_path, jobs=[0])
+    r = _run("composite", str(manifest), "--out", str(tmp_path / "o"), "--jobs", "7")
+    assert r.exit_code == 2 and "out of range" in r.output
+    r = _run("composite", str(manifest), "--out", str(tmp_path / "o"), "--resume", "--overwrite")
+    assert r.exit_code == 2
+    r = _run("composite", str(manifest), "--out", str(tmp_path / "o"), "--weights", str(tmp_path))
+    assert r.exit_code == 2 and "zerocomp" in r.output
