@@ -29,6 +29,12 @@ test: $(STAMP)
 test-fast: $(STAMP)
 	$(BIN)/python -m pytest -q -ra -m "not blender and not slow"
 
+# The benchmark of issue 4: Cycles ground truth, then every method, then the table.
+BENCH_N ?= 20
+BENCH_RES ?= 256 256
+bench: $(STAMP)
+	$(BIN)/python benchmarks/run_benchmark.py --out out/bench --n $(BENCH_N) --resolution $(BENCH_RES)
+
 bench-intrinsics: $(STAMP)
 	$(BIN)/python benchmarks/bench_render_intrinsics.py
 
