@@ -150,6 +150,9 @@ def _estimate_missing(spec, image, camera, maps, sources, cache_dir):
         cache_dir=cache_dir,
     )
     out = dict(maps)
+    notes = list(getattr(est, "notes", []) or [])
+    if notes:
+        sources["notes"] = "; ".join(notes)
     for name in ("depth", "normals", "albedo"):
         if name not in out:
             out[name] = getattr(est, name)

@@ -1,0 +1,98 @@
+"""``zcomp estimate jobs.yaml --out DIR``: precompute a manifest's missing scene maps.
+
+Writes, per scene, ``OUT/<scene>/{depth,normals,albedo,shading}.exr``, ``sources.json``
+(which map came from where) and ``preview.png`` (image, depth, normals, albedo and
+shading side by side). Estimates land in the cache shared with ``zcomp composite``.
+"""
+
+from __future__ import annotations
+
+import click
+
+from zcomp_cli.cli.options import out_dir_opt
+
+
+def preview_sheet(image, depth, normals, albedo, shading):
+    """(H, 5W, 3) float32 display sheet in [0, 1] (already display-encoded): sRGB image,
+    turbo-coloured inverse depth, normals * 0.5 + 0.5, sRGB albedo, sRGB shading
+    normalised by its 99th percentile."""
+    import numpy as np
+    from matplotlib import colormaps
+
+    from zcomp_cli.conventions import linear_to_srgb, valid_depth_mask
+
+    valid = valid_depth_mask(depth)
+    inv = np.zeros(depth.shape, np.float64)
+    inv[valid] = 1.0 / depth[valid]
+    if valid.any():
+        lo, hi = np.percentile(inv[valid], [1, 99])
+        inv = np.clip((inv - lo) / max(hi - lo, 1e-12), 0, 1)
+    dep = colormaps["turbo"](inv)[..., :3]
+    dep[~valid] = 0
+    sh = np.nan_to_num(shading)
+    ref = float(np.percentile(sh, 99)) if sh.size else 1.0
+    tiles = [linear_to_srgb(image), dep, np.clip(np.nan_to_num(normals) * 0.5 + 0.5, 0, 1),
+             linear_to_srgb(albedo), linear_to_srgb(sh / max(ref, 1e-12))]
+    return np.concatenate([np.asarray(t, np.float32) for t in tiles], axis=1)
+
+
+@click.command("estimate")
+@click.argument("manifest", type=click.Path(dir_okay=False))
+@out_dir_opt
+@click.option("--scenes", "scene_names", default=None, metavar="NAMES",
+              help="Only these scenes (comma-separated names).")
+@click.option("--native", is_flag=True, help="Estimate at each image's own size, not the manifest's resolution.")
+@click.option("--cache-dir", type=click.Path(file_okay=False), default=None,
+              help="Estimate cache (default $ZCOMP_CACHE_DIR or ~/.cache/zcomp).")
+@click.pass_context
+def estimate(ctx, manifest, out_dir, scene_names, native, cache_dir):
+    """Estimate the missing depth, normals and albedo of MANIFEST's scenes.
+
+    Provided maps are copied through unchanged; missing ones come from the estimators
+    named in the manifest (e.g. depth: {proxy: ground_plane, camera_height: 1.5,
+    pitch_deg: -10}). Writes OUT/<scene>/*.exr, sources.json and preview.png.
+    """
+    import os
+    from pathlib import Path
+
+    import numpy as np
+
+    from zcomp_cli.errors import UsageError
+    from zcomp_cli.imageio import write_exr, write_json_atomic, write_png
+    from zcomp_cli.pipeline.manifest import load_manifest
+    from zcomp_cli.pipeline.scene import load_scene
+
+    m = load_manifest(manifest)
+    names = list(m.scenes)
+    if scene_names:
+        want = [s.strip() for s in scene_names.split(",") if s.strip()]
+        unknown = [s for s in want if s not in m.scenes]
+        if unknown:
+            raise UsageError(f"unknown scenes {unknown}; the manifest has {names}")
+        names = want
+    if cache_dir is None:
+        cache_dir = os.environ.get("ZCOMP_CACHE_DIR") or str(Path.home() / ".cache" / "zcomp")
+    cache = Path(cache_dir) / "estimates"
+    out = Path(out_dir)
+    quiet = bool(ctx.obj and ctx.obj.get("quiet"))
+    for name in names:
+        spec = m.scenes[name]
+        scene = load_scene(spec, None if native else m.defaults.resolution, cache_dir=cache)
+        mp = scene.maps
+        shading = np.clip(scene.image / np.maximum(mp.albedo, 1e-4), 1e-4, 1e3).astype(np.float32)
+        d = out / name
+        d.mkdir(parents=True, exist_ok=True)
+        write_exr(d / "depth.exr", mp.depth)
+        write_exr(d / "normals.exr", mp.normals)
+        write_exr(d / "albedo.exr", mp.albedo)
+        write_exr(d / "shading.exr", shading)
+        write_png(d / "preview.png", preview_sheet(scene.image, mp.depth, mp.normals, mp.albedo, shading),
+                  srgb_encode=False)
+        write_json_atomic(d / "sources.json", {"scene": name, "sources": scene.sources,
+                                               "notes": list(scene.notes),
+                                               "timings_s": scene.timings,
+                                               "K": scene.camera.K.tolist(),
+                                               "resolution": [scene.camera.width, scene.camera.height]})
+        if not quiet:
+            src = ", ".join(f"{k}: {v}" for k, v in scene.sources.items())
+            click.echo(f"{name}: {src} -> {d}")

@@ -1,0 +1,130 @@
+"""Weight-free albedo: a classical colour-Retinex intrinsic decomposition.
+
+Assumptions (Land & McCann's Retinex, with Funt et al.'s colour test): reflectance is
+piecewise constant, so it changes in sharp steps; illumination (shading) is smooth and
+grey. In log space the image is ``log I = log A + log S``. Each image gradient of log
+luminance is attributed to the albedo if it is large (``|grad| > lum_threshold``) or if
+the chromaticity changes across it (``|grad chroma| > chroma_threshold``: grey light
+cannot change colour); every other gradient is shading. The albedo gradients are
+integrated back by a least-squares Poisson solve (DCT, Neumann boundary), shading is
+``log L - log A_lum`` lightly smoothed, and the colour albedo is ``image / shading``, so
+chromaticity is preserved exactly.
+
+Scale: an intrinsic decomposition is defined up to a global factor. We choose it so that
+the 95th percentile of albedo luminance is 0.8 (bright paint/paper, not a mirror): this
+keeps most albedos in [0, 1] without letting a few specular pixels set the scale.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from zcomp_cli.conventions import luminance
+from zcomp_cli.errors import InputError
+
+_EPS = 1e-4
+
+
+def _poisson_dct(gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
+    """Least-squares integration of a gradient field (forward differences, Neumann
+    boundary) by a DCT-II Poisson solve. Returns the field with zero mean."""
+    from scipy.fft import dctn, idctn
+
+    h, w = gx.shape
+    div = np.zeros((h, w))
+    div[:, :-1] += gx[:, :-1]
+    div[:, 1:] -= gx[:, :-1]
+    div[:-1, :] += gy[:-1, :]
+    div[1:, :] -= gy[:-1, :]
+    # The Neumann Laplacian's eigenvalues in the DCT-II basis.
+    lx = 2 * np.cos(np.pi * np.arange(w) / w) - 2
+    ly = 2 * np.cos(np.pi * np.arange(h) / h) - 2
+    denom = ly[:, None] + lx[None, :]
+    f = dctn(-div, type=2, norm="ortho")
+    denom[0, 0] = 1.0
+    f = f / -denom
+    f[0, 0] = 0.0
+    return idctn(f, type=2, norm="ortho")
+
+
+def retinex_albedo(image_lin, *, lum_threshold: float = 0.12, chroma_threshold: float = 0.03,
+                   shading_smooth_px: float = 1.0, percentile: float = 95.0,
+                   percentile_value: float = 0.8) -> tuple[np.ndarray, np.ndarray]:
+    """Split a linear image into albedo and grey shading.
+
+    Args:
+        image_lin: (H, W, 3) linear RGB, >= 0 (any scale; HDR allowed). Non-finite
+            pixels are treated as black.
+        lum_threshold: log-luminance step (per pixel) above which an edge is albedo.
+        chroma_threshold: chromaticity step above which an edge is albedo.
+        shading_smooth_px: Gaussian sigma (pixels) applied to the log shading.
+        percentile, percentile_value: the global scale puts this percentile of albedo
+            luminance at this value.
+    Returns:
+        albedo: (H, W, 3) float32 linear in [0, 1].
+        shading: (H, W, 3) float32 grey, ``image / albedo`` where albedo > 0, > 0.
+    """
+    from scipy.ndimage import gaussian_filter
+
+    img = np.asarray(image_lin, dtype=np.float64)
+    if img.ndim != 3 or img.shape[2] != 3 or min(img.shape[:2]) < 2:
+        raise InputError(f"retinex_albedo: expected an (H, W, 3) image, got {img.shape}")
+    if not (0 < percentile <= 100 and 0 < percentile_value <= 1):
+        raise InputError("retinex_albedo: percentile in (0, 100] and percentile_value in (0, 1]")
+    img = np.clip(np.nan_to_num(img, nan=0.0, posinf=0.0, neginf=0.0), 0.0, None)
+    lum = luminance(img)
+    peak = float(lum.max())
+    if peak <= 0:
+        # A black image: nothing to decompose; mid-grey albedo, zero-light shading.
+        albedo = np.full(img.shape, 0.5, np.float32)
+        return albedo, np.full(img.shape, _EPS, np.float32)
+    # Work relative to the peak so that the eps floor means the same at any exposure.
+    img = img / peak
+    lum = lum / peak
+    eps = 1e-3
+    L = np.log(lum + eps)
+    chroma = (img + eps / 3) / (img.sum(-1, keepdims=True) + eps)
+
+    gx = np.zeros_like(L)
+    gy = np.zeros_like(L)
+    gx[:, :-1] = L[:, 1:] - L[:, :-1]
+    gy[:-1, :] = L[1:, :] - L[:-1, :]
+    cx = np.zeros_like(L)
+    cy = np.zeros_like(L)
+    cx[:, :-1] = np.abs(chroma[:, 1:] - chroma[:, :-1]).sum(-1)
+    cy[:-1, :] = np.abs(chroma[1:, :] - chroma[:-1, :]).sum(-1)
+    ax = np.where((np.abs(gx) > lum_threshold) | (cx > chroma_threshold), gx, 0.0)
+    ay = np.where((np.abs(gy) > lum_threshold) | (cy > chroma_threshold), gy, 0.0)
+    log_a = _poisson_dct(ax, ay)
+    log_s = L - log_a
+    if shading_smooth_px > 0:
+        log_s = gaussian_filter(log_s, shading_smooth_px, mode="nearest")
+    shading_grey = np.exp(log_s)
+    albedo = img / shading_grey[..., None]
+    a_lum = luminance(albedo)
+    ref = float(np.percentile(a_lum, percentile))
+    scale = percentile_value / ref if ref > 1e-12 else 1.0
+    albedo = np.clip(albedo * scale, 0.0, 1.0)
+    # Shading so that image = albedo * shading in the original units.
+    shading = np.repeat((shading_grey * peak / scale)[..., None], 3, axis=-1)
+    shading = np.clip(shading, _EPS, 1e3 * max(peak, 1.0))
+    return albedo.astype(np.float32), shading.astype(np.float32)
+
+
+def scale_invariant_error(estimate, reference, mask=None) -> float:
+    """Relative squared error after the best global scale:
+    ``min_s ||s * est - ref||^2 / ||ref||^2`` over ``mask`` (0 = perfect, 1 = as bad as 0)."""
+    e = np.asarray(estimate, np.float64)
+    r = np.asarray(reference, np.float64)
+    if e.shape != r.shape:
+        raise InputError(f"scale_invariant_error: shapes differ {e.shape} vs {r.shape}")
+    if mask is not None:
+        m = np.asarray(mask, bool)
+        e, r = e[m], r[m]
+    e, r = e.ravel(), r.ravel()
+    den = float(r @ r)
+    if den <= 0:
+        raise InputError("scale_invariant_error: the reference is all zero")
+    ee = float(e @ e)
+    s = float(e @ r) / ee if ee > 0 else 0.0
+    return float(np.sum((s * e - r) ** 2) / den)
