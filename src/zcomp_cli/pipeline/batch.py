@@ -296,13 +296,15 @@ def _object_bundle(manifest, job, scene, bundle_dir, pose):
 
     if job.placement is None:
         raise InputError(f"image object {job.object!r} needs a 'placement' (pixel, height), not a 'pose'")
+    if job.placement.height is None:
+        raise InputError(f"image object {job.object!r} needs 'placement.height' (metres): a photo has no scale")
     img = read_image(obj.image)
     mask = read_alpha_or_grey(obj.mask)
     if img.shape[:2] != mask.shape:
         raise InputError(f"mask is {mask.shape[1]}x{mask.shape[0]}, image is {img.shape[1]}x{img.shape[0]}",
                          where=str(obj.mask))
     return object_bundle_from_image(
-        img, mask, scene.camera, job.placement.pixel, job.placement.height or 0.3,
+        img, mask, scene.camera, job.placement.pixel, job.placement.height,
         scene.maps.depth, scene.maps.normals)
 
 
