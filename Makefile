@@ -15,6 +15,9 @@ $(STAMP): pyproject.toml setup.py
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -e ".[test]"
+	# The reference LPIPS package, for one test only. --no-deps: its torchvision
+	# requirement would pull a CUDA build that breaks CPU torch (see README).
+	$(BIN)/python -m pip install -q --no-deps lpips==0.1.4
 	@touch $@
 
 venv: $(STAMP)

@@ -1,0 +1,103 @@
+"""``zcomp eval``: score composites against references (PSNR, RMSE, si-RMSE, SSIM, MAE,
+LPIPS, FLIP); per-image values and means to eval.csv / eval.json and a table."""
+
+from __future__ import annotations
+
+import click
+
+_METRICS_HELP = "Comma-separated: psnr,rmse,si-rmse,ssim,mae,lpips,flip or all."
+
+
+def _check_metrics(ctx, param, value):
+    from zcomp_cli.errors import UsageError
+    from zcomp_cli.metrics.evaluate import parse_metrics
+
+    try:
+        return parse_metrics(value)
+    except UsageError as exc:
+        raise click.BadParameter(str(exc), ctx=ctx, param=param) from exc
+
+
+@click.command("eval")
+@click.argument("pred", type=click.Path(exists=True, file_okay=False))
+@click.argument("ref", type=click.Path(exists=True, file_okay=False), required=False)
+@click.option("--metrics", default="all", show_default=True, callback=_check_metrics, help=_METRICS_HELP)
+@click.option("--refs", "refs_dir", type=click.Path(exists=True, file_okay=False), default=None,
+              help="Composite output mode: folder of references named after the jobs.")
+@click.option("--linear", is_flag=True,
+              help="Pixel metrics on linear values instead of sRGB-encoded [0, 1] (LPIPS and "
+                   "LDR FLIP stay on sRGB).")
+@click.option("--mask", default=None, metavar="PATH|NAME",
+              help="Score only a region: a folder of masks (matched like the images), a mask "
+                   "file, or a file name inside each job folder (e.g. shading_mask.png).")
+@click.option("--out", "out_prefix", type=click.Path(dir_okay=False), default=None, metavar="PATH_PREFIX",
+              help="Write PATH_PREFIX.csv and PATH_PREFIX.json (default PRED/eval.*).")
+@click.option("--lpips-backbone", type=click.Path(dir_okay=False), default=None,
+              help="torchvision AlexNet state dict (alexnet-owt-7be5be79.pth); env ZCOMP_LPIPS_BACKBONE.")
+@click.option("--lpips-weights", type=click.Path(dir_okay=False), default=None,
+              help="LPIPS v0.1 linear weights (lpips' weights/v0.1/alex.pth); env ZCOMP_LPIPS_WEIGHTS.")
+@click.pass_context
+def eval_cmd(ctx, pred, ref, metrics, refs_dir, linear, mask, out_prefix, lpips_backbone, lpips_weights):
+    """Score PRED against REF.
+
+    PRED and REF are two folders whose images are matched by relative path (the
+    extension may differ), or PRED is a `zcomp composite` output folder whose jobs'
+    report.json name their reference (or give --refs DIR).
+    """
+    from pathlib import Path
+
+    from zcomp_cli.errors import UsageError
+    from zcomp_cli.metrics.evaluate import (
+        evaluate,
+        is_composite_output,
+        pair_composite_output,
+        pair_folders,
+        write_outputs,
+    )
+
+    pred_dir = Path(pred)
+    if ref is not None and refs_dir is not None:
+        raise UsageError("give either REF or --refs, not both")
+    if ref is not None:
+        pairs = pair_folders(pred_dir, ref, mask)
+    elif is_composite_output(pred_dir):
+        pairs = pair_composite_output(pred_dir, refs_dir, mask)
+    else:
+        raise UsageError(f"{pred_dir} is not a composite output folder (no */report.json): give REF")
+
+    result = evaluate(pairs, metrics, linear=linear, lpips_backbone=lpips_backbone,
+                      lpips_weights=lpips_weights)
+    prefix = Path(out_prefix) if out_prefix else pred_dir / "eval"
+    csv_path, json_path = write_outputs(result, prefix)
+
+    quiet = (ctx.obj or {}).get("quiet", False)
+    for m, why in result.unavailable.items():
+        click.secho(f"Warning: {m} unavailable: {why}", fg="yellow", err=True)
+    if not quiet:
+        _print_table(result)
+    click.echo(f"Wrote {csv_path} and {json_path}")
+
+
+def _print_table(result) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    from zcomp_cli.metrics.evaluate import HIGHER_IS_BETTER
+
+    cols = [m for m in result.metrics]
+    table = Table(title=f"zcomp eval ({'linear' if result.linear else 'sRGB'})")
+    table.add_column("image")
+    for m in cols:
+        table.add_column(f"{m} {'↑' if HIGHER_IS_BETTER.get(m) else '↓'}", justify="right")
+
+    def cell(vals, m):
+        if m in result.unavailable:
+            return "unavailable"
+        v = vals[m]
+        return "inf" if v == float("inf") else f"{v:.4f}"
+
+    for p, vals in zip(result.pairs, result.values):
+        table.add_row(p.name, *(cell(vals, m) for m in cols))
+    table.add_section()
+    table.add_row("mean", *(cell(result.mean, m) for m in cols), style="bold")
+    Console(width=max(100, 14 * (len(cols) + 2))).print(table)
