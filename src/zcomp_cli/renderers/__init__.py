@@ -5,27 +5,31 @@
 
 from __future__ import annotations
 
+import importlib
+
 from zcomp_cli.renderers.base import Renderer, RenderOutput, RenderRequest, SceneMaps
 
-RENDERERS = ("physical", "zerocomp", "naive")
+# name -> (module, class)
+_RENDERERS = {
+    "physical": ("zcomp_cli.renderers.physical", "PhysicalRenderer"),
+    "zerocomp": ("zcomp_cli.renderers.zerocomp", "ZeroCompRenderer"),
+    "naive": ("zcomp_cli.renderers.naive", "NaiveRenderer"),
+}
+RENDERERS = tuple(_RENDERERS)
 
 
 def get_renderer(name: str, **settings) -> Renderer:
-    from zcomp_cli.errors import UsageError
+    """Build the renderer called ``name`` with its keyword settings."""
+    from zcomp_cli.errors import RenderError, UsageError
 
-    if name == "physical":
-        from zcomp_cli.renderers.physical import PhysicalRenderer
-
-        return PhysicalRenderer(**settings)
-    if name == "zerocomp":
-        from zcomp_cli.renderers.zerocomp import ZeroCompRenderer
-
-        return ZeroCompRenderer(**settings)
-    if name == "naive":
-        from zcomp_cli.renderers.naive import NaiveRenderer
-
-        return NaiveRenderer(**settings)
-    raise UsageError(f"unknown renderer {name!r}; choose one of {', '.join(RENDERERS)}")
+    if name not in _RENDERERS:
+        raise UsageError(f"unknown renderer {name!r}; choose one of {', '.join(RENDERERS)}")
+    module, cls = _RENDERERS[name]
+    try:
+        factory = getattr(importlib.import_module(module), cls)
+    except (ImportError, AttributeError) as exc:
+        raise RenderError(f"renderer {name!r} cannot be loaded: {exc}") from exc
+    return factory(**settings)
 
 
 __all__ = ["Renderer", "RenderOutput", "RenderRequest", "SceneMaps", "get_renderer", "RENDERERS"]
