@@ -1,0 +1,254 @@
+"""Analytic test scenes in zcomp's conventions (no Blender).
+
+Everything is ray cast exactly in numpy, so tests get ground-truth depth, normals,
+albedo, shading and the true light. Conventions (DESIGN.md section 3):
+
+* world frame: metres, +Y up; the ground plane is ``y = 0``; the camera sits at
+  ``(0, camera_height, 0)`` and, before pitching, looks along world -z.
+* camera frame: OpenGL (x right, y up, looks along -z); ``cam_to_world`` is the 3x3
+  rotation taking camera-frame vectors to world vectors (a pitch about x).
+* depth: z-depth in metres (0 = invalid / sky); normals: camera-frame unit vectors
+  (0 where invalid); albedo, shading, image: linear RGB float32, image = albedo * shading.
+* light: a directional light; ``light_dir`` points FROM the surface TOWARD the light
+  (world frame), shading = ambient + intensity * max(0, n.l) * visibility.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from zcomp_cli.bundle import ObjectBundle
+from zcomp_cli.camera import Camera
+from zcomp_cli.errors import InputError
+
+__all__ = ["SyntheticScene", "floor_scene", "sphere_object_bundle", "insert_bundle"]
+
+
+@dataclass
+class SyntheticScene:
+    """A rendered analytic scene. Maps are H x W (x 3) float32.
+
+    ``light_dir_cam`` is the unit direction toward the light in the camera frame;
+    ``ambient`` and ``light_intensity`` are the true shading terms (grey light).
+    """
+
+    camera: Camera
+    depth: np.ndarray
+    normals: np.ndarray
+    albedo: np.ndarray
+    shading: np.ndarray
+    image: np.ndarray
+    visibility: np.ndarray
+    light_dir_cam: np.ndarray
+    ambient: float
+    light_intensity: float
+    cam_to_world: np.ndarray
+    camera_origin: np.ndarray
+    meta: dict = field(default_factory=dict)
+
+    def world_to_camera(self, points) -> np.ndarray:
+        """World points (..., 3) -> camera-frame points (..., 3)."""
+        p = np.asarray(points, dtype=np.float64) - self.camera_origin
+        return p @ self.cam_to_world  # R^T p for row vectors
+
+    @property
+    def up_cam(self) -> np.ndarray:
+        """World +Y in the camera frame."""
+        return self.cam_to_world.T @ np.array([0.0, 1.0, 0.0])
+
+
+def _rot_x(deg: float) -> np.ndarray:
+    a = np.deg2rad(deg)
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]], dtype=np.float64)
+
+
+def _ray_box(o, d, lo, hi):
+    """Slab test. o, d: (N, 3). Returns (t_hit (N,), normal (N, 3)); t = inf on miss."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / np.where(np.abs(d) < 1e-12, 1e-12, d)
+        t1 = (lo - o) * inv
+        t2 = (hi - o) * inv
+    tmin = np.minimum(t1, t2)
+    tmax = np.maximum(t1, t2)
+    tn = tmin.max(axis=1)
+    tf = tmax.min(axis=1)
+    hit = (tf >= tn) & (tf > 1e-6)
+    t = np.where(hit, np.where(tn > 1e-6, tn, np.inf), np.inf)
+    axis = tmin.argmax(axis=1)
+    n = np.zeros_like(o)
+    idx = np.arange(len(o))
+    n[idx, axis] = -np.sign(d[idx, axis])
+    return t, n
+
+
+def floor_scene(width: int = 128, height: int = 96, *, fov_deg: float = 50.0,
+                camera_height: float = 1.2, pitch_deg: float = -25.0,
+                light_dir=(0.5, 1.0, 0.3), light_intensity: float = 1.0,
+                ambient: float = 0.3, albedo=(0.6, 0.6, 0.6), with_box: bool = False,
+                box_center=(0.0, -3.0), box_size=(0.6, 0.8, 0.6),
+                box_albedo=(0.5, 0.4, 0.3), with_wall: bool = False,
+                wall_distance: float = 6.0) -> SyntheticScene:
+    """Ray cast a ground plane (+ optional axis-aligned box and back wall).
+
+    Args:
+        width, height: image size in pixels.
+        fov_deg: horizontal field of view.
+        camera_height: camera height above the floor (m).
+        pitch_deg: camera pitch; negative looks down.
+        light_dir: world-frame direction toward the directional light (normalised here).
+        light_intensity, ambient: shading = ambient + intensity * max(0, n.l) * V (grey).
+        albedo: floor (and wall) linear RGB albedo.
+        with_box: add a box standing on the floor at world ``(x, z) = box_center``,
+            ``box_size = (sx, sy, sz)`` metres; it casts an exact shadow.
+        with_wall: add a wall ``z = -wall_distance`` facing the camera.
+    Returns:
+        SyntheticScene; sky pixels have depth 0, normals 0, albedo 0, shading 0.
+    """
+    if width < 1 or height < 1:
+        raise InputError(f"image size must be positive, got {width}x{height}")
+    cam = Camera.from_fov(fov_deg, width, height)
+    R = _rot_x(pitch_deg)
+    origin = np.array([0.0, camera_height, 0.0])
+    rays_cam = cam.pixel_rays().reshape(-1, 3)
+    d = rays_cam @ R.T
+    o = np.broadcast_to(origin, d.shape).copy()
+    n_pix = len(d)
+    t_best = np.full(n_pix, np.inf)
+    n_best = np.zeros((n_pix, 3))
+    alb = np.zeros((n_pix, 3))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_floor = np.where(d[:, 1] < -1e-12, -camera_height / d[:, 1], np.inf)
+    sel = t_floor < t_best
+    t_best[sel] = t_floor[sel]
+    n_best[sel] = (0, 1, 0)
+    alb[sel] = albedo
+    if with_wall:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t_wall = np.where(d[:, 2] < -1e-12, -wall_distance / d[:, 2], np.inf)
+        sel = t_wall < t_best
+        t_best[sel] = t_wall[sel]
+        n_best[sel] = (0, 0, 1)
+        alb[sel] = albedo
+    box = None
+    if with_box:
+        sx, sy, sz = box_size
+        bx, bz = box_center
+        box = (np.array([bx - sx / 2, 0.0, bz - sz / 2]), np.array([bx + sx / 2, sy, bz + sz / 2]))
+        t_box, n_box = _ray_box(o, d, *box)
+        sel = t_box < t_best
+        t_best[sel] = t_box[sel]
+        n_best[sel] = n_box[sel]
+        alb[sel] = box_albedo
+    hit = np.isfinite(t_best)
+    P = o + d * np.where(hit, t_best, 0.0)[:, None]
+    l = np.asarray(light_dir, dtype=np.float64)
+    l = l / np.linalg.norm(l)
+    vis = np.ones(n_pix)
+    if box is not None:
+        ps = P + n_best * 1e-4
+        t_sh, _ = _ray_box(ps, np.broadcast_to(l, ps.shape).copy(), *box)
+        vis = np.where(np.isfinite(t_sh), 0.0, 1.0)
+    ndotl = np.maximum(0.0, n_best @ l)
+    shade = ambient + light_intensity * ndotl * vis
+    shade = np.where(hit, shade, 0.0)
+    p_cam = (P - origin) @ R
+    depth = np.where(hit, -p_cam[:, 2], 0.0)
+    normals = n_best @ R  # R^T n for row vectors
+    normals[~hit] = 0
+    alb[~hit] = 0
+    shading = np.repeat(shade[:, None], 3, axis=1)
+    H, W = height, width
+    f = lambda a, c: a.reshape(H, W, c).squeeze().astype(np.float32) if c == 1 else a.reshape(H, W, c).astype(np.float32)
+    return SyntheticScene(
+        camera=cam, depth=f(depth, 1).reshape(H, W), normals=f(normals, 3),
+        albedo=f(alb, 3), shading=f(shading, 3), image=f(alb * shading, 3),
+        visibility=f(np.where(hit, vis, 1.0), 1).reshape(H, W),
+        light_dir_cam=R.T @ l, ambient=float(ambient), light_intensity=float(light_intensity),
+        cam_to_world=R, camera_origin=origin,
+        meta={"box": None if box is None else [box[0].tolist(), box[1].tolist()]},
+    )
+
+
+def sphere_object_bundle(camera: Camera, center, radius: float, albedo=(0.8, 0.8, 0.8), *,
+                         floor_normal=None, supersample: int = 4) -> ObjectBundle:
+    """An exact sphere as an object bundle.
+
+    Args:
+        camera: the view.
+        center: sphere centre in the CAMERA frame (metres; in front of the camera z < 0).
+        radius: metres (> 0).
+        albedo: linear RGB.
+        floor_normal: camera-frame normal of the support plane, which touches the sphere
+            at ``center - radius * floor_normal``; default the camera's +y.
+        supersample: s x s subpixel rays per pixel for the anti-aliased mask.
+    Returns:
+        ObjectBundle with depth/normals/albedo averaged over the covered subpixels
+        (0 where uncovered), mask = coverage in [0, 1], footprint_depth = z-depth of the
+        support plane inside the disc of radius ``radius`` around the contact point
+        (0 elsewhere), meta ``object_height_m = 2 * radius``.
+    """
+    c = np.asarray(center, dtype=np.float64).reshape(3)
+    if not np.all(np.isfinite(c)) or not np.isfinite(radius) or radius <= 0:
+        raise InputError("sphere centre must be finite and radius > 0")
+    s = max(1, int(supersample))
+    H, W = camera.height, camera.width
+    off = (np.arange(s) + 0.5) / s - 0.5
+    acc_d = np.zeros((H, W))
+    acc_n = np.zeros((H, W, 3))
+    cnt = np.zeros((H, W))
+    u0 = np.arange(W) + 0.5
+    v0 = np.arange(H) + 0.5
+    for oy in off:
+        for ox in off:
+            uu, vv = np.meshgrid(u0 + ox, v0 + oy)
+            d = np.stack([(uu - camera.cx) / camera.fx, -(vv - camera.cy) / camera.fy,
+                          -np.ones_like(uu)], -1)
+            dn = d / np.linalg.norm(d, axis=-1, keepdims=True)
+            b = dn @ c
+            disc = b * b - (c @ c - radius * radius)
+            hit = disc >= 0
+            t = b - np.sqrt(np.maximum(disc, 0))
+            hit &= t > 0
+            P = dn * t[..., None]
+            n = (P - c) / radius
+            acc_d += np.where(hit, -P[..., 2], 0)
+            acc_n += np.where(hit[..., None], n, 0)
+            cnt += hit
+    cov = cnt / (s * s)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        depth = np.where(cnt > 0, acc_d / np.maximum(cnt, 1), 0)
+        nrm = acc_n / np.maximum(np.linalg.norm(acc_n, axis=-1, keepdims=True), 1e-12)
+    nrm[cnt == 0] = 0
+    alb = np.zeros((H, W, 3))
+    alb[cnt > 0] = albedo
+    fn = np.array([0.0, 1.0, 0.0]) if floor_normal is None else np.asarray(floor_normal, float)
+    fn = fn / np.linalg.norm(fn)
+    contact = c - radius * fn
+    rays = camera.pixel_rays()
+    denom = rays @ fn
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (contact @ fn) / denom
+    Pf = rays * t[..., None]
+    inside = (t > 0) & (np.linalg.norm(Pf - contact, axis=-1) <= radius) & np.isfinite(t)
+    footprint = np.where(inside, -Pf[..., 2], 0)
+    return ObjectBundle(depth=depth, normals=nrm, albedo=alb, mask=cov,
+                        footprint_depth=np.nan_to_num(footprint), camera=camera,
+                        meta={"object_height_m": 2.0 * radius, "source": "synthetic sphere"})
+
+
+def insert_bundle(depth, normals, albedo, bundle: ObjectBundle, threshold: float = 0.5):
+    """Composite maps by mask replacement where ``bundle.mask > threshold`` and the object
+    is in front of the scene (or the scene is invalid). Returns new (depth, normals,
+    albedo) float32 arrays and the bool replacement mask."""
+    d = np.asarray(depth, np.float32).copy()
+    sel = (bundle.mask > threshold) & (bundle.depth > 0)
+    sel &= (d <= 0) | (bundle.depth < d)
+    n = np.asarray(normals, np.float32).copy()
+    a = np.asarray(albedo, np.float32).copy()
+    d[sel] = bundle.depth[sel]
+    n[sel] = bundle.normals[sel]
+    a[sel] = bundle.albedo[sel]
+    return d, n, a, sel

@@ -1,0 +1,1 @@
+"""ZeroComp ControlNet training (`zcomp train`)."""

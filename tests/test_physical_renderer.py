@@ -1,0 +1,209 @@
+"""Tests of the embedded physical renderer on analytic synthetic scenes."""
+
+import numpy as np
+import pytest
+
+from zcomp_cli.errors import InputError, UsageError
+from zcomp_cli.renderers import get_renderer
+from zcomp_cli.renderers.base import RenderRequest, SceneMaps
+from zcomp_cli.renderers.physical import PhysicalRenderer, estimate_lighting
+from zcomp_cli.renderers.physical.visibility import march_visibility, sample_depth
+from zcomp_cli.synthetic import floor_scene, insert_bundle, sphere_object_bundle
+
+LIGHT = (0.7, 1.0, 0.2)  # world, toward the light: from the right, above
+
+
+def _angle(a, b):
+    return np.rad2deg(np.arccos(np.clip(a @ b / np.linalg.norm(a) / np.linalg.norm(b), -1, 1)))
+
+
+@pytest.fixture(scope="module")
+def boxed():
+    return floor_scene(112, 84, with_box=True, light_dir=LIGHT, ambient=0.3, box_center=(-0.4, -3.2))
+
+
+@pytest.fixture(scope="module")
+def inserted(boxed):
+    s = boxed
+    c = s.world_to_camera([0.4, 0.3, -2.6])
+    b = sphere_object_bundle(s.camera, c, 0.3, (0.7, 0.7, 0.7), floor_normal=s.up_cam)
+    d, n, a, sel = insert_bundle(s.depth, s.normals, s.albedo, b)
+    # shading mask: object footprint dilated generously (shadow region included)
+    ys, xs = np.nonzero(sel)
+    mask = np.zeros(sel.shape, bool)
+    mask[max(0, ys.min() - 6):ys.max() + 10, max(0, xs.min() - 16):xs.max() + 16] = True
+    known = ~mask
+    bg = RenderRequest(SceneMaps(s.depth, s.normals, s.albedo), s.shading, known, s.camera,
+                       scene_key="boxed")
+    comp = RenderRequest(SceneMaps(d, n, a), s.shading, known, s.camera, scene_key="boxed")
+    r = PhysicalRenderer()
+    out = r.render([bg, comp], seed=7)
+    return dict(scene=s, bundle=b, sel=sel, mask=mask, bg=bg, comp=comp, out=out, center=c)
+
+
+def test_synthetic_scene_conventions(boxed):
+    s = boxed
+    assert s.depth.dtype == np.float32 and s.depth.shape == (84, 112)
+    valid = s.depth > 0
+    assert np.allclose(np.linalg.norm(s.normals[valid], axis=-1), 1, atol=1e-5)
+    # floor normal seen from a camera pitched down 25 deg: (0, cos25, sin25)
+    assert np.allclose(s.up_cam, [0, np.cos(np.deg2rad(25)), np.sin(np.deg2rad(25))])
+    assert (s.visibility < 1).sum() > 20  # the box casts a shadow
+    assert np.allclose(s.image, s.albedo * s.shading)
+
+
+def test_lighting_recovered_from_box_shadow(boxed):
+    s = boxed
+    e = estimate_lighting(s.depth, s.normals, s.shading, s.depth > 0, s.camera)
+    assert e.fallback is None
+    assert _angle(e.direction, s.light_dir_cam) < 8.0
+    cos = max(s.up_cam @ s.light_dir_cam, 0)
+    true_share = s.ambient / (s.ambient + s.light_intensity * cos)
+    # 0.1: the direction search down-weights too-dark residuals (unseen occluders), which
+    # costs a little share accuracy on a scene whose every shadow is visible.
+    assert abs(e.ambient_share - true_share) < 0.1
+    assert e.softness_deg <= 3.0  # a point light gives a crisp shadow
+    assert np.allclose(e.intensity, 1.0, atol=0.2)
+
+
+def test_bare_floor_triggers_fallback():
+    s = floor_scene(80, 60, light_dir=(0.3, 1.0, 0.4))
+    e = estimate_lighting(s.depth, s.normals, s.shading, s.depth > 0, s.camera)
+    assert e.fallback is not None and "unconstrained" in e.fallback
+    assert e.direction @ s.up_cam > 0.8  # the prior: from above
+    assert np.all(np.isfinite(e.intensity))
+
+
+def test_too_few_pixels_fallback():
+    s = floor_scene(40, 30)
+    known = np.zeros(s.depth.shape, bool)
+    e = estimate_lighting(s.depth, s.normals, s.shading, known, s.camera)
+    assert "too few" in e.fallback
+
+
+def test_render_outputs(inserted):
+    out = inserted["out"]
+    s = inserted["scene"]
+    assert len(out.images) == 2
+    for img in out.images:
+        assert img.shape == (84, 112, 3) and img.dtype == np.float32
+        assert np.all(np.isfinite(img))
+    known = ~inserted["mask"]
+    # known region reproduced exactly (albedo * known shading)
+    assert np.array_equal(out.images[0][known], (s.albedo * s.shading).astype(np.float32)[known])
+    assert {"estimate", "synthesis"} <= set(out.timings)
+    assert "direction" in out.info["light"] and out.info["fallback"] is None
+
+
+def test_background_pass_reproduces_background(inserted):
+    s, out = inserted["scene"], inserted["out"]
+    m = inserted["mask"] & (s.visibility > 0)
+    err = np.abs(out.images[0][m] - s.image[m]).mean() / s.image[m].mean()
+    assert err < 0.08
+
+
+def test_object_shading_and_cast_shadow(inserted):
+    s, out, sel = inserted["scene"], inserted["out"], inserted["sel"]
+    bg, comp = out.images
+    l = s.light_dir_cam
+    n = inserted["comp"].maps.normals
+    lum = comp.mean(-1)
+    facing = sel & (n @ l > 0.5)
+    away = sel & (n @ l < -0.2)
+    assert facing.sum() > 5 and away.sum() > 5
+    assert lum[facing].mean() > 1.5 * lum[away].mean()
+    # cast shadow: floor pixels inside the mask, not the object, darker in comp than bg
+    ratio = np.where(inserted["mask"] & ~sel, comp.mean(-1) / np.maximum(bg.mean(-1), 1e-6), 1)
+    shadow = ratio < 0.7
+    assert shadow.sum() > 10
+    # the shadow lies on the side away from the light: light from +x => shadow at -x
+    ys, xs = np.nonzero(shadow)
+    _, xo = np.nonzero(sel)
+    assert xs.mean() < xo.mean()
+    # R == 1 exactly where the object has no influence: far right of the mask
+    cols = np.nonzero(inserted["mask"].any(0))[0]
+    right = inserted["mask"].copy()
+    right[:, : cols.max() - 3] = False
+    assert np.array_equal(comp[right], bg[right])
+
+
+@pytest.mark.slow
+def test_determinism_and_cache(inserted):
+    r = PhysicalRenderer()
+    a = r.render([inserted["bg"], inserted["comp"]], seed=7)
+    b = PhysicalRenderer().render([inserted["bg"], inserted["comp"]], seed=7)
+    for x, y, z in zip(a.images, b.images, inserted["out"].images):
+        assert np.array_equal(x, y) and np.array_equal(x, z)
+
+
+def test_roi_matches_full_frame(inserted):
+    comp = inserted["comp"]
+    ys, xs = np.nonzero(inserted["mask"])
+    roi = (int(xs.min()) + 3, int(ys.min()) + 2, int(xs.max()) - 5, int(ys.max()) - 1)
+    req = RenderRequest(comp.maps, comp.shading, comp.known, comp.camera, roi=roi, scene_key="boxed")
+    out = PhysicalRenderer().render([req], seed=7)
+    x0, y0, x1, y1 = roi
+    full = inserted["out"].images[1]
+    assert np.array_equal(out.images[0][y0:y1, x0:x1], full[y0:y1, x0:x1])
+    assert np.all(np.isfinite(out.images[0]))
+
+
+def _req(s, known, **over):
+    maps = SceneMaps(over.get("depth", s.depth), over.get("normals", s.normals),
+                     over.get("albedo", s.albedo))
+    return RenderRequest(maps, over.get("shading", s.shading), known, s.camera)
+
+
+def test_bad_values_stay_finite():
+    s = floor_scene(48, 36, with_box=True, light_dir=LIGHT)
+    known = np.ones(s.depth.shape, bool)
+    known[10:25, 10:30] = False
+    depth = s.depth.copy()
+    depth[12, 12] = np.nan
+    depth[13, 13] = np.inf
+    normals = s.normals.copy()
+    normals[14, 14] = np.nan
+    shading = s.shading.copy()
+    shading[0:5, 0:5] = 1e4
+    shading[30, 30] = np.nan
+    albedo = s.albedo.copy()
+    albedo[15:18, 15:18] = 0
+    albedo[19, 19] = np.inf
+    out = PhysicalRenderer().render([_req(s, known, depth=depth, normals=normals,
+                                          shading=shading, albedo=albedo)])
+    img = out.images[0]
+    assert np.all(np.isfinite(img))
+    assert np.all(img[15:18, 15:18] == 0)
+
+
+def test_one_pixel_and_empty_masks():
+    s = floor_scene(40, 30, with_box=True, light_dir=LIGHT)
+    known = np.ones(s.depth.shape, bool)
+    out = PhysicalRenderer().render([_req(s, known)])
+    assert np.array_equal(out.images[0], (s.albedo * s.shading).astype(np.float32))
+    known[20, 20] = False
+    out = PhysicalRenderer().render([_req(s, known)])
+    assert np.all(np.isfinite(out.images[0])) and out.images[0][20, 20].sum() > 0
+
+
+def test_settings_and_errors():
+    with pytest.raises(UsageError):
+        PhysicalRenderer(bogus=1)
+    with pytest.raises(UsageError):
+        PhysicalRenderer(march_steps=0)
+    r = get_renderer("physical", shadow_softness=5.0)
+    assert r.settings()["shadow_softness"] == 5.0 and r.settings()["name"] == "physical"
+    s = floor_scene(20, 16)
+    bad = RenderRequest(SceneMaps(s.depth[:5], s.normals, s.albedo), s.shading,
+                        np.ones((16, 20), bool), s.camera)
+    with pytest.raises(InputError):
+        PhysicalRenderer().render([bad])
+
+
+def test_visibility_primitives():
+    d = np.full((10, 10), 2.0)
+    assert np.allclose(sample_depth(d, np.array([5.0, 0.1]), np.array([5.0, 9.9])), 2.0)
+    d[:, :5] = 0
+    assert sample_depth(d, np.array([2.0]), np.array([5.0]))[0] == 0
+    assert len(march_visibility(np.zeros((0, 3)), np.zeros((0, 3)), np.array([0, 1.0, 0]),
+                                d, floor_scene(10, 10).camera)) == 0
