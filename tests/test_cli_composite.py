@@ -103,3 +103,44 @@ def test_usage_errors(tmp_path):
     assert r.exit_code == 2
     r = _run("composite", str(manifest), "--out", str(tmp_path / "o"), "--weights", str(tmp_path))
     assert r.exit_code == 2 and "zerocomp" in r.output
+
+
+@pytest.mark.slow
+def test_physical_example_casts_shadow_far_pixels_unchanged(tmp_path):
+    """The shipped example with the default renderer at low resolution."""
+    from scipy.ndimage import binary_dilation
+
+    from zcomp_cli.imageio import read_map
+
+    manifest = _small_example(tmp_path, jobs=[0])
+    out = tmp_path / "out"
+    r = _run("composite", str(manifest), "--out", str(out), "--debug")
+    assert r.exit_code == 0, r.output
+    job = next(p for p in out.iterdir() if p.is_dir())
+    img = read_image(job / "composite.exr")
+    rep = json.loads((job / "report.json").read_text())
+    from zcomp_cli.pipeline.manifest import load_manifest
+    from zcomp_cli.pipeline.scene import load_scene
+
+    m_ = load_manifest(manifest)
+    bg = load_scene(m_.scenes["room"], m_.defaults.resolution).image
+    m = read_map(job / "debug" / "object_mask.exr") > 0
+    lum = lambda x: x @ np.array([0.299, 0.587, 0.114])  # noqa: E731
+    ratio = lum(img) / np.maximum(lum(bg), 1e-6)
+    near = binary_dilation(m, iterations=12) & ~m
+    assert (ratio[near] < 0.85).sum() >= 10, "no cast shadow beside the object"
+    assert rep["renderer"]["info"]["light"]["fallback"] is None  # the scene has light evidence
+    x0, y0, x1, y1 = rep["roi"]["box"]
+    far = np.ones(m.shape, bool)
+    far[y0:y1, x0:x1] = False
+    assert np.array_equal(img[far], bg[far])
+    # the object is reshaded: its two halves facing toward / away from the light differ
+    light = np.asarray(rep["renderer"]["info"]["light"]["direction"])
+    normals = read_map(job / "debug" / "comp_normals.exr", channels=3)
+    facing = (normals @ light) > 0.3
+    away = (normals @ light) < -0.1
+    shade = read_map(job / "debug" / "f_comp.exr", channels=3)
+    alb = read_map(job / "debug" / "comp_albedo.exr", channels=3)
+    s_lum = lum(shade) / np.maximum(lum(alb), 1e-4)
+    assert (m & facing).sum() > 5 and (m & away).sum() > 5
+    assert np.median(s_lum[m & facing]) > 1.2 * np.median(s_lum[m & away])
