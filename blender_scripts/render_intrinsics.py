@@ -35,17 +35,15 @@ Three renders per item, written to ``work_dir``:
 
 from __future__ import annotations
 
-import json
 import sys
 import time
-import traceback
 
 _T0 = time.monotonic()
 
 import bpy  # noqa: E402
 from mathutils import Matrix  # noqa: E402
 
-from zcomp_cli.blender.runner import emit  # noqa: E402
+from zcomp_cli.blender.runner import serve_job_file  # noqa: E402
 
 # Blender's glTF importer turns glTF's +Y up into Blender's +Z up: (x, y, z) -> (x, -z, y).
 # This undoes it, so imported coordinates are the file's own (Y-up) coordinates again.
@@ -259,24 +257,7 @@ def process(item: dict, common: dict) -> dict:
 
 
 def main(job_path: str) -> int:
-    with open(job_path) as f:
-        job = json.load(f)
-    common = job.get("common", {})
-    emit({"event": "ready", "startup_s": time.monotonic() - _T0,
-          "blender_version": bpy.app.version_string})
-    for item in job["items"]:
-        iid = str(item["id"])
-        emit({"event": "start", "id": iid})
-        t = time.monotonic()
-        try:
-            info = process(item, common)
-        except Exception as exc:  # one bad item must not stop the batch
-            traceback.print_exc()
-            emit({"event": "error", "id": iid, "error": f"{type(exc).__name__}: {str(exc).strip()}"})
-            continue
-        emit({"event": "done", "id": iid, "seconds": time.monotonic() - t,
-              "blender_version": bpy.app.version_string, **info})
-    return 0
+    return serve_job_file(job_path, process, started=_T0, blender_version=bpy.app.version_string)
 
 
 if __name__ == "__main__":

@@ -7,7 +7,6 @@ import glob
 import importlib.util
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest

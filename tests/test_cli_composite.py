@@ -1,7 +1,6 @@
 """`zcomp composite` end to end on the shipped example (Blender renders the objects)."""
 
 import json
-import shutil
 from pathlib import Path
 
 import numpy as np

@@ -118,8 +118,9 @@ def test_end_to_end_deterministic_and_batched(dummy):
 def test_crop_mode_pastes_outside(dummy):
     r = _renderer(dummy, crop=True, context_margin=0.2)
     req = _request(0)
-    out = r.render([req]).images[0]
-    x0, y0, x1, y1 = out_box = r.render([req]).info["box"]
+    res = r.render([req])
+    out = res.images[0]
+    x0, y0, x1, y1 = res.info["box"]
     assert (x1 - x0) < W
     outside = np.ones((H, W), bool)
     outside[y0:y1, x0:x1] = False

@@ -195,3 +195,30 @@ def emit(event: dict) -> None:
     """For scripts: print one protocol event (flushes)."""
     sys.stdout.write(EVENT_PREFIX + json.dumps(event) + "\n")
     sys.stdout.flush()
+
+
+def serve_job_file(job_path: str, process: Callable[[dict, dict], dict], *, started: float,
+                   blender_version: str) -> int:
+    """For scripts: the whole script side of the protocol. Reads JOB.json, announces
+    readiness (with the start-up time since ``started``, a ``time.monotonic()`` taken
+    before ``import bpy``), then runs ``process(item, common) -> dict`` per item,
+    emitting start/done/error events. An exception fails that item only."""
+    import traceback
+
+    with open(job_path) as f:
+        job = json.load(f)
+    common = job.get("common", {})
+    emit({"event": "ready", "startup_s": time.monotonic() - started, "blender_version": blender_version})
+    for item in job["items"]:
+        iid = str(item["id"])
+        emit({"event": "start", "id": iid})
+        t = time.monotonic()
+        try:
+            info = process(item, common)
+        except Exception as exc:  # one bad item must not stop the batch
+            traceback.print_exc()
+            emit({"event": "error", "id": iid, "error": f"{type(exc).__name__}: {str(exc).strip()}"})
+            continue
+        emit({"event": "done", "id": iid, "seconds": time.monotonic() - t,
+              "blender_version": blender_version, **info})
+    return 0

@@ -20,7 +20,7 @@ from typing import Callable
 import numpy as np
 
 from zcomp_cli import __version__
-from zcomp_cli.errors import GeometryError, InputError, UsageError, ZcompError
+from zcomp_cli.errors import InputError, UsageError, ZcompError
 from zcomp_cli.pipeline.manifest import JobSpec, Manifest, RendererSpec
 
 log = logging.getLogger(__name__)

@@ -31,7 +31,7 @@ import numpy as np
 
 from zcomp_cli.errors import ManifestError
 from zcomp_cli.pose import Pose
-from zcomp_cli.yamlloc import LocDict, LocList, line_of, load_yaml
+from zcomp_cli.yamlloc import LocDict, line_of, load_yaml
 
 MESH_EXTS = {".obj", ".glb", ".gltf", ".ply", ".stl"}
 IMAGE_EXTS = {".png", ".jpg", ".jpeg", ".exr", ".hdr", ".tif", ".tiff"}
