@@ -66,6 +66,25 @@ def test_lighting_recovered_from_box_shadow(boxed):
     assert np.allclose(e.intensity, 1.0, atol=0.2)
 
 
+def test_direction_uncertainty_from_score_landscape():
+    from zcomp_cli.renderers.physical.lighting import (MAX_SOFTNESS_DEG, LightEstimate,
+                                                       direction_uncertainty_deg, fibonacci_sphere)
+
+    cands = fibonacci_sphere(400)
+    cands = cands[cands[:, 1] > 0.05]
+    best = cands[0]
+    ang = np.arccos(np.clip(cands @ best, -1, 1))
+    peaked = 1.0 + 50.0 * ang  # score rises fast away from the best direction
+    flat = 1.0 + 0.05 * ang  # every direction fits about as well
+    u_peak = direction_uncertainty_deg(cands, peaked, best)
+    u_flat = direction_uncertainty_deg(cands, flat, best)
+    assert 0 <= u_peak < 5.0 < 30.0 < u_flat
+    e = LightEstimate(best, np.ones(3), np.zeros((4, 3)), 0.3, 3.0, 0.0, 0.5, 0.0, None, u_flat)
+    assert e.cone_deg == min(u_flat, MAX_SOFTNESS_DEG)
+    e.direction_uncertainty_deg = 1.0
+    assert e.cone_deg == 3.0  # the light's own size when the direction is sure
+
+
 def test_bare_floor_triggers_fallback():
     s = floor_scene(80, 60, light_dir=(0.3, 1.0, 0.4))
     e = estimate_lighting(s.depth, s.normals, s.shading, s.depth > 0, s.camera)
@@ -137,15 +156,15 @@ def test_determinism_and_cache(inserted):
 
 
 def test_roi_matches_full_frame(inserted):
-    comp = inserted["comp"]
+    bg, comp = inserted["bg"], inserted["comp"]
     ys, xs = np.nonzero(inserted["mask"])
     roi = (int(xs.min()) + 3, int(ys.min()) + 2, int(xs.max()) - 5, int(ys.max()) - 1)
-    req = RenderRequest(comp.maps, comp.shading, comp.known, comp.camera, roi=roi, scene_key="boxed")
-    out = PhysicalRenderer().render([req], seed=7)
+    reqs = [RenderRequest(r.maps, r.shading, r.known, r.camera, roi=roi, scene_key="boxed") for r in (bg, comp)]
+    out = PhysicalRenderer().render(reqs, seed=7)
     x0, y0, x1, y1 = roi
     full = inserted["out"].images[1]
-    assert np.array_equal(out.images[0][y0:y1, x0:x1], full[y0:y1, x0:x1])
-    assert np.all(np.isfinite(out.images[0]))
+    assert np.array_equal(out.images[1][y0:y1, x0:x1], full[y0:y1, x0:x1])
+    assert np.all(np.isfinite(out.images[1]))
 
 
 def _req(s, known, **over):

@@ -5,7 +5,7 @@ linear) [, roughness, metallic (H,W)].
 Layouts implemented:
 - ``zcomp``: ``<root>/<sample>/{image,depth,normals,albedo[,roughness,metallic]}.npy``
   (the arrays zcomp's bundles hold, as .npy).
-- ``openrooms`` / ``interiorverse``: not implemented yet (UsageError); see docs/zerocomp.md.
+- ``openrooms`` / ``interiorverse``: ``training/datasets_external.py``; see docs/zerocomp.md.
 """
 
 from __future__ import annotations
@@ -56,4 +56,10 @@ class ZcompBundleDataset:
 def open_dataset(layout: str, root, *, channels: int = 11):
     if layout == "zcomp":
         return ZcompBundleDataset(root, need_material=channels == 13)
-    raise UsageError(f"dataset layout {layout!r} is not implemented yet (use 'zcomp')")
+    if layout in ("openrooms", "interiorverse"):
+        from zcomp_cli.training.datasets_external import InteriorVerseDataset, OpenRoomsDataset
+
+        cls = OpenRoomsDataset if layout == "openrooms" else InteriorVerseDataset
+        return cls(root, need_material=channels == 13)
+    raise UsageError(f"dataset layout {layout!r} is not known "
+                     "(use 'zcomp', 'openrooms' or 'interiorverse')")

@@ -40,9 +40,18 @@ class LightEstimate:
     contrast: float
     normal_spread: float
     fallback: str | None = None
+    direction_uncertainty_deg: float = 0.0
+
+    @property
+    def cone_deg(self) -> float:
+        """Cone half-angle used to render: the light's own size, widened to the spread
+        of its plausible directions (an uncertain light casts the average of its
+        possible shadows: softer and lighter), capped at MAX_SOFTNESS_DEG."""
+        return float(min(max(self.softness_deg, self.direction_uncertainty_deg), MAX_SOFTNESS_DEG))
 
     def to_info(self) -> dict:
         d = asdict(self)
+        d["cone_deg"] = self.cone_deg
         return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in d.items()}
 
 
@@ -92,6 +101,24 @@ def _fit_candidate(basis, direct, y, ridge_lin, dark_weight=None):
         c2, score = _robust_fit(basis, y, ridge[:4], dark_weight=dark_weight)
         coef = np.concatenate([c2, [0.0]])
     return coef, score
+
+
+# Direction uncertainty: candidates are weighted by a tempered likelihood
+# exp(-(score - best) / (TEMPERATURE * best)). Model errors are strongly correlated
+# between pixels, so the effective number of independent observations is small and the
+# likelihood is tempered accordingly.
+UNCERTAINTY_TEMPERATURE = 0.3
+MAX_SOFTNESS_DEG = 45.0
+
+
+def direction_uncertainty_deg(cands, scores, best) -> float:
+    """RMS angle (degrees) between ``best`` and the candidates, weighted by their
+    tempered likelihood: how far the plausible light directions spread."""
+    scores = np.asarray(scores, np.float64)
+    s0 = max(float(scores.min()), 1e-12)
+    w = np.exp(-(scores - scores.min()) / (UNCERTAINTY_TEMPERATURE * s0))
+    ang = np.arccos(np.clip(np.asarray(cands) @ best, -1.0, 1.0))
+    return float(np.degrees(np.sqrt((w * ang ** 2).sum() / max(w.sum(), 1e-12))))
 
 
 def _downsample(depth, normals, shading, known, camera, max_res):
@@ -187,6 +214,7 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     cands = cands[cands @ up > 0.05]
     scores = score_dirs(cands)
     best = cands[np.argmin(scores)]
+    spread_deg = direction_uncertainty_deg(cands, scores, best)
     med = float(np.median(scores))
     contrast = float((med - scores.min()) / max(med, 1e-12))
     # refine: a finer spiral inside a cone around the coarse winner
@@ -210,6 +238,15 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     # prefer the crisper light unless a softer one is clearly better (1%)
     s_best = min(f[0] for f in fits)
     s_r, radius, dt = next(f for f in fits if f[0] <= s_best * 1.01 + 1e-12)
+    # An uncertain direction is rendered as the average over its plausible directions:
+    # a wider cone, i.e. a softer and lighter shadow, rather than a crisp shadow that
+    # may point the wrong way (the expected image under the uncertainty). The light's
+    # strength is fitted with that same cone, so the render stays consistent with it.
+    uncertainty = spread_deg if softness_deg is None else 0.0
+    cone = min(max(radius, uncertainty), MAX_SOFTNESS_DEG)
+    if cone > radius:
+        dirs = cone_directions(best, cone, cone_samples, seed=seed)
+        dt = direct_term(P, Nrm, dirs, d, cam, march_visibility, **march)
 
     # per-channel final fit (same design, same IRLS) with I >= 0
     # (symmetric here: the asymmetry ranks directions; the light's strength and the
@@ -223,4 +260,4 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     if inten.max() <= 0:
         return prior("no directional component found (fitted intensity 0)")
     return LightEstimate(best, inten, sh_c, float(share), float(radius), float(s_r),
-                         contrast, spread, None)
+                         contrast, spread, None, float(uncertainty))

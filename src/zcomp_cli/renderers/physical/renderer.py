@@ -90,7 +90,7 @@ class PhysicalRenderer(Renderer):
         t0 = time.perf_counter()
         est = self.estimate(requests[0], seed)
         timings["estimate"] = time.perf_counter() - t0
-        radius = est.softness_deg
+        radius = est.cone_deg
         K = int(self._s["cone_samples"]) if radius > 0 else 1
         dirs = cone_directions(est.direction, radius, K, seed=seed)
         images = []
