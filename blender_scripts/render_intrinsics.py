@@ -44,53 +44,13 @@ import bpy  # noqa: E402
 from mathutils import Matrix  # noqa: E402
 
 from zcomp_cli.blender.runner import serve_job_file  # noqa: E402
-
-# Blender's glTF importer turns glTF's +Y up into Blender's +Z up: (x, y, z) -> (x, -z, y).
-# This undoes it, so imported coordinates are the file's own (Y-up) coordinates again.
-_GLTF_TO_FILE = Matrix.Rotation(-1.5707963267948966, 4, "X")
-# Blender's own axes are forward +Y, up +Z: importing OBJ/PLY/STL with these options
-# applies no axis conversion at all, i.e. keeps the file's coordinates.
-_NO_CONVERSION = {"forward_axis": "Y", "up_axis": "Z"}
+from _bpy_mesh import import_mesh  # noqa: E402  (beside this script)
 
 AOVS = (("albedo", "COLOR"), ("roughness", "VALUE"), ("metallic", "VALUE"))
 
 
 def reset_scene() -> None:
     bpy.ops.wm.read_factory_settings(use_empty=True)
-
-
-def import_mesh(path: str, fmt: str):
-    """Import ``path`` under a new empty ``zcomp_root`` so that, in the root's frame,
-    every vertex has its file (Y-up) coordinates. Returns (root, mesh objects)."""
-    before = set(bpy.data.objects)
-    if fmt == "gltf":
-        bpy.ops.import_scene.gltf(filepath=path, import_shading="NORMALS")
-    elif fmt == "obj":
-        bpy.ops.wm.obj_import(filepath=path, global_scale=1.0, **_NO_CONVERSION)
-    elif fmt == "ply":
-        bpy.ops.wm.ply_import(filepath=path, global_scale=1.0, import_colors="SRGB", **_NO_CONVERSION)
-    elif fmt == "stl":
-        bpy.ops.wm.stl_import(filepath=path, global_scale=1.0, **_NO_CONVERSION)
-    else:
-        raise ValueError(f"unknown mesh format {fmt!r}")
-    new = [o for o in bpy.data.objects if o not in before]
-    # Cameras and lights a glTF may carry have no business in an intrinsics render
-    # (armatures and empties stay: meshes hang from them).
-    for o in [o for o in new if o.type in ("CAMERA", "LIGHT", "LIGHT_PROBE", "SPEAKER")]:
-        new.remove(o)
-        bpy.data.objects.remove(o, do_unlink=True)
-    if not any(o.type == "MESH" for o in new):
-        raise ValueError("the importer produced no mesh objects")
-    root = bpy.data.objects.new("zcomp_root", None)
-    bpy.context.scene.collection.objects.link(root)
-    fix = _GLTF_TO_FILE if fmt == "gltf" else Matrix.Identity(4)
-    for o in new:
-        if o.parent is None:
-            mw = o.matrix_world.copy()
-            o.parent = root
-            o.matrix_parent_inverse = Matrix.Identity(4)
-            o.matrix_basis = fix @ mw
-    return root, [o for o in new if o.type == "MESH"]
 
 
 def _find_principled(nt):

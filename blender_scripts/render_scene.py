@@ -47,12 +47,8 @@ import bpy  # noqa: E402
 from mathutils import Matrix, Vector  # noqa: E402
 
 from zcomp_cli.blender.runner import serve_job_file  # noqa: E402
+from _bpy_mesh import import_mesh  # noqa: E402  (beside this script)
 
-# Blender's glTF importer turns glTF's +Y-up into Blender's +Z-up ((x, y, z) -> (x, -z, y));
-# this rotation undoes it, so the imported mesh holds its file coordinates again.
-_GLTF_TO_FILE = Matrix.Rotation(-math.pi / 2, 4, "X")
-# OBJ/PLY/STL with Blender's own axes (forward +Y, up +Z): no conversion at all.
-_NO_CONVERSION = {"forward_axis": "Y", "up_axis": "Z"}
 
 
 def reset() -> None:
@@ -187,33 +183,7 @@ def add_lamp(i: int, desc: dict) -> None:
 
 
 def add_object(desc: dict) -> None:
-    path, fmt = desc["mesh"], desc["format"]
-    before = set(bpy.data.objects)
-    if fmt == "gltf":
-        bpy.ops.import_scene.gltf(filepath=path)
-    elif fmt == "obj":
-        bpy.ops.wm.obj_import(filepath=path, global_scale=1.0, **_NO_CONVERSION)
-    elif fmt == "ply":
-        bpy.ops.wm.ply_import(filepath=path, global_scale=1.0, **_NO_CONVERSION)
-    elif fmt == "stl":
-        bpy.ops.wm.stl_import(filepath=path, global_scale=1.0, **_NO_CONVERSION)
-    else:
-        raise ValueError(f"unknown mesh format {fmt!r}")
-    new = [o for o in bpy.data.objects if o not in before]
-    for o in [o for o in new if o.type not in ("MESH", "EMPTY")]:  # glTF cameras/lights
-        new.remove(o)
-        bpy.data.objects.remove(o, do_unlink=True)
-    if not any(o.type == "MESH" for o in new):
-        raise ValueError("the importer produced no mesh objects")
-    root = bpy.data.objects.new("zcomp_object", None)
-    bpy.context.scene.collection.objects.link(root)
-    fix = _GLTF_TO_FILE if fmt == "gltf" else Matrix.Identity(4)
-    for o in new:
-        if o.parent is None:
-            mw = o.matrix_world.copy()
-            o.parent = root
-            o.matrix_parent_inverse = Matrix.Identity(4)
-            o.matrix_basis = fix @ mw
+    root, _ = import_mesh(desc["mesh"], desc["format"], "zcomp_object")
     root.matrix_world = Matrix(desc["mesh_to_camera"])
 
 

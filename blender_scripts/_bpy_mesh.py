@@ -1,0 +1,51 @@
+"""Mesh import shared by the Blender scripts (runs inside bpy only).
+
+Every format is imported so that, in the frame of a new empty root object, each vertex
+has its file's own coordinates (metres, Y-up as zcomp reads meshes); the parent then
+places the root with one matrix computed in numpy (``Pose.object_to_camera``)."""
+
+from __future__ import annotations
+
+import bpy
+from mathutils import Matrix
+
+# Blender's glTF importer turns glTF's +Y up into Blender's +Z up: (x, y, z) -> (x, -z, y).
+# This undoes it, so imported coordinates are the file's own (Y-up) coordinates again.
+GLTF_TO_FILE = Matrix.Rotation(-1.5707963267948966, 4, "X")
+# Blender's own axes are forward +Y, up +Z: importing OBJ/PLY/STL with these options
+# applies no axis conversion at all, i.e. keeps the file's coordinates.
+NO_CONVERSION = {"forward_axis": "Y", "up_axis": "Z"}
+
+
+def import_mesh(path: str, fmt: str, root_name: str = "zcomp_root"):
+    """Import ``path`` under a new empty ``root_name``. Returns (root, mesh objects).
+    Cameras, lights and other non-geometry a file may carry are removed."""
+    before = set(bpy.data.objects)
+    if fmt == "gltf":
+        bpy.ops.import_scene.gltf(filepath=path, import_shading="NORMALS")
+    elif fmt == "obj":
+        bpy.ops.wm.obj_import(filepath=path, global_scale=1.0, **NO_CONVERSION)
+    elif fmt == "ply":
+        bpy.ops.wm.ply_import(filepath=path, global_scale=1.0, import_colors="SRGB", **NO_CONVERSION)
+    elif fmt == "stl":
+        bpy.ops.wm.stl_import(filepath=path, global_scale=1.0, **NO_CONVERSION)
+    else:
+        raise ValueError(f"unknown mesh format {fmt!r}")
+    new = [o for o in bpy.data.objects if o not in before]
+    # Cameras and lights a glTF may carry have no business here (armatures and empties
+    # stay: meshes hang from them).
+    for o in [o for o in new if o.type in ("CAMERA", "LIGHT", "LIGHT_PROBE", "SPEAKER")]:
+        new.remove(o)
+        bpy.data.objects.remove(o, do_unlink=True)
+    if not any(o.type == "MESH" for o in new):
+        raise ValueError("the importer produced no mesh objects")
+    root = bpy.data.objects.new(root_name, None)
+    bpy.context.scene.collection.objects.link(root)
+    fix = GLTF_TO_FILE if fmt == "gltf" else Matrix.Identity(4)
+    for o in new:
+        if o.parent is None:
+            mw = o.matrix_world.copy()
+            o.parent = root
+            o.matrix_parent_inverse = Matrix.Identity(4)
+            o.matrix_basis = fix @ mw
+    return root, [o for o in new if o.type == "MESH"]
