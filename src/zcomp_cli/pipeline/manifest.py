@@ -260,20 +260,26 @@ def _parse_K(value, container, key, where, probs) -> np.ndarray | None:
     return K
 
 
+def _named_entries(d, parent, section: str, what: str, expected: str, probs):
+    """Yield ``(name, entry, where)`` for each well-formed ``section.<name>: {...}``;
+    report the malformed ones."""
+    if not isinstance(d, dict) or not d:
+        if section in parent:
+            probs.add(parent, section, section, f"expected a non-empty mapping of {what} name -> {what}")
+        return
+    for name, entry in d.items():
+        where = f"{section}.{name}"
+        if not isinstance(name, str) or not NAME_RE.match(name):
+            probs.add(d, name, where, f"{what} names may use letters, digits, '_', '-' and '.'")
+        elif not isinstance(entry, dict):
+            probs.add(d, name, where, f"expected a mapping with {expected}")
+        else:
+            yield name, entry, where
+
+
 def _parse_scenes(d, parent, root, probs, check_files, defaults) -> dict[str, SceneSpec]:
     out: dict[str, SceneSpec] = {}
-    if not isinstance(d, dict) or not d:
-        if "scenes" in parent:
-            probs.add(parent, "scenes", "scenes", "expected a non-empty mapping of scene name -> scene")
-        return out
-    for name, s in d.items():
-        where = f"scenes.{name}"
-        if not isinstance(name, str) or not NAME_RE.match(name):
-            probs.add(d, name, where, "scene names may use letters, digits, '_', '-' and '.'")
-            continue
-        if not isinstance(s, dict):
-            probs.add(d, name, where, "expected a mapping with at least 'image'")
-            continue
+    for name, s, where in _named_entries(d, parent, "scenes", "scene", "at least 'image'", probs):
         _check_keys(s, {"image", "fov_deg", "K", *MAP_CHANNELS}, where, probs, required=("image",))
         if "fov_deg" in s and "K" in s:
             probs.add(s, "K", where, "give fov_deg or K, not both")
@@ -334,18 +340,8 @@ def _parse_scenes(d, parent, root, probs, check_files, defaults) -> dict[str, Sc
 
 def _parse_objects(d, parent, root, probs, check_files) -> dict[str, ObjectSpec]:
     out: dict[str, ObjectSpec] = {}
-    if not isinstance(d, dict) or not d:
-        if "objects" in parent:
-            probs.add(parent, "objects", "objects", "expected a non-empty mapping of object name -> object")
-        return out
-    for name, o in d.items():
-        where = f"objects.{name}"
-        if not isinstance(name, str) or not NAME_RE.match(name):
-            probs.add(d, name, where, "object names may use letters, digits, '_', '-' and '.'")
-            continue
-        if not isinstance(o, dict):
-            probs.add(d, name, where, "expected a mapping with 'mesh', 'bundle' or 'image' + 'mask'")
-            continue
+    for name, o, where in _named_entries(d, parent, "objects", "object",
+                                         "'mesh', 'bundle' or 'image' + 'mask'", probs):
         _check_keys(o, {"mesh", "bundle", "image", "mask"}, where, probs)
         kinds = [k for k in ("mesh", "bundle", "image") if k in o]
         if len(kinds) != 1:
