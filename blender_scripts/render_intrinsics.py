@@ -44,7 +44,7 @@ import bpy  # noqa: E402
 from mathutils import Matrix  # noqa: E402
 
 from zcomp_cli.blender.runner import serve_job_file  # noqa: E402
-from _bpy_mesh import import_mesh  # noqa: E402  (beside this script)
+from _bpy_common import add_camera, import_mesh  # noqa: E402  (beside this script)
 
 AOVS = (("albedo", "COLOR"), ("roughness", "VALUE"), ("metallic", "VALUE"))
 
@@ -157,19 +157,7 @@ def setup_render(item: dict, samples: int) -> None:
     c.seed = 0
     scene.world = bpy.data.worlds.new("zcomp_world")
 
-    cam_data = bpy.data.cameras.new("zcomp_cam")
-    cam_data.type = "PERSP"
-    cam_data.sensor_fit = "HORIZONTAL"
-    cam_data.sensor_width = bcam["sensor_width_mm"]
-    cam_data.lens = bcam["lens_mm"]
-    cam_data.shift_x = bcam["shift_x"]
-    cam_data.shift_y = bcam["shift_y"]
-    cam_data.clip_start = 1e-3
-    cam_data.clip_end = 1e6
-    cam = bpy.data.objects.new("zcomp_cam", cam_data)
-    cam.matrix_world = Matrix.Identity(4)
-    scene.collection.objects.link(cam)
-    scene.camera = cam
+    add_camera(scene, bcam, clip_end=1e6)
 
     vl = scene.view_layers[0]
     vl.use_pass_z = True

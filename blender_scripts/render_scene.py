@@ -47,7 +47,7 @@ import bpy  # noqa: E402
 from mathutils import Matrix, Vector  # noqa: E402
 
 from zcomp_cli.blender.runner import serve_job_file  # noqa: E402
-from _bpy_mesh import import_mesh  # noqa: E402  (beside this script)
+from _bpy_common import add_camera, import_mesh  # noqa: E402  (beside this script)
 
 
 
@@ -209,19 +209,7 @@ def setup_render(item: dict, common: dict) -> None:
     scene.view_settings.view_transform = "Standard"
 
     cam_desc = desc["camera"]
-    cam_data = bpy.data.cameras.new("zcomp_cam")
-    cam_data.type = "PERSP"
-    cam_data.sensor_fit = "HORIZONTAL"
-    cam_data.sensor_width = float(cam_desc["sensor_width_mm"])
-    cam_data.lens = float(cam_desc["lens_mm"])
-    cam_data.shift_x = float(cam_desc["shift_x"])
-    cam_data.shift_y = float(cam_desc["shift_y"])
-    cam_data.clip_start = 1e-3
-    cam_data.clip_end = 1e4
-    cam = bpy.data.objects.new("zcomp_cam", cam_data)
-    cam.matrix_world = Matrix.Identity(4)
-    scene.collection.objects.link(cam)
-    scene.camera = cam
+    add_camera(scene, cam_desc, clip_end=1e4)
 
     vl = scene.view_layers[0]
     vl.use_pass_combined = True

@@ -14,7 +14,8 @@ import yaml
 
 from zcomp_cli.benchmark import generate as gen
 from zcomp_cli.benchmark.objects import SHAPES, ObjectRecipe, build_object, shape_mesh, write_object_glb
-from zcomp_cli.benchmark.render import blender_camera, maps_from_passes
+from zcomp_cli.benchmark.render import maps_from_passes
+from zcomp_cli.blender.intrinsics import blender_camera_from_K as blender_camera
 from zcomp_cli.benchmark.scenes import (BenchScene, Box, Lamp, Material, Wall, floor_depth,
                                         matrix_to_euler_xyz, sample_scene, scene_for_blender,
                                         scene_geometry)

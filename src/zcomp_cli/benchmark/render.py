@@ -14,26 +14,9 @@ from typing import Callable
 import numpy as np
 
 from zcomp_cli.conventions import blender_depth_to_z_depth, normalize, world_to_camera_normals
-from zcomp_cli.errors import InputError, RenderError
+from zcomp_cli.errors import RenderError
 
 SCRIPT = "render_scene.py"
-
-
-def blender_camera(K, width: int, height: int, *, sensor_width_mm: float = 36.0) -> dict:
-    """Blender camera settings for pinhole ``K`` (square pixels, no skew), with
-    ``sensor_fit = 'HORIZONTAL'``: ``lens = fx * sensor_width / W``; both shifts are
-    fractions of the image width, ``shift_x = (W/2 - cx) / W``,
-    ``shift_y = (cy - H/2) / W`` (rows grow downward, Blender's y upward)."""
-    K = np.asarray(K, dtype=np.float64)
-    if K.shape != (3, 3) or not np.all(np.isfinite(K)):
-        raise InputError(f"K must be a finite 3x3 matrix, got {K.tolist()}")
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    if fx <= 0 or abs(fx - fy) > 1e-6 * fx:
-        raise InputError(f"K needs equal positive focal lengths, got fx={fx:g}, fy={fy:g}")
-    if width <= 0 or height <= 0:
-        raise InputError(f"resolution must be positive, got {width}x{height}")
-    return {"lens_mm": float(fx * sensor_width_mm / width), "sensor_width_mm": float(sensor_width_mm),
-            "shift_x": float((width / 2.0 - cx) / width), "shift_y": float((cy - height / 2.0) / width)}
 
 
 @dataclass

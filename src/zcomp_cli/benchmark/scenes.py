@@ -311,13 +311,13 @@ def matrix_to_euler_xyz(R) -> tuple[float, float, float]:
 
 def scene_for_blender(scene: BenchScene) -> dict:
     """Everything the render script needs about ``scene``, in the camera frame."""
-    from zcomp_cli.benchmark.render import blender_camera
+    from zcomp_cli.blender.intrinsics import blender_camera_from_K
 
     cam = scene.camera
     return {
         "width": cam.width,
         "height": cam.height,
-        "camera": blender_camera(cam.K, cam.width, cam.height),
+        "camera": blender_camera_from_K(cam.K, cam.width, cam.height),
         "hdr": scene.hdr,
         "hdr_strength": float(scene.hdr_strength),
         # The world shader looks up the map with camera->env directions.

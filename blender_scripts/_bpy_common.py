@@ -1,6 +1,7 @@
-"""Mesh import shared by the Blender scripts (runs inside bpy only).
+"""bpy helpers shared by the Blender scripts (runs inside bpy only).
 
-Every format is imported so that, in the frame of a new empty root object, each vertex
+``add_camera`` puts zcomp's pinhole camera at the world origin with identity rotation,
+so Blender's world frame IS zcomp's camera frame. In ``import_mesh`` every format is imported so that, in the frame of a new empty root object, each vertex
 has its file's own coordinates (metres, Y-up as zcomp reads meshes); the parent then
 places the root with one matrix computed in numpy (``Pose.object_to_camera``)."""
 
@@ -49,3 +50,22 @@ def import_mesh(path: str, fmt: str, root_name: str = "zcomp_root"):
             o.matrix_parent_inverse = Matrix.Identity(4)
             o.matrix_basis = fix @ mw
     return root, [o for o in new if o.type == "MESH"]
+
+
+def add_camera(scene, bcam: dict, *, clip_end: float = 1e6):
+    """Add the scene camera from ``zcomp_cli.blender.intrinsics.blender_camera_from_K``
+    settings (lens, sensor width, shifts), at the origin with identity rotation."""
+    cam_data = bpy.data.cameras.new("zcomp_cam")
+    cam_data.type = "PERSP"
+    cam_data.sensor_fit = "HORIZONTAL"
+    cam_data.sensor_width = float(bcam["sensor_width_mm"])
+    cam_data.lens = float(bcam["lens_mm"])
+    cam_data.shift_x = float(bcam["shift_x"])
+    cam_data.shift_y = float(bcam["shift_y"])
+    cam_data.clip_start = 1e-3
+    cam_data.clip_end = clip_end
+    cam = bpy.data.objects.new("zcomp_cam", cam_data)
+    cam.matrix_world = Matrix.Identity(4)
+    scene.collection.objects.link(cam)
+    scene.camera = cam
+    return cam
