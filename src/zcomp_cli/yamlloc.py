@@ -74,6 +74,8 @@ def load_yaml(path) -> object:
         raise ManifestError(f"{where}: invalid YAML: {problem}") from exc
     except UnicodeDecodeError as exc:
         raise ManifestError(f"{path}: not a text file: {exc}") from exc
+    except OSError as exc:
+        raise ManifestError(f"{path}: cannot read: {exc}") from exc
 
 
 def line_of(container, key=None) -> int | None:

@@ -82,19 +82,13 @@ def load_manifest(path) -> list[_Job]:
     raised together as one ManifestError; value problems that concern one item (a
     zero-size resolution, a missing mesh file) become that item's error instead, so
     the other items still render."""
-    import yaml
-
     from zcomp_cli.errors import ManifestError
     from zcomp_cli.pose import Pose
+    from zcomp_cli.yamlloc import load_yaml
 
     path = Path(path)
     src = str(path)
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise ManifestError("file not found", source=src) from None
-    except (OSError, yaml.YAMLError) as exc:
-        raise ManifestError(f"cannot parse YAML: {exc}", source=src) from exc
+    doc = load_yaml(path)  # ManifestError naming the file (and the line of a syntax error)
     if not isinstance(doc, dict):
         raise ManifestError("top level must be a mapping with objects, cameras, renders", source=src)
     problems: list[str] = []
