@@ -82,6 +82,20 @@ def _oiio():
     return oiio
 
 
+def image_header(path) -> tuple[int, int, int]:
+    """(width, height, channels) of an image file, reading only its header.
+    Raises ValueError when the file cannot be read as an image."""
+    oiio = _oiio()
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise ValueError(oiio.geterror() or "unreadable image")
+    try:
+        spec = inp.spec()
+        return int(spec.width), int(spec.height), int(spec.nchannels)
+    finally:
+        inp.close()
+
+
 def _read_raw(path) -> tuple[np.ndarray, str]:
     """Read pixels as stored: float32 for float formats, native ints otherwise.
     Returns (H x W x C array, format name)."""

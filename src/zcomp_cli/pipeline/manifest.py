@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from zcomp_cli.errors import ManifestError
+from zcomp_cli.imageio import image_header
 from zcomp_cli.pose import Pose
 from zcomp_cli.yamlloc import LocDict, line_of, load_yaml
 
@@ -126,20 +127,6 @@ class _Problems:
         line = line_of(container, key)
         loc = f"{self.path.name}:{line}" if line else self.path.name
         self.items.append(f"{loc}: {where}: {msg}")
-
-
-def image_header(path: Path) -> tuple[int, int, int]:
-    """(width, height, channels) of an image file, reading only its header."""
-    import OpenImageIO as oiio
-
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise ValueError(oiio.geterror() or "unreadable image")
-    try:
-        spec = inp.spec()
-        return int(spec.width), int(spec.height), int(spec.nchannels)
-    finally:
-        inp.close()
 
 
 def _check_keys(d, allowed: set[str], where: str, probs: _Problems, required=()):
