@@ -8,7 +8,7 @@ STAMP  := $(VENV)/.zcomp-installed
 
 .PHONY: venv demo test test-fast bench bench-intrinsics clean
 
-$(STAMP): pyproject.toml setup.py
+$(STAMP): pyproject.toml
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info[:2] == (3, 11) else 1)' 2>/dev/null || \
 	  { echo "zcomp needs Python 3.11 (bpy 5.0.1 ships wheels for CPython 3.11 only)."; \
 	    echo "Set PYTHON=/path/to/python3.11, e.g. 'make test PYTHON=~/.pyenv/versions/3.11.7/bin/python'."; exit 1; }

@@ -268,7 +268,7 @@ def native_resolution(bench_jobs: Path) -> tuple[int, int]:
 
 # ----------------------------------------------------------------------------- running
 def snapshot_source(dest: Path) -> dict:
-    """Copy the zcomp_cli package in use (with its Blender scripts) to ``dest/zcomp_cli``
+    """Copy the zcomp_cli package in use (its Blender scripts live inside it) to ``dest/zcomp_cli``
     and return {"path", "sha256", "git_commit", "origin"}.
 
     Every configuration then runs this copy (PYTHONPATH=dest comes before the editable
@@ -276,7 +276,6 @@ def snapshot_source(dest: Path) -> dict:
     even while the working tree changes under it. ``sha256`` covers every .py file.
     """
     import hashlib
-    from importlib import resources
 
     import zcomp_cli
 
@@ -285,12 +284,6 @@ def snapshot_source(dest: Path) -> dict:
         shutil.rmtree(dest)
     ignore = shutil.ignore_patterns("__pycache__", "*.pyc")
     shutil.copytree(src, dest / "zcomp_cli", ignore=ignore)
-    try:
-        scripts = Path(str(resources.files("zcomp_cli.blender_scripts")))
-    except (ModuleNotFoundError, TypeError):
-        scripts = None
-    if scripts is not None and scripts.is_dir() and not (dest / "zcomp_cli" / "blender_scripts").exists():
-        shutil.copytree(scripts, dest / "zcomp_cli" / "blender_scripts", ignore=ignore)
     h = hashlib.sha256()
     for f in sorted((dest / "zcomp_cli").rglob("*.py")):
         h.update(f.relative_to(dest).as_posix().encode() + b"\0" + f.read_bytes())

@@ -27,10 +27,10 @@ from pathlib import Path
 
 import numpy as np
 
-from zcomp_cli.benchmark.generate import exposure_scale
-from zcomp_cli.benchmark.objects import ObjectRecipe, write_object_glb
-from zcomp_cli.benchmark.render import render_scenes
-from zcomp_cli.benchmark.scenes import BenchScene, Box, Lamp, Material, Wall, scene_for_blender
+from zcomp_cli.benchsuite.generate import exposure_scale
+from zcomp_cli.benchsuite.objects import ObjectRecipe, write_object_glb
+from zcomp_cli.benchsuite.render import render_scenes
+from zcomp_cli.benchsuite.scenes import BenchScene, Box, Lamp, Material, Wall, scene_for_blender
 from zcomp_cli.blender.meshes import load_mesh_info
 from zcomp_cli.imageio import write_exr, write_json_atomic, write_png, write_text_atomic
 from zcomp_cli.pose import Pose, euler_deg_to_matrix, transform_points

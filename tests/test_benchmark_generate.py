@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 import yaml
 
-from zcomp_cli.benchmark import generate as gen
-from zcomp_cli.benchmark.objects import SHAPES, ObjectRecipe, build_object, shape_mesh, write_object_glb
-from zcomp_cli.benchmark.render import maps_from_passes
+from zcomp_cli.benchsuite import generate as gen
+from zcomp_cli.benchsuite.objects import SHAPES, ObjectRecipe, build_object, shape_mesh, write_object_glb
+from zcomp_cli.benchsuite.render import maps_from_passes
 from zcomp_cli.blender.intrinsics import blender_camera_from_K as blender_camera
-from zcomp_cli.benchmark.scenes import (BenchScene, Box, Lamp, Material, Wall, floor_depth,
+from zcomp_cli.benchsuite.scenes import (BenchScene, Box, Lamp, Material, Wall, floor_depth,
                                         matrix_to_euler_xyz, sample_scene, scene_for_blender,
                                         scene_geometry)
 from zcomp_cli.errors import GeometryError, InputError, UsageError
@@ -402,7 +402,7 @@ def test_environment_map_is_turned_to_the_scene_up(tmp_path):
     camera->env directions: checks the Mapping node's Euler convention end to end."""
     if not HAS_BPY:
         pytest.skip("bpy not installed")
-    from zcomp_cli.benchmark.render import render_scenes
+    from zcomp_cli.benchsuite.render import render_scenes
     from zcomp_cli.blender.passes import read_multilayer_exr
     from zcomp_cli.imageio import read_map
 

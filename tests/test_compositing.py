@@ -17,7 +17,7 @@ from zcomp_cli.compositing import (
     shadow_ratio,
 )
 from zcomp_cli.compositing.compositor import gaussian_kernel1d
-from zcomp_cli.renderers.base import SceneMaps
+from zcomp_cli.maps import SceneMaps
 
 
 # ---------------------------------------------------------------- depth alignment

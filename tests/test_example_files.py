@@ -49,7 +49,7 @@ def test_example_maps_are_consistent():
 
 
 def test_example_depth_matches_the_scene_description():
-    from zcomp_cli.benchmark.scenes import BenchScene, floor_depth
+    from zcomp_cli.benchsuite.scenes import BenchScene, floor_depth
 
     sc = BenchScene.from_dict(json.loads((ROOM / "scene.json").read_text())["scene"])
     fd = floor_depth(sc)

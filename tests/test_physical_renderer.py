@@ -5,10 +5,11 @@ import pytest
 
 from zcomp_cli.errors import InputError, UsageError
 from zcomp_cli.renderers import get_renderer
-from zcomp_cli.renderers.base import RenderRequest, SceneMaps
+from zcomp_cli.maps import SceneMaps
+from zcomp_cli.renderers.base import RenderRequest
 from zcomp_cli.renderers.physical import PhysicalRenderer, estimate_lighting
 from zcomp_cli.renderers.physical.visibility import march_visibility, sample_depth
-from zcomp_cli.synthetic import floor_scene, insert_bundle, sphere_object_bundle
+from zcomp_cli.testing import floor_scene, insert_bundle, sphere_object_bundle
 
 LIGHT = (0.7, 1.0, 0.2)  # world, toward the light: from the right, above
 

@@ -1,10 +1,10 @@
-"""Tests of the analytic scenes in zcomp_cli.synthetic."""
+"""Tests of the analytic scenes in zcomp_cli.testing."""
 
 import numpy as np
 import pytest
 
 from zcomp_cli.errors import InputError
-from zcomp_cli.synthetic import floor_scene, insert_bundle, sphere_object_bundle
+from zcomp_cli.testing import floor_scene, insert_bundle, sphere_object_bundle
 
 
 def test_floor_depth_is_exact():

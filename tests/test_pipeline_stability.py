@@ -11,7 +11,7 @@ import yaml
 from zcomp_cli.imageio import read_image, write_exr
 from zcomp_cli.pipeline.batch import run_batch
 from zcomp_cli.pipeline.manifest import load_manifest
-from zcomp_cli.synthetic import floor_scene, sphere_object_bundle
+from zcomp_cli.testing import floor_scene, sphere_object_bundle
 
 # Light estimation is the expensive part; keep it small for CI.
 FAST = {"name": "physical", "n_light_candidates": 64, "max_resolution": 64}

@@ -286,7 +286,7 @@ def test_snapshot_source_is_a_complete_importable_copy(sweep, tmp_path):
     info = sweep.snapshot_source(tmp_path / "code")
     pkg = tmp_path / "code" / "zcomp_cli"
     assert (pkg / "renderers" / "physical" / "renderer.py").is_file()
-    assert (pkg / "blender_scripts").is_dir()
+    assert (pkg / "blender" / "scripts" / "render_intrinsics.py").is_file()
     assert not list(pkg.rglob("__pycache__"))
     assert len(info["sha256"]) == 64
     assert json.loads((tmp_path / "code" / "SOURCE.json").read_text())["sha256"] == info["sha256"]

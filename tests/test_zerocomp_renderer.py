@@ -4,7 +4,8 @@ import pytest
 from zcomp_cli.camera import Camera
 from zcomp_cli.conventions import K_from_fov
 from zcomp_cli.errors import InputError, UsageError, WeightsError
-from zcomp_cli.renderers.base import RenderRequest, SceneMaps
+from zcomp_cli.maps import SceneMaps
+from zcomp_cli.renderers.base import RenderRequest
 from zcomp_cli.renderers.zerocomp.conditioning import build_conditioning, crop_box, official_shading
 
 from zerocomp_dummy import save_dummy

@@ -1,2 +1,2 @@
 """Everything that drives Blender. bpy itself is only ever imported by the scripts in
-``blender_scripts/``, which run in a subprocess (see ``runner``)."""
+``scripts/``, which run in a subprocess (see ``runner``)."""

@@ -10,7 +10,7 @@ Steps for a batch:
    (``Pose.object_to_camera`` on its bounding box), refuse objects behind the camera
    or outside the view, derive the Blender camera from K, compute the cache key;
 2. answer cache hits by copying (hard-linking) the cached bundle;
-3. render the rest in ONE Blender process (``blender_scripts/render_intrinsics.py``
+3. render the rest in ONE Blender process (``zcomp_cli/blender/scripts/render_intrinsics.py``
    through ``runner.run_blender_batch``): appearance, geometry and footprint passes;
 4. as each item finishes, convert its passes in numpy (``passes``) into an
    ``ObjectBundle``, store it in the cache, copy it to the item's output folder.

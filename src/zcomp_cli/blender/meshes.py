@@ -3,7 +3,7 @@
 Meshes are in metres with +Y up (glTF's convention; OBJ, PLY and STL are read with their
 coordinates as stored, taken as Y-up too). The bounding box is computed here with trimesh
 on the mesh as loaded, and Blender is told to keep the same raw coordinates (see
-``blender_scripts/render_intrinsics.py``), so ``Pose.object_to_camera(bbox)`` places the
+``zcomp_cli/blender/scripts/render_intrinsics.py``), so ``Pose.object_to_camera(bbox)`` places the
 rendered mesh exactly.
 """
 

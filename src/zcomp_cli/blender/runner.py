@@ -1,7 +1,7 @@
 """Run a Blender script over a batch of items in ONE subprocess (BlenderProc's lesson:
 bpy never in the main process, one Blender start-up per batch).
 
-Protocol between this module and a script in ``blender_scripts/``:
+Protocol between this module and a script in ``zcomp_cli/blender/scripts/``:
 
 * The script is run as ``python SCRIPT JOB.json`` with the same interpreter (bpy is a
   Python module). ``JOB.json`` is ``{"common": {...}, "items": [{"id": str, ...}, ...]}``.
@@ -37,8 +37,8 @@ EVENT_PREFIX = "@@ZCOMP@@ "
 
 
 def script_path(name: str) -> Path:
-    """Absolute path of ``blender_scripts/<name>`` (works installed or editable)."""
-    p = Path(str(resources.files("zcomp_cli.blender_scripts").joinpath(name)))
+    """Absolute path of ``zcomp_cli/blender/scripts/<name>`` (works installed or editable)."""
+    p = Path(str(resources.files("zcomp_cli.blender.scripts").joinpath(name)))
     if not p.is_file():
         raise RenderError(f"Blender script {name!r} not found (looked at {p})")
     return p
@@ -65,10 +65,10 @@ def run_blender_batch(
     item_timeout_s: float = 1800.0,
     max_restarts: int | None = None,
 ) -> BatchResult:
-    """Run ``blender_scripts/<script>`` over ``items`` in as few processes as possible.
+    """Run ``zcomp_cli/blender/scripts/<script>`` over ``items`` in as few processes as possible.
 
     Args:
-        script: file name inside ``blender_scripts/``.
+        script: file name inside ``zcomp_cli/blender/scripts/``.
         items: JSON-serialisable dicts, each with a unique string ``"id"``.
         common: settings shared by every item.
         on_event: called with every event dict as it arrives (progress bars).

@@ -30,8 +30,8 @@ import click
 @click.pass_context
 def make_benchmark(ctx, out, n, seed, resolution, samples, denoise, objects, no_procedural, threads, overwrite):
     """Build a benchmark in OUT with physically rendered ground truth."""
-    from zcomp_cli.benchmark.generate import BenchmarkSettings, generate_benchmark
-    from zcomp_cli.benchmark.objects import SHAPES
+    from zcomp_cli.benchsuite.generate import BenchmarkSettings, generate_benchmark
+    from zcomp_cli.benchsuite.objects import SHAPES
     from zcomp_cli.cli.progress import StageProgress
 
     settings = BenchmarkSettings(n=n, seed=seed, resolution=tuple(resolution), samples=samples,

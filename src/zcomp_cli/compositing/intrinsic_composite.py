@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from zcomp_cli.conventions import normalize, valid_depth_mask
-from zcomp_cli.renderers.base import SceneMaps
+from zcomp_cli.maps import SceneMaps
 
 
 def occlusion_mask(mask, obj_depth, bg_depth, *, tolerance: float = 0.01) -> np.ndarray:

@@ -29,7 +29,8 @@ from zcomp_cli.compositing.compositor import BLUR_SIZE
 from zcomp_cli.conventions import valid_depth_mask
 from zcomp_cli.errors import GeometryError, NumericalError
 from zcomp_cli.pipeline.scene import Scene
-from zcomp_cli.renderers.base import Renderer, RenderRequest, SceneMaps
+from zcomp_cli.maps import SceneMaps
+from zcomp_cli.renderers.base import Renderer, RenderRequest
 
 ROI_CONTEXT_PX = 16
 

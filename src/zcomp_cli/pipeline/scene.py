@@ -14,7 +14,7 @@ from zcomp_cli.camera import DEFAULT_FOV_DEG, Camera
 from zcomp_cli.conventions import normalize, valid_depth_mask
 from zcomp_cli.errors import InputError
 from zcomp_cli.pipeline.manifest import SceneSpec
-from zcomp_cli.renderers.base import SceneMaps
+from zcomp_cli.maps import SceneMaps
 
 log = logging.getLogger(__name__)
 

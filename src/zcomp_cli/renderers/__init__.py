@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import importlib
 
-from zcomp_cli.renderers.base import Renderer, RenderOutput, RenderRequest, SceneMaps
+from zcomp_cli.maps import SceneMaps
+from zcomp_cli.renderers.base import Renderer, RenderOutput, RenderRequest
 
 # name -> (module, class)
 _RENDERERS = {

@@ -32,7 +32,8 @@ def make_batch(samples, rng, cfg: TrainConfig, channels: int):
 
     from zcomp_cli.camera import Camera
     from zcomp_cli.conventions import K_from_fov
-    from zcomp_cli.renderers.base import RenderRequest, SceneMaps
+    from zcomp_cli.maps import SceneMaps
+    from zcomp_cli.renderers.base import RenderRequest
     from zcomp_cli.renderers.zerocomp.conditioning import build_conditioning
     from zcomp_cli.training.masks import random_shading_mask
 

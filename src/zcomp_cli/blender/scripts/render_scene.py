@@ -2,7 +2,7 @@
 with Cycles, one Blender process per batch.
 
 Run by ``zcomp_cli.blender.runner`` as ``python render_scene.py JOB.json``; never
-imported by zcomp. The parent (``zcomp_cli.benchmark``) decides all geometry in the
+imported by zcomp. The parent (``zcomp_cli.benchsuite``) decides all geometry in the
 camera frame and converts the raw passes with tested numpy functions; this script only
 builds what it is told, renders, and writes multilayer EXRs (no compositor: bpy 5 has
 no ``scene.node_tree``).

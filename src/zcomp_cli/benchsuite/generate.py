@@ -32,8 +32,8 @@ from typing import Callable
 
 import numpy as np
 
-from zcomp_cli.benchmark.objects import SHAPES, ObjectRecipe, sample_recipe, write_object_glb
-from zcomp_cli.benchmark.scenes import BenchScene, sample_scene, scene_for_blender
+from zcomp_cli.benchsuite.objects import SHAPES, ObjectRecipe, sample_recipe, write_object_glb
+from zcomp_cli.benchsuite.scenes import BenchScene, sample_scene, scene_for_blender
 from zcomp_cli.camera import Camera
 from zcomp_cli.conventions import luminance
 from zcomp_cli.errors import GeometryError, InputError, UsageError
@@ -267,7 +267,7 @@ def generate_benchmark(out_dir, settings: BenchmarkSettings, *, overwrite: bool 
     is called as renders finish (two per case)."""
     import tempfile
 
-    from zcomp_cli.benchmark.render import render_scenes
+    from zcomp_cli.benchsuite.render import render_scenes
     from zcomp_cli.imageio import write_exr, write_json_atomic, write_png
 
     out_dir = Path(out_dir)

@@ -1,4 +1,4 @@
-"""Run ``blender_scripts/render_scene.py`` and turn its raw passes into zcomp maps.
+"""Run ``zcomp_cli/blender/scripts/render_scene.py`` and turn its raw passes into zcomp maps.
 
 Blender runs in a subprocess through ``zcomp_cli.blender.runner``; every conversion of
 its passes (1e10 depth, world-space normals) happens here with tested numpy functions
@@ -75,7 +75,7 @@ def maps_from_passes(beauty: dict, geometry: dict) -> SceneMaps:
 
 def render_scenes(items: list[dict], *, threads: int = 0, on_event: Callable[[dict], None] | None = None,
                   log_path=None) -> dict[str, SceneMaps]:
-    """Render every item (see the job format in ``blender_scripts/render_scene.py``) in
+    """Render every item (see the job format in ``zcomp_cli/blender/scripts/render_scene.py``) in
     one Blender process and return its maps by item id.
 
     Raises:
