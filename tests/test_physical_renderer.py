@@ -81,9 +81,10 @@ def test_direction_uncertainty_from_score_landscape():
     u_flat = direction_uncertainty_deg(cands, flat, best)
     assert 0 <= u_peak < 5.0 < 30.0 < u_flat
     e = LightEstimate(best, np.ones(3), np.zeros((4, 3)), 0.3, 3.0, 0.0, 0.5, 0.0, None, u_flat)
-    assert e.cone_deg == min(u_flat, MAX_SOFTNESS_DEG)
-    e.direction_uncertainty_deg = 1.0
-    assert e.cone_deg == 3.0  # the light's own size when the direction is sure
+    # the uncertainty is reported but never widens the shadow (that made shadows faint)
+    assert e.cone_deg == 3.0
+    e.softness_deg = 90.0
+    assert e.cone_deg == MAX_SOFTNESS_DEG
 
 
 def test_bare_floor_triggers_fallback():
@@ -140,11 +141,12 @@ def test_object_shading_and_cast_shadow(inserted):
     ys, xs = np.nonzero(shadow)
     _, xo = np.nonzero(sel)
     assert xs.mean() < xo.mean()
-    # R == 1 exactly where the object has no influence: far right of the mask
+    # R ~ 1 where the object has (almost) no influence: far right of the mask (its
+    # ambient occlusion fades out within ~0.1 depth of the object)
     cols = np.nonzero(inserted["mask"].any(0))[0]
     right = inserted["mask"].copy()
     right[:, : cols.max() - 3] = False
-    assert np.array_equal(comp[right], bg[right])
+    assert np.allclose(comp[right], bg[right], rtol=0.01)
 
 
 @pytest.mark.slow

@@ -21,6 +21,9 @@ from zcomp_cli.renderers.physical.visibility import march_visibility
 SOFTNESS_CANDIDATES_DEG = (0.0, 3.0, 8.0, 15.0, 30.0)
 PRIOR_SOFTNESS_DEG = 15.0
 PRIOR_AMBIENT_SHARE = 0.4
+# Pixels in shadow (and lit) on the dominant surface needed to read the ambient share
+# directly from them.
+MIN_SHADOW_PIXELS = 15
 
 
 @dataclass
@@ -41,13 +44,17 @@ class LightEstimate:
     normal_spread: float
     fallback: str | None = None
     direction_uncertainty_deg: float = 0.0
+    share_source: str = "prior"
+    source: str = "estimated"
 
     @property
     def cone_deg(self) -> float:
-        """Cone half-angle used to render: the light's own size, widened to the spread
-        of its plausible directions (an uncertain light casts the average of its
-        possible shadows: softer and lighter), capped at MAX_SOFTNESS_DEG."""
-        return float(min(max(self.softness_deg, self.direction_uncertainty_deg), MAX_SOFTNESS_DEG))
+        """Angular radius the shadow is rendered with: the light's own fitted size. The
+        direction's uncertainty is reported but does not widen the shadow: averaging
+        the possible shadows of an uncertain light made them faint (a shadow that keeps
+        87% of the background where the truth keeps 25%); an unconstrained direction
+        is rendered as a contact shadow instead (``fallback``)."""
+        return float(min(self.softness_deg, MAX_SOFTNESS_DEG))
 
     def to_info(self) -> dict:
         d = asdict(self)
@@ -101,6 +108,44 @@ def _fit_candidate(basis, direct, y, ridge_lin, dark_weight=None):
         c2, score = _robust_fit(basis, y, ridge[:4], dark_weight=dark_weight)
         coef = np.concatenate([c2, [0.0]])
     return coef, score
+
+
+def _robust_fit_batch(basis, direct, y, ridge_lin, iters=4, dark_weight=None) -> np.ndarray:
+    """``_fit_candidate``'s score for C candidates at once (the same asymmetric
+    Huber-IRLS ridge fit, batched normal equations). basis (N, 4), direct (N, C), y (N,).
+    Returns (C,) scores."""
+    dark_weight = DARK_RESIDUAL_WEIGHT if dark_weight is None else dark_weight
+    N, C = direct.shape
+    B = basis
+    scale = max(np.median(np.abs(y)), 1e-6)
+    ridge = np.array([0.0, ridge_lin, ridge_lin, ridge_lin, 0.0]) * N
+    w = np.ones((N, C))
+    BB = (B[:, :, None] * B[:, None, :]).reshape(N, 16)
+    By = B * y[:, None]
+    for _ in range(iters):
+        # weighted Gram matrices of all candidates as plain matrix products
+        wd = w * direct
+        A = np.empty((C, 5, 5))
+        A[:, :4, :4] = (BB.T @ w).T.reshape(C, 4, 4)
+        bd = (B.T @ wd).T
+        A[:, :4, 4] = bd
+        A[:, 4, :4] = bd
+        A[:, 4, 4] = (wd * direct).sum(0)
+        A += np.diag(ridge + 1e-9)[None]
+        rhs = np.empty((C, 5))
+        rhs[:, :4] = (By.T @ w).T
+        rhs[:, 4] = wd.T @ y
+        coef = np.linalg.solve(A, rhs[..., None])[..., 0]
+        # I >= 0: a negative light is the ambient-only fit
+        coef[coef[:, 4] < 0, 4] = 0.0
+        r = y[:, None] - B @ coef[:, :4].T - direct * coef[:, 4][None]
+        sc = 1.4826 * np.median(np.abs(r), axis=0) + 1e-3 * scale
+        c = 1.345 * sc[None]
+        side = np.where(r < 0, dark_weight, 1.0)
+        a = np.abs(r)
+        w = side * np.where(a <= c, 1.0, c / np.maximum(a, 1e-12))
+    loss = side * np.where(a <= c, 0.5 * a * a, c * (a - 0.5 * c))
+    return loss.mean(0) / scale ** 2
 
 
 # Direction uncertainty: candidates are weighted by a tempered likelihood
@@ -203,12 +248,24 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     basis = sh_basis(Nrm)
     hard = lambda l: direct_term(P, Nrm, l[None], d, cam, march_visibility, **march)
 
-    def score_dirs(dirs):
+    def score_dirs(dirs, chunk=32):
+        # all candidates of a chunk marched at once (one vectorised march, not one
+        # Python loop per direction): the estimate's cost is dominated by these rays
         out = []
-        for l in dirs:
-            _, s = _fit_candidate(basis, hard(l), Y, ridge)
-            out.append(s)
-        return np.array(out)
+        for c0 in range(0, len(dirs), chunk):
+            D = np.asarray(dirs[c0:c0 + chunk])
+            C = len(D)
+            ndl = np.maximum(Nrm @ D.T, 0.0)  # (N, C)
+            Pr = np.repeat(P[None], C, 0).reshape(-1, 3)
+            Nr = np.repeat(Nrm[None], C, 0).reshape(-1, 3)
+            Lr = np.repeat(D, len(P), 0)
+            live = ndl.T.reshape(-1) > 0
+            v = np.zeros(len(Pr))
+            if live.any():
+                v[live] = march_visibility(Pr[live], Nr[live], Lr[live], d, cam, **march)
+            dt = ndl * v.reshape(C, -1).T
+            out.append(_robust_fit_batch(basis, dt, Y, ridge))
+        return np.concatenate(out)
 
     cands = fibonacci_sphere(2 * n_candidates)
     cands = cands[cands @ up > 0.05]
@@ -238,15 +295,9 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     # prefer the crisper light unless a softer one is clearly better (1%)
     s_best = min(f[0] for f in fits)
     s_r, radius, dt = next(f for f in fits if f[0] <= s_best * 1.01 + 1e-12)
-    # An uncertain direction is rendered as the average over its plausible directions:
-    # a wider cone, i.e. a softer and lighter shadow, rather than a crisp shadow that
-    # may point the wrong way (the expected image under the uncertainty). The light's
-    # strength is fitted with that same cone, so the render stays consistent with it.
+    # The direction's uncertainty is reported, but neither widens the shadow nor
+    # enters the fit of the light's strength (that diluted the shadows).
     uncertainty = spread_deg if softness_deg is None else 0.0
-    cone = min(max(radius, uncertainty), MAX_SOFTNESS_DEG)
-    if cone > radius:
-        dirs = cone_directions(best, cone, cone_samples, seed=seed)
-        dt = direct_term(P, Nrm, dirs, d, cam, march_visibility, **march)
 
     # per-channel final fit (same design, same IRLS) with I >= 0
     # (symmetric here: the asymmetry ranks directions; the light's strength and the
@@ -254,10 +305,33 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     coefs = np.stack([_fit_candidate(basis, dt, S[:, c], ridge, dark_weight=1.0)[0] for c in range(3)], 1)
     inten = np.maximum(coefs[4], 0.0)
     sh_c = coefs[:4]
+    if inten.max() <= 0:
+        return prior("no directional component found (fitted intensity 0)")
+    # The ambient share straight from the evidence: on the dominant surface, the shading
+    # of the pixels the model puts in shadow over that of the lit ones. On lit pixels
+    # the directional term is linear in n like the SH ambient, so the regression alone
+    # trades one for the other; the shadowed pixels are what pin the share down.
+    ndl_fit = np.maximum(Nrm @ best, 0.0)
+    frac = np.where(ndl_fit > 1e-3, dt / np.maximum(ndl_fit, 1e-3), 1.0)
+    on_up = Nrm @ up > np.cos(np.deg2rad(15))
+    shadow_px, lit_px = on_up & (frac < 0.2), on_up & (frac > 0.8)
+    cos_up = float(max(best @ up, 0.05))
+    share_src = "fit"
+    if shadow_px.sum() >= MIN_SHADOW_PIXELS and lit_px.sum() >= MIN_SHADOW_PIXELS:
+        lit_c = np.median(S[lit_px], 0)
+        shd_c = np.median(S[shadow_px], 0)
+        shares = np.clip(shd_c / np.maximum(lit_c, 1e-9), 0.02, 1.0)
+        amb_f = shares * lit_c
+        inten = np.maximum((lit_c - amb_f) / cos_up, 0.0)
+        # the ambient refitted with the light fixed, so other orientations stay
+        # consistent; then its constant shifted to the measured shadow level
+        ridge4 = np.array([0.0, ridge, ridge, ridge])
+        sh_c = np.stack([_robust_fit(basis, S[:, c] - inten[c] * dt, ridge4, dark_weight=1.0)[0]
+                         for c in range(3)], 1)
+        sh_c[0] += amb_f - (sh_basis(up[None]) @ sh_c)[0]
+        share_src = "shadowed vs lit pixels of the dominant surface"
     amb_up = float(np.maximum(sh_basis(up[None]) @ sh_c, 0).mean())
     dir_up = float(inten.mean() * max(best @ up, 0.0))
     share = amb_up / max(amb_up + dir_up, 1e-12)
-    if inten.max() <= 0:
-        return prior("no directional component found (fitted intensity 0)")
     return LightEstimate(best, inten, sh_c, float(share), float(radius), float(s_r),
-                         contrast, spread, None, float(uncertainty))
+                         contrast, spread, None, float(uncertainty), share_src)

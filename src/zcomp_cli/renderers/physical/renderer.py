@@ -10,17 +10,19 @@ import numpy as np
 from zcomp_cli.errors import InputError, NumericalError, UsageError
 from zcomp_cli.renderers.base import Renderer, RenderOutput, RenderRequest
 from zcomp_cli.renderers.physical.lighting import LightEstimate, estimate_lighting
-from zcomp_cli.renderers.physical.shading import cone_directions, direct_term, shade
+from zcomp_cli.renderers.physical.shading import sh_basis
+from zcomp_cli.renderers.physical.softshadow import (AO_BLUR_PX, WINDOW_MARGIN_PX, ambient_occlusion,
+                                                     classwise_blur, penumbra_filter, pixel_jitter)
 from zcomp_cli.renderers.physical.visibility import march_visibility
 
 _DEFAULTS = {
-    "n_light_candidates": 256,   # coarse hemisphere candidates for the light search
+    "n_light_candidates": 128,   # coarse hemisphere candidates for the light search
     "march_steps": 32,           # ray-march samples per shadow ray (synthesis)
-    "estimate_march_steps": 24,  # ray-march samples per shadow ray (estimation)
+    "estimate_march_steps": 16,  # ray-march samples per shadow ray (estimation)
     "max_resolution": 160,       # long side of the copy used for light estimation
     "cone_samples": 8,           # light directions per pixel for soft shadows
     "shadow_softness": None,     # force the light's angular radius (deg); None = fit
-    "max_fit_pixels": 4000,      # pixels used by the light fit
+    "max_fit_pixels": 2000,      # pixels used by the light fit
 }
 
 
@@ -90,19 +92,18 @@ class PhysicalRenderer(Renderer):
         t0 = time.perf_counter()
         est = self.estimate(requests[0], seed)
         timings["estimate"] = time.perf_counter() - t0
-        radius = est.cone_deg
-        K = int(self._s["cone_samples"]) if radius > 0 else 1
-        dirs = cone_directions(est.direction, radius, K, seed=seed)
         images = []
         t1 = time.perf_counter()
         for req in requests:
-            images.append(self._render_one(req, est, dirs))
+            images.append(self._render_one(req, est))
         timings["synthesis"] = time.perf_counter() - t1
-        info = {"light": est.to_info(), "fallback": est.fallback,
-                "cone_samples": len(dirs), "settings": self.settings()}
+        shadow = ("contact shadow only (ambient occlusion): the light direction is unconstrained"
+                  if est.fallback else "one soft shadow, penumbra from the occluder distance")
+        info = {"light": est.to_info(), "fallback": est.fallback, "shadow": shadow,
+                "settings": self.settings()}
         return RenderOutput(images=images, info=info, timings=timings)
 
-    def _render_one(self, req: RenderRequest, est: LightEstimate, dirs) -> np.ndarray:
+    def _render_one(self, req: RenderRequest, est: LightEstimate) -> np.ndarray:
         # step 2: known pixels reproduce albedo * known shading exactly
         d, n, sh, known = self._inputs(req)
         alb = _clean(req.maps.albedo, 0.0, 1e6)
@@ -118,25 +119,89 @@ class PhysicalRenderer(Renderer):
         # unknown pixels outside roi: a flat ambient guess, finite but unused
         amb0 = np.maximum(est.ambient_sh[0], 0)
         out_sh[unknown & ~todo] = amb0
-        ys, xs = np.nonzero(todo)
-        if len(ys):
-            # step 3: ambient(n) + I * mean_k max(0, n.l_k) V(p, l_k), own depth buffer
-            dz = d[ys, xs]
-            nv = n[ys, xs]
-            nn = np.linalg.norm(nv, axis=1)
-            geo = (dz > 0) & (np.abs(nn - 1) < 0.2)
-            nv = np.where(geo[:, None], nv / np.maximum(nn, 1e-12)[:, None], 0.0)
-            rays = np.stack([(xs + 0.5 - req.camera.cx) / req.camera.fx,
-                             -(ys + 0.5 - req.camera.cy) / req.camera.fy,
-                             -np.ones(len(xs))], 1)
-            pts = rays * dz[:, None]
-            direct = np.zeros(len(ys))
-            if geo.any():
-                direct[geo] = direct_term(pts[geo], nv[geo], dirs, d, req.camera, march_visibility,
-                                          steps=int(self._s["march_steps"]))
-            out_sh[ys, xs] = shade(nv, direct, est.ambient_sh, est.intensity)
+        if todo.any():
+            out_sh[todo] = self._synthesise(d, n, todo, req.camera, est)
         img = (alb * out_sh).astype(np.float32)
         if not np.all(np.isfinite(img)):
             bad = int((~np.isfinite(img)).sum())
             raise NumericalError(f"physical renderer produced {bad} non-finite values")
         return img
+
+    def _synthesise(self, d, n, todo, camera, est: LightEstimate) -> np.ndarray:
+        """Shading of the ``todo`` pixels: ambient(n) * AO + I * max(0, n.l) * V_soft, where
+        V_soft is one filtered shadow (``softshadow``); with an unconstrained direction
+        the light is spread over the sky: (ambient(n) + I * max(0, n.l)) * AO."""
+        H, W = d.shape
+        ys, xs = np.nonzero(todo)
+        geo_all = (d > 0) & (np.abs(np.linalg.norm(n, axis=-1) - 1) < 0.2)
+
+        def window(margin, even=False):
+            wy0, wx0 = max(0, ys.min() - margin), max(0, xs.min() - margin)
+            if even:  # stride-2 grids line up globally (ROI-independent results)
+                wy0, wx0 = wy0 - wy0 % 2, wx0 - wx0 % 2
+            return wy0, wx0, min(H, ys.max() + 1 + margin), min(W, xs.max() + 1 + margin)
+
+        def points(wy0, wx0, wy1, wx1, step=1):
+            gy, gx = np.mgrid[wy0:wy1:step, wx0:wx1:step]
+            dz = d[gy, gx]
+            nv = n[gy, gx].astype(np.float64)
+            ok = geo_all[gy, gx]
+            nv = np.where(ok[..., None], nv / np.maximum(np.linalg.norm(nv, axis=-1, keepdims=True), 1e-12), 0.0)
+            rays = np.stack([(gx + 0.5 - camera.cx) / camera.fx, -(gy + 0.5 - camera.cy) / camera.fy,
+                             -np.ones(gx.shape)], -1)
+            return gy, gx, rays * dz[..., None], nv, ok
+
+        # ambient occlusion on a stride-2 grid around the todo pixels, then filtered
+        ay0, ax0, ay1, ax1 = window(int(2 * AO_BLUR_PX) + 4, even=True)
+        gy, gx, P, N, ok = points(ay0, ax0, ay1, ax1, 2)
+        ao_c = np.ones(gy.shape)
+        if ok.any():
+            ao_c[ok] = ambient_occlusion(P[ok], N[ok], gy[ok], gx[ok], d, camera)
+        ao = np.repeat(np.repeat(ao_c, 2, 0), 2, 1)[: ay1 - ay0, : ax1 - ax0]
+        okf = geo_all[ay0:ay1, ax0:ax1]
+        cls = _depth_classes(d[ay0:ay1, ax0:ax1])
+        ao = classwise_blur(ao, cls, okf, AO_BLUR_PX)
+        ao_t = ao[ys - ay0, xs - ax0]
+
+        nv = n[ys, xs].astype(np.float64)
+        nv = nv / np.maximum(np.linalg.norm(nv, axis=1, keepdims=True), 1e-12)
+        geo = geo_all[ys, xs]
+        nv[~geo] = 0.0
+        ndl = np.maximum(0.0, nv @ est.direction)
+        amb = np.maximum(sh_basis(nv) @ est.ambient_sh, 0.0)
+        inten = np.asarray(est.intensity)[None, :]
+        if est.fallback:
+            return (amb + ndl[:, None] * inten) * ao_t[:, None]
+        # the direct light's shadow: one march, then the penumbra filter
+        wy0, wx0, wy1, wx1 = window(WINDOW_MARGIN_PX)
+        gy, gx, P, N, ok = points(wy0, wx0, wy1, wx1)
+        lit = ok & ((N @ est.direction) > 0)
+        vis = np.zeros(gy.shape)
+        t_hit = np.full(gy.shape, np.inf)
+        if lit.any():
+            v, t = march_visibility(P[lit], N[lit], est.direction, d, camera,
+                                    steps=int(self._s["march_steps"]),
+                                    jitter=pixel_jitter(gy[lit], gx[lit]), return_distance=True)
+            vis[lit], t_hit[lit] = v, t
+        vis = np.where(ok & ~lit, 1.0, vis)  # facing away: n.l = 0 does the shading
+        tan_a = np.tan(np.deg2rad(min(est.cone_deg, 89.0)))
+        vs = penumbra_filter(vis, t_hit, d[wy0:wy1, wx0:wx1], _depth_classes(d[wy0:wy1, wx0:wx1]),
+                             ok, camera.fx, tan_a)
+        v_t = vs[ys - wy0, xs - wx0]
+        return amb * ao_t[:, None] + (ndl * v_t)[:, None] * inten
+
+
+def _depth_classes(depth: np.ndarray, rel_jump: float = 0.1) -> np.ndarray:
+    """Label the connected pieces of a depth map separated by depth discontinuities
+    (relative jump > ``rel_jump``; grazing surfaces step by a few % per pixel): an inserted object and the floor behind it get
+    different labels, so shadow filters never blur one into the other."""
+    import cv2
+
+    d = depth.astype(np.float32)
+    jump = np.zeros(d.shape, bool)
+    dx = np.abs(np.diff(d, axis=1)) > rel_jump * np.maximum(d[:, 1:], d[:, :-1])
+    dy = np.abs(np.diff(d, axis=0)) > rel_jump * np.maximum(d[1:], d[:-1])
+    jump[:, 1:] |= dx
+    jump[1:] |= dy
+    _, lab = cv2.connectedComponents((~jump & (d > 0)).astype(np.uint8), connectivity=4)
+    return lab

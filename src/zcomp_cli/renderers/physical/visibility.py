@@ -13,27 +13,31 @@ def sample_depth(depth: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     H, W = depth.shape
     fx = x - 0.5
     fy = y - 0.5
-    x0 = np.floor(fx).astype(np.int64)
-    y0 = np.floor(fy).astype(np.int64)
+    x0 = np.floor(fx)
+    y0 = np.floor(fy)
     ax = fx - x0
     ay = fy - y0
+    x0 = x0.astype(np.int64)
+    y0 = y0.astype(np.int64)
+    xa, xb = np.clip(x0, 0, W - 1), np.clip(x0 + 1, 0, W - 1)
+    ya, yb = np.clip(y0, 0, H - 1) * W, np.clip(y0 + 1, 0, H - 1) * W
+    flat = depth.reshape(-1)
     num = np.zeros_like(fx)
     den = np.zeros_like(fx)
-    for dx, dy, w in ((0, 0, (1 - ax) * (1 - ay)), (1, 0, ax * (1 - ay)),
-                      (0, 1, (1 - ax) * ay), (1, 1, ax * ay)):
-        xi = np.clip(x0 + dx, 0, W - 1)
-        yi = np.clip(y0 + dy, 0, H - 1)
-        d = depth[yi, xi]
-        ok = d > 0
-        num += np.where(ok, w * d, 0.0)
-        den += np.where(ok, w, 0.0)
+    for idx, w in ((ya + xa, (1 - ax) * (1 - ay)), (ya + xb, ax * (1 - ay)),
+                   (yb + xa, (1 - ax) * ay), (yb + xb, ax * ay)):
+        d = flat[idx]
+        w = w * (d > 0)
+        num += w * d
+        den += w
     return np.where(den >= 0.5, num / np.maximum(den, 1e-12), 0.0)
 
 
 def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndarray,
                      depth: np.ndarray, camera: Camera, *, steps: int = 24,
                      max_distance_rel: float = 0.8, bias_rel: float = 0.01,
-                     thickness_rel: float = 0.15) -> np.ndarray:
+                     thickness_rel: float = 0.15, jitter: np.ndarray | None = None,
+                     return_distance: bool = False):
     """Binary visibility of points toward directional light(s).
 
     Args:
@@ -42,25 +46,31 @@ def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndar
         light_dir: (3,) or (N, 3) unit directions toward the light, camera frame.
         depth: (H, W) z-depth buffer (0 = invalid/sky, never occludes).
         steps: samples along each ray; spacing grows quadratically (detail near contact).
+        jitter: optional (N,) offsets in [0, 1) of the samples along each ray (in steps):
+            per-pixel decorrelation turns the step pattern into noise a filter removes,
+            instead of banding.
         max_distance_rel, bias_rel, thickness_rel: ray length, occluder bias and
             occluder thickness as fractions of the point's own depth (scale-free).
     Returns:
         (N,) float64 in {0, 1}; 1 = lit. A ray leaving the frame or passing behind the
-        camera counts as unoccluded from there on.
+        camera counts as unoccluded from there on. With ``return_distance``, also (N,)
+        the distance along the ray to the first occluder (inf where lit).
     """
     p = np.asarray(points, np.float64)
     n = np.asarray(normals, np.float64)
     l = np.broadcast_to(np.asarray(light_dir, np.float64), p.shape)
     N = len(p)
     if N == 0:
-        return np.zeros(0)
+        return (np.zeros(0), np.zeros(0)) if return_distance else np.zeros(0)
     z0 = np.maximum(-p[:, 2], 1e-6)
     start = p + n * (bias_rel * z0)[:, None]
     occluded = np.zeros(N, bool)
+    t_hit = np.full(N, np.inf)
     H, W = depth.shape
     dmax = max_distance_rel * z0
+    jit = 0.0 if jitter is None else np.asarray(jitter, np.float64) - 0.5
     for k in range(1, steps + 1):
-        t = dmax * (k / steps) ** 2
+        t = dmax * (np.clip(k + jit, 0.25, steps) / steps) ** 2
         q = start + l * t[:, None]
         qz = -q[:, 2]
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -75,5 +85,9 @@ def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndar
         ds = sample_depth(depth, xs, ys)
         gap = qz - ds
         bias = bias_rel * qz
-        occluded |= inside & (ds > 0) & (gap > bias) & (gap < thickness_rel * np.maximum(qz, 1e-6))
-    return (~occluded).astype(np.float64)
+        hit = inside & (ds > 0) & (gap > bias) & (gap < thickness_rel * np.maximum(qz, 1e-6))
+        if return_distance:
+            t_hit = np.where(hit & ~occluded, t, t_hit)
+        occluded |= hit
+    vis = (~occluded).astype(np.float64)
+    return (vis, t_hit) if return_distance else vis
