@@ -8,7 +8,15 @@
    ZCOMP_CONTROLNET / ZCOMP_SD_BASE point at weights);
 3. ``zcomp eval --metrics all`` scores each method against the ground truth;
 4. prints a table in the paper's column order (PSNR, RMSE, si-RMSE, SSIM, MAE, LPIPS,
-   FLIP) with the median seconds per job, and writes OUT/table.csv and OUT/table.md.
+   FLIP), the shadow metrics (IoU and darkness error of the darkened region against the
+   ground truth's), PSNR near the object (the object's box grown by its height), the
+   light-direction error (median over cases lit by a sun or lamp whose ground-truth
+   shadow is in frame: the generator knows the true light) and the median seconds per
+   job; writes OUT/table.csv, OUT/table.md and OUT/cases.csv (per case).
+
+Another checkout of zcomp can be compared as an extra method, e.g. the code before a
+change: ``--extra physical-before=/tmp/old/src`` runs its ``physical`` renderer with
+that source tree first on PYTHONPATH.
 """
 
 from __future__ import annotations
@@ -22,13 +30,73 @@ import subprocess
 import sys
 from pathlib import Path
 
-COLUMNS = ["psnr", "rmse", "si-rmse", "ssim", "mae", "lpips", "flip"]
+COLUMNS = ["psnr", "rmse", "si-rmse", "ssim", "mae", "lpips", "flip", "shadow-iou", "shadow-darkness"]
+EXTRA = ["psnr_near", "light_dir_err_deg", "median_s_per_job"]
 
 
-def zcomp(*args: str) -> subprocess.CompletedProcess:
+def zcomp(*args: str, src: str | None = None) -> subprocess.CompletedProcess:
     cmd = [sys.executable, "-m", "zcomp_cli", "-q", *args]
-    print("$ zcomp " + " ".join(args), flush=True)
-    return subprocess.run(cmd, text=True, capture_output=True)
+    env = None
+    if src:
+        env = dict(os.environ, PYTHONPATH=src + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    print("$ zcomp " + " ".join(args) + (f"   (PYTHONPATH={src})" if src else ""), flush=True)
+    return subprocess.run(cmd, text=True, capture_output=True, env=env)
+
+
+def true_light_dirs(case: dict) -> list:
+    """Camera-frame unit directions TOWARD each lamp of a benchmark case."""
+    import numpy as np
+
+    pitch = float(case["scene"]["pitch_deg"])
+    a = np.deg2rad(pitch)
+    R = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    out = []
+    for lp in case["scene"].get("lamps", []):
+        d = -(R @ np.asarray(lp["direction"], float))
+        out.append(d / np.linalg.norm(d))
+    return out
+
+
+def per_case(bench_dir: Path, res_dir: Path) -> list[dict]:
+    """Per case: PSNR near the object, light-direction error, whether its GT shadow is in frame."""
+    import numpy as np
+
+    from zcomp_cli.conventions import linear_to_srgb
+    from zcomp_cli.imageio import read_alpha_or_grey, read_image
+    from zcomp_cli.metrics.shadow import darkened_region
+
+    bench = json.loads((bench_dir / "benchmark.json").read_text())
+    rows = []
+    for c in bench["cases"]:
+        job = next(iter(sorted(res_dir.glob(f"*{c['id']}*"))), None)
+        row = {"case": c["id"], "psnr_near": float("nan"), "light_dir_err_deg": float("nan"),
+               "shadow_in_frame": False, "lamp": ",".join(lp["kind"] for lp in c["scene"].get("lamps", []))}
+        if job is None or not (job / "composite.exr").is_file():
+            rows.append(row)
+            continue
+        f = c["files"]
+        bg = read_image(bench_dir / f["image"])
+        gt = read_image(bench_dir / f["gt"])
+        pred = read_image(job / "composite.exr")
+        om = read_alpha_or_grey(bench_dir / f["object_mask"]) > 0.5
+        ys, xs = np.nonzero(om)
+        if len(ys):
+            h = ys.max() - ys.min() + 1
+            near = np.zeros(om.shape, bool)
+            near[max(0, ys.min() - h // 4):ys.max() + 1 + h // 2, max(0, xs.min() - h):xs.max() + 1 + h] = True
+            mse = np.mean((linear_to_srgb(np.clip(pred, 0, None)) - linear_to_srgb(np.clip(gt, 0, None)))[near] ** 2)
+            row["psnr_near"] = float(10 * np.log10(1.0 / max(mse, 1e-12)))
+        row["shadow_in_frame"] = bool(darkened_region(gt, bg, om).sum() >= 30)
+        rep = json.loads((job / "report.json").read_text())
+        light = (((rep.get("renderer") or {}).get("info") or {}).get("light") or {})
+        true = true_light_dirs(c)
+        if light.get("direction") is not None and true:
+            est = np.asarray(light["direction"], float)
+            est /= np.linalg.norm(est)
+            row["light_dir_err_deg"] = float(min(np.degrees(np.arccos(np.clip(est @ t, -1, 1))) for t in true))
+            row["fallback"] = light.get("fallback")
+        rows.append(row)
+    return rows
 
 
 def median_job_seconds(out_dir: Path) -> float:
@@ -56,6 +124,9 @@ def main(argv=None) -> int:
     ap.add_argument("--methods", default="naive,physical", help="comma-separated renderers")
     ap.add_argument("--metrics", default="all")
     ap.add_argument("--regenerate", action="store_true")
+    ap.add_argument("--extra", action="append", default=[], metavar="NAME=SRC",
+                    help="also run the physical renderer of another source tree (repeatable)")
+    ap.add_argument("--skip-composite", action="store_true", help="reuse results already in OUT/results")
     args = ap.parse_args(argv)
 
     out = Path(args.out)
@@ -69,27 +140,41 @@ def main(argv=None) -> int:
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     if "zerocomp" not in methods and os.environ.get("ZCOMP_CONTROLNET") and os.environ.get("ZCOMP_SD_BASE"):
         methods.append("zerocomp")
-    rows = []
-    for method in methods:
-        res_dir = out / "results" / method
-        r = zcomp("composite", str(jobs), "--out", str(res_dir), "--renderer", method, "--overwrite")
-        if r.returncode not in (0, 1):
-            print(r.stdout, r.stderr, file=sys.stderr)
-            return r.returncode
-        if r.returncode == 1:
-            print(f"warning: some {method} jobs failed:\n{r.stderr[-2000:]}", file=sys.stderr)
+    runs = [(m, m, None) for m in methods]
+    for e in args.extra:
+        name, _, src = e.partition("=")
+        runs.append((name, "physical", src))
+    rows, case_rows = [], []
+    for name, method, src in runs:
+        res_dir = out / "results" / name
+        if not args.skip_composite:
+            r = zcomp("composite", str(jobs), "--out", str(res_dir), "--renderer", method, "--overwrite", src=src)
+            if r.returncode not in (0, 1):
+                print(r.stdout, r.stderr, file=sys.stderr)
+                return r.returncode
+            if r.returncode == 1:
+                print(f"warning: some {name} jobs failed:\n{r.stderr[-2000:]}", file=sys.stderr)
         r = zcomp("eval", "--metrics", args.metrics, str(res_dir))
         if r.returncode not in (0, 1):
             print(r.stdout, r.stderr, file=sys.stderr)
             return r.returncode
         means = read_means(res_dir / "eval.json")
-        rows.append({"method": method, **{c: means.get(c) for c in COLUMNS},
+        cases = per_case(out, res_dir)
+        for c in cases:
+            case_rows.append({"method": name, **c})
+        import math
+        near = [c["psnr_near"] for c in cases if math.isfinite(c["psnr_near"])]
+        errs = [c["light_dir_err_deg"] for c in cases
+                if c["lamp"] and c["shadow_in_frame"] and math.isfinite(c["light_dir_err_deg"])]
+        rows.append({"method": name, **{c: means.get(c) for c in COLUMNS},
+                     "psnr_near": statistics.mean(near) if near else None,
+                     "light_dir_err_deg": statistics.median(errs) if errs else None,
                      "median_s_per_job": median_job_seconds(res_dir)})
 
     def fmt(v):
         return "n/a" if v is None else (f"{v:.4f}" if isinstance(v, float) else str(v))
 
-    header = ["method", *COLUMNS, "median_s_per_job"]
+    header = ["method", *COLUMNS, *EXTRA]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(fmt(row[h]) for h in header) + " |" for row in rows]
     table = "\n".join(lines)
@@ -99,6 +184,11 @@ def main(argv=None) -> int:
         w = csv.DictWriter(f, fieldnames=header)
         w.writeheader()
         w.writerows(rows)
+    with open(out / "cases.csv", "w", newline="") as f:
+        keys = ["method", "case", "lamp", "shadow_in_frame", "psnr_near", "light_dir_err_deg", "fallback"]
+        w = csv.DictWriter(f, fieldnames=keys, extrasaction="ignore")
+        w.writeheader()
+        w.writerows(case_rows)
     return 0
 
 

@@ -120,3 +120,21 @@ def test_composite_output_folder(tmp_path, monkeypatch):
     # Without a reference anywhere: a clear error naming the job.
     r = run("eval", "--metrics", "mae", out)
     assert r.exit_code == 1 and "job1" in r.output and "--refs" in r.output
+
+
+def test_shadow_metrics_with_background(tmp_path):
+    bg = np.full((16, 20, 3), 0.5, np.float32)
+    ref_img, pred_img = bg.copy(), bg.copy()
+    ref_img[4:8, 2:10] *= 0.3
+    pred_img[4:8, 6:14] *= 0.6
+    write_exr(tmp_path / "pred" / "a.exr", pred_img)
+    write_exr(tmp_path / "ref" / "a.exr", ref_img)
+    write_exr(tmp_path / "bg.exr", bg)
+    r = run("eval", "--metrics", "shadow-iou,shadow-darkness", tmp_path / "pred", tmp_path / "ref")
+    assert r.exit_code == 0 and "unavailable" in r.output and "--background" in r.output
+    r = run("eval", "--metrics", "shadow-iou,shadow-darkness", "--background", tmp_path / "bg.exr",
+            tmp_path / "pred", tmp_path / "ref")
+    assert r.exit_code == 0, r.output
+    a = json.loads((tmp_path / "pred" / "eval.json").read_text())["images"][0]
+    assert a["shadow-iou"] == pytest.approx(16 / 48)
+    assert a["shadow-darkness"] == pytest.approx((16 * 0.3 + 16 * 0.7 + 16 * 0.4) / 48, abs=1e-4)

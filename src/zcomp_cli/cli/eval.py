@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import click
 
-_METRICS_HELP = "Comma-separated: psnr,rmse,si-rmse,ssim,mae,lpips,flip or all."
+_METRICS_HELP = ("Comma-separated: psnr,rmse,si-rmse,ssim,mae,lpips,flip,shadow-iou,shadow-darkness "
+                 "or all.")
 
 
 def _check_metrics(ctx, param, value):
@@ -30,6 +31,10 @@ def _check_metrics(ctx, param, value):
 @click.option("--mask", default=None, metavar="PATH|NAME",
               help="Score only a region: a folder of masks (matched like the images), a mask "
                    "file, or a file name inside each job folder (e.g. shading_mask.png).")
+@click.option("--background", "background", type=click.Path(exists=True), default=None,
+              help="Shadow metrics: the background photograph(s) composited into (a file, or a folder "
+                   "matched like the images). Default for a composite output folder: each job's scene "
+                   "image, read from the manifest its report.json names.")
 @click.option("--out", "out_prefix", type=click.Path(dir_okay=False), default=None, metavar="PATH_PREFIX",
               help="Write PATH_PREFIX.csv and PATH_PREFIX.json (default PRED/eval.*).")
 @click.option("--lpips-backbone", type=click.Path(dir_okay=False), default=None,
@@ -37,7 +42,8 @@ def _check_metrics(ctx, param, value):
 @click.option("--lpips-weights", type=click.Path(dir_okay=False), default=None,
               help="LPIPS v0.1 linear weights (lpips' weights/v0.1/alex.pth); env ZCOMP_LPIPS_WEIGHTS.")
 @click.pass_context
-def eval_cmd(ctx, pred, ref, metrics, refs_dir, linear, mask, out_prefix, lpips_backbone, lpips_weights):
+def eval_cmd(ctx, pred, ref, metrics, refs_dir, linear, mask, background, out_prefix, lpips_backbone,
+             lpips_weights):
     """Score PRED against REF.
 
     PRED and REF are two folders whose images are matched by relative path (the
@@ -59,9 +65,9 @@ def eval_cmd(ctx, pred, ref, metrics, refs_dir, linear, mask, out_prefix, lpips_
     if ref is not None and refs_dir is not None:
         raise UsageError("give either REF or --refs, not both")
     if ref is not None:
-        pairs = pair_folders(pred_dir, ref, mask)
+        pairs = pair_folders(pred_dir, ref, mask, background)
     elif is_composite_output(pred_dir):
-        pairs = pair_composite_output(pred_dir, refs_dir, mask)
+        pairs = pair_composite_output(pred_dir, refs_dir, mask, background)
     else:
         raise UsageError(f"{pred_dir} is not a composite output folder (no */report.json): give REF")
 

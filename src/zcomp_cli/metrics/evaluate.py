@@ -25,11 +25,13 @@ import numpy as np
 
 from zcomp_cli.errors import InputError, UsageError
 
-ALL_METRICS = ("psnr", "rmse", "si-rmse", "ssim", "mae", "lpips", "flip")
+ALL_METRICS = ("psnr", "rmse", "si-rmse", "ssim", "mae", "lpips", "flip", "shadow-iou", "shadow-darkness")
+# Metrics that compare each image with the background it was composited into.
+SHADOW_METRICS = ("shadow-iou", "shadow-darkness")
 IMAGE_EXTS = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp", ".exr", ".hdr"}
 FLOAT_EXTS = {".exr", ".hdr"}
 # Whether a larger value is better, for the table's header.
-HIGHER_IS_BETTER = {"psnr": True, "ssim": True}
+HIGHER_IS_BETTER = {"psnr": True, "ssim": True, "shadow-iou": True}
 
 
 def parse_metrics(text: str) -> list[str]:
@@ -53,6 +55,8 @@ class Pair:
     pred: Path
     ref: Path
     mask: Path | None = None
+    background: Path | None = None   # the photograph composited into (shadow metrics)
+    object_mask: Path | None = None  # where the object is (kept out of the shadow metrics)
 
 
 @dataclass
@@ -134,11 +138,13 @@ def _unmatched_error(only_pred: list[str], only_ref: list[str], pred: Path, ref:
     return InputError("missing pairs: " + "; ".join(lines))
 
 
-def pair_folders(pred_dir, ref_dir, mask=None) -> list[Pair]:
+def pair_folders(pred_dir, ref_dir, mask=None, background=None) -> list[Pair]:
     """Match images of two folders by relative path (extension ignored).
 
     ``mask``: a folder of per-image masks matched the same way, a single mask file
-    used for every image, or None. Raises InputError on any unmatched image.
+    used for every image, or None. ``background`` (shadow metrics): a folder of
+    backgrounds matched the same way, or one file for every image. Raises InputError
+    on any unmatched image.
     """
     pred_dir, ref_dir = Path(pred_dir), Path(ref_dir)
     for d in (pred_dir, ref_dir):
@@ -151,7 +157,8 @@ def pair_folders(pred_dir, ref_dir, mask=None) -> list[Pair]:
     if only_p or only_r:
         raise _unmatched_error(only_p, only_r, pred_dir, ref_dir)
     masks = _mask_lookup(mask, list(p))
-    return [Pair(k, p[k], r[k], masks.get(k)) for k in sorted(p)]
+    bgs = _mask_lookup(background, list(p)) if background is not None else {}
+    return [Pair(k, p[k], r[k], masks.get(k), bgs.get(k)) for k in sorted(p)]
 
 
 def _mask_lookup(mask, keys: list[str]) -> dict[str, Path]:
@@ -169,15 +176,34 @@ def _mask_lookup(mask, keys: list[str]) -> dict[str, Path]:
     raise InputError("mask not found (expected a folder of masks or a mask file)", where=str(m))
 
 
-def pair_composite_output(out_dir, refs=None, mask=None) -> list[Pair]:
+def _background_of_job(report: dict, job: Path) -> Path | None:
+    """The scene photograph of a composite job, read from the manifest its report names."""
+    try:
+        from zcomp_cli.pipeline.manifest import load_manifest
+
+        man = Path(report["job"]["manifest"])
+        if not man.is_absolute():
+            man = (job / man).resolve() if not man.is_file() else man
+        spec = load_manifest(man, check_files=False).scenes[report["job"]["scene"]]
+        return Path(spec.image) if Path(spec.image).is_file() else None
+    except Exception:  # no manifest any more, or not one we can read: no background
+        return None
+
+
+def pair_composite_output(out_dir, refs=None, mask=None, background=None) -> list[Pair]:
     """Pairs of a ``zcomp composite`` output folder.
 
     The reference of a job is ``refs/<job>.*`` when ``refs`` is given, else
     ``report.json["reference"]``. ``mask`` is a folder (masks named by job), a file
     name inside each job folder (e.g. ``shading_mask.png``) or a single mask file.
     The prediction is ``composite.exr`` when the reference is a float file, else
-    ``composite.png`` (either one when only one exists).
+    ``composite.png`` (either one when only one exists). The background (shadow
+    metrics) is ``background`` (a folder of images named by job, or one file), else the
+    scene image of the manifest named in ``report.json``; the object mask is
+    ``object_mask.png`` beside the reference when there is one (``make-benchmark``
+    writes it).
     """
+    bg_imgs = _images(Path(background)) if background is not None and Path(background).is_dir() else None
     out_dir = Path(out_dir)
     jobs = sorted(d for d in out_dir.iterdir() if d.is_dir() and (d / "report.json").is_file())
     if not jobs:
@@ -192,12 +218,14 @@ def pair_composite_output(out_dir, refs=None, mask=None) -> list[Pair]:
             if ref is None:
                 problems.append(f"{job.name}: no image named {job.name}.* in {refs}")
                 continue
-        else:
-            try:
-                report = json.loads((job / "report.json").read_text())
-            except (OSError, ValueError) as exc:
-                raise InputError(f"cannot read report.json: {exc}", where=str(job)) from exc
-            ref_s = report.get("reference") if isinstance(report, dict) else None
+        try:
+            report = json.loads((job / "report.json").read_text())
+        except (OSError, ValueError) as exc:
+            raise InputError(f"cannot read report.json: {exc}", where=str(job)) from exc
+        if not isinstance(report, dict):
+            report = {}
+        if ref_imgs is None:
+            ref_s = report.get("reference")
             if not ref_s:
                 problems.append(f"{job.name}: report.json names no reference (use --refs DIR)")
                 continue
@@ -214,7 +242,14 @@ def pair_composite_output(out_dir, refs=None, mask=None) -> list[Pair]:
         if pred is None:
             problems.append(f"{job.name}: no composite.exr or composite.png")
             continue
-        pairs.append(Pair(job.name, pred, ref, _job_mask(job, mask)))
+        if bg_imgs is not None:
+            bg = bg_imgs.get(job.name)
+        elif background is not None:
+            bg = Path(background)
+        else:
+            bg = _background_of_job(report, job)
+        om = ref.parent / "object_mask.png"
+        pairs.append(Pair(job.name, pred, ref, _job_mask(job, mask), bg, om if om.is_file() else None))
     if problems:
         raise InputError("missing pairs:\n  " + "\n  ".join(problems), where=str(out_dir))
     return pairs
@@ -291,9 +326,29 @@ def score_pair(pair: Pair, metrics: list[str], *, linear: bool = False, lpips_mo
                     out[m] = flip_mod.flip(pred_s, ref_s, mask, mode="LDR")
             elif m == "lpips" and lpips_model is not None:
                 out[m] = lpips_distance(lpips_model, pred_s, ref_s, mask)
+            elif m in SHADOW_METRICS and pair.background is not None:
+                out[m] = _shadow_metric(m, pair, pred_lin, ref_lin)
         except InputError as exc:
             raise InputError(f"{m}: {exc}", where=f"{pair.pred} vs {pair.ref}") from exc
     return out
+
+
+def _shadow_metric(m: str, pair: Pair, pred_lin, ref_lin) -> float:
+    from zcomp_cli.imageio import read_alpha_or_grey, read_image
+    from zcomp_cli.metrics.shadow import shadow_darkness, shadow_iou
+
+    bg = read_image(pair.background)
+    if bg.shape != pred_lin.shape:
+        import cv2
+
+        bg = cv2.resize(bg, (pred_lin.shape[1], pred_lin.shape[0]), interpolation=cv2.INTER_AREA)
+    om = None
+    if pair.object_mask is not None:
+        om = read_alpha_or_grey(pair.object_mask)
+        if om.shape != pred_lin.shape[:2]:
+            om = None
+    fn = shadow_iou if m == "shadow-iou" else shadow_darkness
+    return fn(pred_lin, ref_lin, bg, om)
 
 
 def evaluate(pairs: list[Pair], metrics: list[str], *, linear: bool = False,
@@ -309,6 +364,11 @@ def evaluate(pairs: list[Pair], metrics: list[str], *, linear: bool = False,
         model = st.model
         if model is None:
             unavailable["lpips"] = st.reason or "unavailable"
+    no_bg = [p.name for p in pairs if p.background is None]
+    for m in SHADOW_METRICS:
+        if m in metrics and no_bg:
+            unavailable[m] = (f"no background image for {', '.join(no_bg[:5])}"
+                              f"{' ...' if len(no_bg) > 5 else ''} (give --background)")
     values = []
     for pair in pairs:
         values.append(score_pair(pair, metrics, linear=linear, lpips_model=model))
