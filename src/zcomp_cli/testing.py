@@ -90,7 +90,7 @@ def floor_scene(width: int = 128, height: int = 96, *, fov_deg: float = 50.0,
                 ambient: float = 0.3, albedo=(0.6, 0.6, 0.6), with_box: bool = False,
                 box_center=(0.0, -3.0), box_size=(0.6, 0.8, 0.6),
                 box_albedo=(0.5, 0.4, 0.3), with_wall: bool = False,
-                wall_distance: float = 6.0) -> SyntheticScene:
+                wall_distance: float = 6.0, occluders=()) -> SyntheticScene:
     """Ray cast a ground plane (+ optional axis-aligned box and back wall).
 
     Args:
@@ -104,6 +104,9 @@ def floor_scene(width: int = 128, height: int = 96, *, fov_deg: float = 50.0,
         with_box: add a box standing on the floor at world ``(x, z) = box_center``,
             ``box_size = (sx, sy, sz)`` metres; it casts an exact shadow.
         with_wall: add a wall ``z = -wall_distance`` facing the camera.
+        occluders: more boxes ``((x, z), (sx, sy, sz))`` standing on the floor, seen and
+            casting shadows like the box; put one outside the frustum to get a shadow
+            whose occluder the depth map does not show.
     Returns:
         SyntheticScene; sky pixels have depth 0, normals 0, albedo 0, shading 0.
     """
@@ -133,24 +136,27 @@ def floor_scene(width: int = 128, height: int = 96, *, fov_deg: float = 50.0,
         n_best[sel] = (0, 0, 1)
         alb[sel] = albedo
     box = None
-    if with_box:
-        sx, sy, sz = box_size
-        bx, bz = box_center
-        box = (np.array([bx - sx / 2, 0.0, bz - sz / 2]), np.array([bx + sx / 2, sy, bz + sz / 2]))
-        t_box, n_box = _ray_box(o, d, *box)
+    boxes = []
+    specs = ([(box_center, box_size)] if with_box else []) + [tuple(b) for b in occluders]
+    for (bx, bz), (sx, sy, sz) in specs:
+        bb = (np.array([bx - sx / 2, 0.0, bz - sz / 2]), np.array([bx + sx / 2, sy, bz + sz / 2]))
+        boxes.append(bb)
+        t_box, n_box = _ray_box(o, d, *bb)
         sel = t_box < t_best
         t_best[sel] = t_box[sel]
         n_best[sel] = n_box[sel]
         alb[sel] = box_albedo
+    if with_box:
+        box = boxes[0]
     hit = np.isfinite(t_best)
     P = o + d * np.where(hit, t_best, 0.0)[:, None]
     l = np.asarray(light_dir, dtype=np.float64)
     l = l / np.linalg.norm(l)
     vis = np.ones(n_pix)
-    if box is not None:
+    for bb in boxes:
         ps = P + n_best * 1e-4
-        t_sh, _ = _ray_box(ps, np.broadcast_to(l, ps.shape).copy(), *box)
-        vis = np.where(np.isfinite(t_sh), 0.0, 1.0)
+        t_sh, _ = _ray_box(ps, np.broadcast_to(l, ps.shape).copy(), *bb)
+        vis = np.where(np.isfinite(t_sh), 0.0, vis)
     ndotl = np.maximum(0.0, n_best @ l)
     shade = ambient + light_intensity * ndotl * vis
     shade = np.where(hit, shade, 0.0)

@@ -75,7 +75,25 @@ def fibonacci_sphere(n: int) -> np.ndarray:
 # the shadow of something unseen, but a pixel brighter than predicted contradicts the
 # light. Residuals on the dark side therefore weigh this much less, in the fit and in
 # the score that ranks light directions.
-DARK_RESIDUAL_WEIGHT = 0.5
+DARK_RESIDUAL_WEIGHT = 0.25
+# The robust scale is at least SIGMA_FLOOR of the data scale (render noise; exact
+# synthetic data has none, and a vanishing scale makes every residual an outlier).
+# (A redescending dark side -- too-dark pixels leaving the fit entirely -- was tried:
+# screen-space shadows are imperfect even for the true light, and it then preferred
+# directions predicting little shadow at all.)
+SIGMA_FLOOR = 0.02
+
+
+def _weights_and_loss(r, scale, dark_weight, axis=0):
+    """IRLS weights and per-pixel loss of residuals ``r`` (N,) or (N, C): Huber, with
+    ``dark_weight`` on the dark side."""
+    s = np.maximum(1.4826 * np.median(np.abs(r), axis=axis), SIGMA_FLOOR * scale)
+    c = 1.345 * s
+    a = np.abs(r)
+    side = np.where(r < 0, dark_weight, 1.0)
+    w = side * np.where(a <= c, 1.0, c / np.maximum(a, 1e-12))
+    loss = side * np.where(a <= c, 0.5 * a * a, c * (a - 0.5 * c))
+    return w, loss
 
 
 def _robust_fit(X, y, ridge, iters=4, dark_weight=None):
@@ -89,13 +107,8 @@ def _robust_fit(X, y, ridge, iters=4, dark_weight=None):
         A = X.T @ Xw + np.diag(ridge) * len(y)
         coef = np.linalg.solve(A + 1e-9 * np.eye(len(A)), Xw.T @ y)
         r = y - X @ coef
-        s = 1.4826 * np.median(np.abs(r)) + 1e-3 * scale
-        c = 1.345 * s
-        side = np.where(r < 0, dark_weight, 1.0)
-        w = side * np.where(np.abs(r) <= c, 1.0, c / np.maximum(np.abs(r), 1e-12))
+        w, loss = _weights_and_loss(r, scale, dark_weight)
     # Huber loss normalised by the data scale: comparable across candidates.
-    a = np.abs(r)
-    loss = side * np.where(a <= c, 0.5 * a * a, c * (a - 0.5 * c))
     return coef, float(np.mean(loss)) / scale ** 2
 
 
@@ -139,12 +152,7 @@ def _robust_fit_batch(basis, direct, y, ridge_lin, iters=4, dark_weight=None) ->
         # I >= 0: a negative light is the ambient-only fit
         coef[coef[:, 4] < 0, 4] = 0.0
         r = y[:, None] - B @ coef[:, :4].T - direct * coef[:, 4][None]
-        sc = 1.4826 * np.median(np.abs(r), axis=0) + 1e-3 * scale
-        c = 1.345 * sc[None]
-        side = np.where(r < 0, dark_weight, 1.0)
-        a = np.abs(r)
-        w = side * np.where(a <= c, 1.0, c / np.maximum(a, 1e-12))
-    loss = side * np.where(a <= c, 0.5 * a * a, c * (a - 0.5 * c))
+        w, loss = _weights_and_loss(r, scale, dark_weight)
     return loss.mean(0) / scale ** 2
 
 

@@ -1,0 +1,101 @@
+"""The physical renderer's shadows on analytic scenes: light from a visible cast shadow
+(also with an unseen occluder's shadow in frame), one smooth penumbra, contact shadow."""
+
+import numpy as np
+import pytest
+
+from zcomp_cli.maps import SceneMaps
+from zcomp_cli.renderers.base import RenderRequest
+from zcomp_cli.renderers.physical import PhysicalRenderer, estimate_lighting
+from zcomp_cli.renderers.physical.softshadow import penumbra_filter
+from zcomp_cli.testing import floor_scene, insert_bundle, sphere_object_bundle
+
+SUN = (0.7, 1.0, 0.2)  # world, toward the light
+FAST = dict(n_candidates=128, march_steps=16, max_fit_pixels=2000)
+
+
+def _angle(a, b):
+    return float(np.degrees(np.arccos(np.clip(a @ b / np.linalg.norm(a) / np.linalg.norm(b), -1, 1))))
+
+
+@pytest.mark.parametrize("off_frame", [False, True])
+def test_sun_recovered_from_visible_cast_shadow(off_frame):
+    # an off-frame box (not in the depth map) casts a big shadow across the lower right
+    occ = [((2.0, -1.4), (0.6, 2.0, 0.6))] if off_frame else []
+    s = floor_scene(112, 84, with_box=True, light_dir=SUN, ambient=0.3, box_center=(-0.4, -3.2),
+                    occluders=occ)
+    if off_frame:  # the unseen occluder's shadow is in frame, and larger than the box's
+        plain = floor_scene(112, 84, with_box=True, light_dir=SUN, ambient=0.3, box_center=(-0.4, -3.2))
+        assert (s.visibility < 1).sum() > 3 * (plain.visibility < 1).sum()
+    e = estimate_lighting(s.depth, s.normals, s.shading, s.depth > 0, s.camera, **FAST)
+    assert e.fallback is None
+    assert _angle(e.direction, s.light_dir_cam) < 5.0
+    true_share = s.ambient / (s.ambient + s.light_intensity * max(s.up_cam @ s.light_dir_cam, 0))
+    assert abs(e.ambient_share - true_share) < 0.03  # read from shadowed vs lit floor pixels
+
+
+def test_penumbra_is_one_smooth_ramp():
+    # a hard shadow edge, occluder 1 m away, 5 deg light: one monotonic ramp, no bands
+    H, W = 40, 120
+    vis = np.ones((H, W))
+    vis[:, :60] = 0
+    t_hit = np.where(vis < 1, 1.0, np.inf)
+    z = np.full((H, W), 3.0)
+    out = penumbra_filter(vis, t_hit, z, np.zeros((H, W), int), np.ones((H, W), bool), 300.0,
+                          np.tan(np.deg2rad(5.0)))
+    row = out[H // 2]
+    assert np.all(np.diff(row) >= -1e-9)
+    ramp = (row > 0.02) & (row < 0.98)
+    assert 6 <= ramp.sum() <= 30  # about 2 * t * tan(a) * f / z = 17 px wide
+    assert row[:30].max() < 0.02 and row[-30:].min() > 0.98
+
+
+def _insert(s, centre_world, radius=0.3):
+    c = s.world_to_camera(centre_world)
+    b = sphere_object_bundle(s.camera, c, radius, (0.7, 0.7, 0.7), floor_normal=s.up_cam)
+    d, n, a, sel = insert_bundle(s.depth, s.normals, s.albedo, b)
+    ys, xs = np.nonzero(sel)
+    mask = np.zeros(sel.shape, bool)
+    h = ys.max() - ys.min()
+    mask[max(0, ys.min() - h // 2):ys.max() + h, max(0, xs.min() - h):xs.max() + h] = True
+    known = ~mask
+    bg = RenderRequest(SceneMaps(s.depth, s.normals, s.albedo), s.shading, known, s.camera, scene_key="k")
+    comp = RenderRequest(SceneMaps(d, n, a), s.shading, known, s.camera, scene_key="k")
+    return bg, comp, sel, mask
+
+
+def test_cast_shadow_has_no_bands():
+    s = floor_scene(160, 120, with_box=True, light_dir=SUN, ambient=0.3, box_center=(-0.4, -3.2))
+    bg, comp, sel, mask = _insert(s, [0.4, 0.3, -2.6])
+    out = PhysicalRenderer(shadow_softness=6.0).render([bg, comp], seed=1)
+    ratio = out.images[1].mean(-1) / np.maximum(out.images[0].mean(-1), 1e-6)
+    # the row through the lower part of the sphere's shadow, from the shadow's core
+    # leftwards out into the light (the light comes from +x)
+    ys, xs = np.nonzero(sel)
+    y = int(ys.max() - (ys.max() - ys.min()) // 4)
+    row = ratio[y, : xs.min()]
+    core = int(np.argmin(row))
+    left = row[: core + 1][::-1]  # from the core outwards
+    left = left[mask[y, : core + 1][::-1]]
+    assert left[0] < 0.6 and left.max() > 0.95
+    ramp = left[: int(np.argmax(left > 0.95)) + 1]  # the penumbra: core -> lit
+    assert len(ramp) >= 3
+    assert np.all(np.diff(ramp) >= -0.01)  # monotonic up to noise well below a band
+
+
+def test_contact_shadow_fallback_on_bare_floor():
+    s = floor_scene(112, 84, light_dir=SUN, ambient=0.3)
+    bg, comp, sel, mask = _insert(s, [0.0, 0.3, -2.6])
+    out = PhysicalRenderer().render([bg, comp], seed=1)
+    assert out.info["fallback"] and "contact" in out.info["shadow"]
+    ratio = out.images[1].mean(-1) / np.maximum(out.images[0].mean(-1), 1e-6)
+    ys, xs = np.nonzero(sel)
+    # just below the object (where it meets the floor) is darkened
+    under = np.zeros_like(sel)
+    under[ys.max() + 1: ys.max() + 3, xs.min() + 3: xs.max() - 3] = True
+    under &= ~sel
+    assert ratio[under].mean() < 0.8
+    # nothing far away: more than one object width from it, the ratio is 1
+    far = mask.copy()
+    far[:, xs.min() - (xs.max() - xs.min()): xs.max() + (xs.max() - xs.min())] = False
+    assert far.any() and np.allclose(ratio[far], 1.0, atol=1e-3)
