@@ -15,6 +15,7 @@ from dataclasses import dataclass, asdict
 import numpy as np
 
 from zcomp_cli.camera import Camera
+from zcomp_cli.renderers.physical.evidence import darkness_map, evidence_sample, evidence_scores
 from zcomp_cli.renderers.physical.shading import cone_directions, direct_term, sh_basis
 from zcomp_cli.renderers.physical.visibility import march_visibility
 
@@ -24,6 +25,9 @@ PRIOR_AMBIENT_SHARE = 0.4
 # Pixels in shadow (and lit) on the dominant surface needed to read the ambient share
 # directly from them.
 MIN_SHADOW_PIXELS = 15
+# Cast-shadow evidence (pixels of full darkness at the estimation resolution, see
+# ``evidence``) needed to take the direction from the shadows of visible geometry.
+MIN_EVIDENCE_PX = 8.0
 
 
 @dataclass
@@ -46,6 +50,7 @@ class LightEstimate:
     direction_uncertainty_deg: float = 0.0
     share_source: str = "prior"
     source: str = "estimated"
+    evidence_px: float = 0.0
 
     @property
     def cone_deg(self) -> float:
@@ -277,20 +282,45 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
 
     cands = fibonacci_sphere(2 * n_candidates)
     cands = cands[cands @ up > 0.05]
-    scores = score_dirs(cands)
-    best = cands[np.argmin(scores)]
-    spread_deg = direction_uncertainty_deg(cands, scores, best)
-    med = float(np.median(scores))
-    contrast = float((med - scores.min()) / max(med, 1e-12))
-    # refine: a finer spiral inside a cone around the coarse winner
     step_deg = np.rad2deg(np.sqrt(4 * np.pi / (2 * n_candidates)))
-    fine = cone_directions(best, 1.5 * step_deg, 40, seed=0)
-    fine = np.concatenate([best[None], fine[fine @ up > 0.02]])
-    fs = score_dirs(fine)
-    best = fine[np.argmin(fs)]
-    if not np.isfinite(contrast) or contrast < flat_threshold:
-        return prior(f"light direction unconstrained: flat score landscape "
-                     f"(contrast {contrast:.3g} < {flat_threshold}), normal spread {spread:.3g}")
+
+    # 1. Cast shadows of the visible geometry (``evidence``): where the candidate light
+    #    puts them, is the surface darker than around? Unseen occluders' shadows add
+    #    nothing to any candidate.
+    lum = sh @ np.array([0.299, 0.587, 0.114])
+    nvalid = np.where(valid[..., None], n / np.maximum(nn, 1e-12)[..., None], 0.0)
+    e_map = darkness_map(lum, nvalid, valid, up)
+    ei, ew = evidence_sample(e_map, valid)
+    Pe, Ne, Ee = pts_all.reshape(-1, 3)[ei], nvalid.reshape(-1, 3)[ei], e_map.ravel()[ei]
+    ev = evidence_scores(Pe, Ne, Ee, ew, cands, d, cam, steps=march_steps)
+    evidence_px = float(ev.max()) if len(ev) else 0.0
+    from_shadows = evidence_px >= MIN_EVIDENCE_PX
+    if from_shadows:
+        best = cands[int(np.argmax(ev))]
+        fine = cone_directions(best, 1.5 * step_deg, 40, seed=0)
+        fine = np.concatenate([best[None], fine[fine @ up > 0.02]])
+        fe = evidence_scores(Pe, Ne, Ee, ew, fine, d, cam, steps=march_steps)
+        best = fine[int(np.argmax(fe))]
+        # plausible directions: those explaining nearly as much
+        spread_deg = direction_uncertainty_deg(cands, -ev / max(evidence_px, 1e-9) + 2.0, best)
+        contrast = float(evidence_px / max(valid.sum(), 1))
+    else:
+        # 2. No cast shadow to read: the shading against orientation still says
+        #    something about the light (for the object's shading), not enough for a
+        #    shadow (rendered as a contact shadow, ``fallback``).
+        scores = score_dirs(cands)
+        best = cands[np.argmin(scores)]
+        spread_deg = direction_uncertainty_deg(cands, scores, best)
+        med = float(np.median(scores))
+        contrast = float((med - scores.min()) / max(med, 1e-12))
+        fine = cone_directions(best, 1.5 * step_deg, 40, seed=0)
+        fine = np.concatenate([best[None], fine[fine @ up > 0.02]])
+        fs = score_dirs(fine)
+        best = fine[np.argmin(fs)]
+        if not np.isfinite(contrast) or contrast < flat_threshold:
+            return prior(f"light direction unconstrained: no cast shadow of visible geometry "
+                         f"(evidence {evidence_px:.3g} px < {MIN_EVIDENCE_PX}) and a flat score landscape "
+                         f"(contrast {contrast:.3g} < {flat_threshold}), normal spread {spread:.3g}")
 
     # softness: refit with cone-averaged visibility
     radii = SOFTNESS_CANDIDATES_DEG if softness_deg is None else (float(softness_deg),)
@@ -325,7 +355,21 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     shadow_px, lit_px = on_up & (frac < 0.2), on_up & (frac > 0.8)
     cos_up = float(max(best @ up, 0.05))
     share_src = "fit"
-    if shadow_px.sum() >= MIN_SHADOW_PIXELS and lit_px.sum() >= MIN_SHADOW_PIXELS:
+    if from_shadows:
+        # shadow / lit level of the same surface, read on the predicted cast shadow
+        v_e = march_visibility(Pe, Ne, best, d, cam, steps=march_steps) < 0.5
+        on_dom = (Ne @ up > np.cos(np.deg2rad(15))) & v_e & ((Ne @ best) > 0.05)
+        if on_dom.sum() >= MIN_SHADOW_PIXELS:
+            ratio = float(np.clip(np.median(1.0 - Ee[on_dom]), 0.02, 1.0))
+            lit_c = np.median(S[lit_px], 0) if lit_px.sum() >= MIN_SHADOW_PIXELS else np.median(S[on_up], 0)
+            amb_f = ratio * lit_c
+            inten = np.maximum((lit_c - amb_f) / cos_up, 0.0)
+            ridge4 = np.array([0.0, ridge, ridge, ridge])
+            sh_c = np.stack([_robust_fit(basis, S[:, c] - inten[c] * dt, ridge4, dark_weight=1.0)[0]
+                             for c in range(3)], 1)
+            sh_c[0] += amb_f - (sh_basis(up[None]) @ sh_c)[0]
+            share_src = "cast shadows of visible geometry vs the same surface around them"
+    elif shadow_px.sum() >= MIN_SHADOW_PIXELS and lit_px.sum() >= MIN_SHADOW_PIXELS:
         lit_c = np.median(S[lit_px], 0)
         shd_c = np.median(S[shadow_px], 0)
         shares = np.clip(shd_c / np.maximum(lit_c, 1e-9), 0.02, 1.0)
@@ -341,5 +385,9 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     amb_up = float(np.maximum(sh_basis(up[None]) @ sh_c, 0).mean())
     dir_up = float(inten.mean() * max(best @ up, 0.0))
     share = amb_up / max(amb_up + dir_up, 1e-12)
+    fallback = None if from_shadows else (
+        f"no cast shadow of visible geometry (evidence {evidence_px:.3g} px < {MIN_EVIDENCE_PX}): "
+        "direction from shading vs orientation, shadow rendered as a contact shadow")
     return LightEstimate(best, inten, sh_c, float(share), float(radius), float(s_r),
-                         contrast, spread, None, float(uncertainty), share_src)
+                         contrast, spread, fallback, float(uncertainty), share_src,
+                         evidence_px=evidence_px)
