@@ -31,23 +31,55 @@ EVIDENCE_TAU = 0.2
 DARK_LEVEL = 0.15
 # Local-level blur radius as a fraction of the long side.
 BASELINE_RADIUS_FRAC = 0.1
+# Pixels this close (fraction of the long side) to a crease give no evidence.
+CREASE_FRAC = 0.03
 
 
-def darkness_map(lum: np.ndarray, normals: np.ndarray, valid: np.ndarray, up: np.ndarray) -> np.ndarray:
-    """(H, W) relative darkness e = 1 - Y / local level of the same surface, in [-0.5, 1];
-    0 where invalid."""
+def orientation_labels(normals: np.ndarray, valid: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """(H, W) int label of each pixel's orientation: 0 invalid, 1 the dominant surface
+    (within 15 deg of ``up``), else 2 + the nearest of 32 directions."""
+    from zcomp_cli.renderers.physical.lighting import fibonacci_sphere
+
+    bins = fibonacci_sphere(32)
+    lab = 2 + np.argmax(normals @ bins.T, axis=-1)
+    lab = np.where(normals @ up > np.cos(np.deg2rad(15)), 1, lab)
+    return np.where(valid, lab, 0)
+
+
+def darkness_map(lum: np.ndarray, normals: np.ndarray, valid: np.ndarray, up: np.ndarray,
+                 depth: np.ndarray | None = None):
+    """Relative darkness of each pixel against the same orientation around it.
+
+    Returns:
+        e: (H, W) ``1 - Y / local level`` in [-0.5, 1], 0 where invalid;
+        usable: (H, W) bool, valid pixels away from creases (orientation changes and
+            depth jumps, ``CREASE_FRAC`` of the long side): the darkening of concave
+            corners (ambient occlusion, where a wall meets the floor) is no cast shadow.
+    """
+    import cv2
+
     H, W = lum.shape
     rad = max(2.0, BASELINE_RADIUS_FRAC * max(H, W))
-    dom = valid & (normals @ up > np.cos(np.deg2rad(15)))
+    lab = orientation_labels(normals, valid, up)
     e = np.zeros((H, W))
-    for grp in (dom, valid & ~dom):
-        if not grp.any():
-            continue
+    for g in np.unique(lab[lab > 0]):
+        grp = lab == g
         b0 = normalized_blur(lum, grp, rad)
         lit = grp & (lum > 0.8 * b0)
         b = normalized_blur(lum, lit if lit.any() else grp, rad)
         e = np.where(grp, 1.0 - lum / np.maximum(b, 1e-9), e)
-    return np.clip(e, -0.5, 1.0)
+    edge = np.zeros((H, W), bool)
+    edge[:, 1:] |= lab[:, 1:] != lab[:, :-1]
+    edge[1:] |= lab[1:] != lab[:-1]
+    if depth is not None:
+        dz = depth.astype(np.float64)
+        jx = np.abs(np.diff(dz, axis=1)) > 0.05 * np.maximum(dz[:, 1:], dz[:, :-1])
+        jy = np.abs(np.diff(dz, axis=0)) > 0.05 * np.maximum(dz[1:], dz[:-1])
+        edge[:, 1:] |= jx
+        edge[1:] |= jy
+    dist = cv2.distanceTransform((~edge).astype(np.uint8), cv2.DIST_L2, 3)
+    usable = valid & (dist > CREASE_FRAC * max(H, W))
+    return np.clip(e, -0.5, 1.0), usable
 
 
 def evidence_sample(e: np.ndarray, valid: np.ndarray, max_dark: int = 1500, max_other: int = 1500):

@@ -289,8 +289,8 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     #    nothing to any candidate.
     lum = sh @ np.array([0.299, 0.587, 0.114])
     nvalid = np.where(valid[..., None], n / np.maximum(nn, 1e-12)[..., None], 0.0)
-    e_map = darkness_map(lum, nvalid, valid, up)
-    ei, ew = evidence_sample(e_map, valid)
+    e_map, usable = darkness_map(lum, nvalid, valid, up, d)
+    ei, ew = evidence_sample(e_map, usable)
     Pe, Ne, Ee = pts_all.reshape(-1, 3)[ei], nvalid.reshape(-1, 3)[ei], e_map.ravel()[ei]
     ev = evidence_scores(Pe, Ne, Ee, ew, cands, d, cam, steps=march_steps)
     evidence_px = float(ev.max()) if len(ev) else 0.0

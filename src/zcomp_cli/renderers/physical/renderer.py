@@ -181,7 +181,8 @@ class PhysicalRenderer(Renderer):
         if lit.any():
             v, t = march_visibility(P[lit], N[lit], est.direction, d, camera,
                                     steps=int(self._s["march_steps"]),
-                                    jitter=pixel_jitter(gy[lit], gx[lit]), return_distance=True)
+                                    jitter=pixel_jitter(gy[lit], gx[lit]), return_distance=True,
+                                    nearest=True)
             vis[lit], t_hit[lit] = v, t
         vis = np.where(ok & ~lit, 1.0, vis)  # facing away: n.l = 0 does the shading
         tan_a = np.tan(np.deg2rad(min(est.cone_deg, 89.0)))

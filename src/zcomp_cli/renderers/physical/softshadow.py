@@ -148,5 +148,6 @@ def ambient_occlusion(points: np.ndarray, normals: np.ndarray, ys: np.ndarray, x
     acc = np.zeros(len(points))
     for i, d in enumerate(_hemisphere_dirs(normals, jit, k)):
         acc += march_visibility(points, normals, d, depth, camera, steps=steps,
-                                max_distance_rel=range_rel, jitter=pixel_jitter(ys, xs, salt=i + 2))
+                                max_distance_rel=range_rel, jitter=pixel_jitter(ys, xs, salt=i + 2),
+                                nearest=True)
     return acc / k

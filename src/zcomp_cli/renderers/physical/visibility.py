@@ -37,7 +37,7 @@ def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndar
                      depth: np.ndarray, camera: Camera, *, steps: int = 24,
                      max_distance_rel: float = 0.8, bias_rel: float = 0.01,
                      thickness_rel: float = 0.15, jitter: np.ndarray | None = None,
-                     return_distance: bool = False):
+                     return_distance: bool = False, nearest: bool = False):
     """Binary visibility of points toward directional light(s).
 
     Args:
@@ -46,6 +46,9 @@ def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndar
         light_dir: (3,) or (N, 3) unit directions toward the light, camera frame.
         depth: (H, W) z-depth buffer (0 = invalid/sky, never occludes).
         steps: samples along each ray; spacing grows quadratically (detail near contact).
+        nearest: sample the depth map at the nearest texel instead of bilinearly:
+            bilinear depth across a silhouette invents a surface between the object
+            and the floor, which shadows the silhouette's own pixels (dark rims).
         jitter: optional (N,) offsets in [0, 1) of the samples along each ray (in steps):
             per-pixel decorrelation turns the step pattern into noise a filter removes,
             instead of banding.
@@ -82,7 +85,10 @@ def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndar
             break
         xs = np.where(inside, x, 0.5)
         ys = np.where(inside, y, 0.5)
-        ds = sample_depth(depth, xs, ys)
+        if nearest:
+            ds = depth[np.clip(ys.astype(np.int64), 0, H - 1), np.clip(xs.astype(np.int64), 0, W - 1)]
+        else:
+            ds = sample_depth(depth, xs, ys)
         gap = qz - ds
         bias = bias_rel * qz
         hit = inside & (ds > 0) & (gap > bias) & (gap < thickness_rel * np.maximum(qz, 1e-6))
