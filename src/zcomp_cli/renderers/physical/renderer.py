@@ -11,7 +11,7 @@ from zcomp_cli.errors import InputError, NumericalError, UsageError
 from zcomp_cli.renderers.base import Renderer, RenderOutput, RenderRequest
 from zcomp_cli.renderers.physical.lighting import LightEstimate, estimate_lighting
 from zcomp_cli.renderers.physical.shading import sh_basis
-from zcomp_cli.renderers.physical.softshadow import (AO_BLUR_PX, WINDOW_MARGIN_PX, ambient_occlusion,
+from zcomp_cli.renderers.physical.softshadow import (AO_BLUR_PX, AO_BOUNCE, WINDOW_MARGIN_PX, ambient_occlusion,
                                                      classwise_blur, penumbra_filter, pixel_jitter)
 from zcomp_cli.renderers.physical.visibility import march_visibility
 
@@ -120,14 +120,15 @@ class PhysicalRenderer(Renderer):
         amb0 = np.maximum(est.ambient_sh[0], 0)
         out_sh[unknown & ~todo] = amb0
         if todo.any():
-            out_sh[todo] = self._synthesise(d, n, todo, req.camera, est)
+            alb_mean = alb[(d > 0)].mean(0) if (d > 0).any() else np.zeros(3)
+            out_sh[todo] = self._synthesise(d, n, todo, req.camera, est, alb_mean)
         img = (alb * out_sh).astype(np.float32)
         if not np.all(np.isfinite(img)):
             bad = int((~np.isfinite(img)).sum())
             raise NumericalError(f"physical renderer produced {bad} non-finite values")
         return img
 
-    def _synthesise(self, d, n, todo, camera, est: LightEstimate) -> np.ndarray:
+    def _synthesise(self, d, n, todo, camera, est: LightEstimate, albedo_mean=(0.0, 0.0, 0.0)) -> np.ndarray:
         """Shading of the ``todo`` pixels: ambient(n) * AO + I * max(0, n.l) * V_soft, where
         V_soft is one filtered shadow (``softshadow``); with an unconstrained direction
         the light is spread over the sky: (ambient(n) + I * max(0, n.l)) * AO."""
@@ -157,10 +158,19 @@ class PhysicalRenderer(Renderer):
         ao_c = np.ones(gy.shape)
         if ok.any():
             ao_c[ok] = ambient_occlusion(P[ok], N[ok], gy[ok], gx[ok], d, camera)
-        ao = np.repeat(np.repeat(ao_c, 2, 0), 2, 1)[: ay1 - ay0, : ax1 - ax0]
+        h_, w_ = ay1 - ay0, ax1 - ax0
+        up2 = lambda a: np.repeat(np.repeat(a, 2, 0), 2, 1)[:h_, :w_]
+        ao = up2(ao_c)
         okf = geo_all[ay0:ay1, ax0:ax1]
         cls = _depth_classes(d[ay0:ay1, ax0:ax1])
-        ao = classwise_blur(ao, cls, okf, AO_BLUR_PX)
+        # a 2x2 block straddling a silhouette must not lend the object's value to the
+        # floor (a light rim): only pixels of their anchor's class vouch for it; the
+        # normalised blur fills the others from their own class
+        same = up2(ok & True) & (up2(cls[::2, ::2]) == cls)
+        ao = classwise_blur(ao, cls, okf & same, AO_BLUR_PX, fill=okf)
+        # occluded directions still see light bounced off the occluders
+        rho = float(np.clip(np.mean(albedo_mean), 0.0, 0.9))
+        ao = ao + (1.0 - ao) * rho * AO_BOUNCE
         ao_t = ao[ys - ay0, xs - ax0]
 
         nv = n[ys, xs].astype(np.float64)

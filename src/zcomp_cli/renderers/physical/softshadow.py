@@ -40,6 +40,10 @@ AO_DIRECTIONS = 12
 AO_STEPS = 8
 AO_RANGE_REL = 0.1
 AO_BLUR_PX = 3.0
+# Share of the mean scene albedo that occluded ambient directions still receive
+# (light bounced off the occluder): pure ambient occlusion makes objects standing on a
+# floor too dark at their base.
+AO_BOUNCE = 0.5
 
 
 def pixel_jitter(ys: np.ndarray, xs: np.ndarray, salt: int = 0) -> np.ndarray:
@@ -71,13 +75,16 @@ def normalized_blur(values: np.ndarray, weight: np.ndarray, radius: float) -> np
     return np.where(den > 1e-4, num / np.maximum(den, 1e-4), values).astype(np.float64)
 
 
-def classwise_blur(values: np.ndarray, classes: np.ndarray, valid: np.ndarray, radius: float) -> np.ndarray:
+def classwise_blur(values: np.ndarray, classes: np.ndarray, valid: np.ndarray, radius: float,
+                   fill: np.ndarray | None = None) -> np.ndarray:
     """``normalized_blur`` separately within each class label (e.g. object / scene),
-    restricted to ``valid`` pixels."""
+    weighted by the ``valid`` pixels; written to the valid pixels, and also to the
+    ``fill`` pixels of the same class (their own value does not count)."""
     out = values.astype(np.float64).copy()
-    for c in np.unique(classes[valid]):
+    dest = valid if fill is None else (valid | fill)
+    for c in np.unique(classes[dest]):
         sel = valid & (classes == c)
-        out = np.where(sel, normalized_blur(values, sel, radius), out)
+        out = np.where(dest & (classes == c), normalized_blur(values, sel, radius), out)
     return out
 
 
