@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from zcomp_cli.conventions import K_from_fov, fov_from_K, valid_depth_mask
+from zcomp_cli.conventions import K_from_fov, fov_from_K, pixel_ray, valid_depth_mask
 
 DEFAULT_FOV_DEG = 50.0
 
@@ -68,21 +68,15 @@ class Camera:
         K[1] *= sy
         return Camera(K, width, height)
 
-    def cropped(self, x0: int, y0: int, width: int, height: int) -> "Camera":
-        """The camera of the window ``[x0, x0+width) x [y0, y0+height)``."""
-        K = self.K.copy()
-        K[0, 2] -= x0
-        K[1, 2] -= y0
-        return Camera(K, width, height)
+    def ray(self, x, y) -> np.ndarray:
+        """Camera-frame rays (z = -1) through image points ``[x, y]`` (continuous pixel
+        coordinates; pixel centres at +0.5). ``x``, ``y`` broadcast; returns (..., 3)."""
+        return pixel_ray(self.K, x, y)
 
     def pixel_rays(self) -> np.ndarray:
         """(H, W, 3) camera-frame directions through pixel centres, scaled to z = -1."""
-        u = np.arange(self.width, dtype=np.float64) + 0.5
-        v = np.arange(self.height, dtype=np.float64) + 0.5
-        uu, vv = np.meshgrid(u, v)
-        x = (uu - self.cx) / self.fx
-        y = -(vv - self.cy) / self.fy
-        return np.stack([x, y, -np.ones_like(x)], axis=-1)
+        uu, vv = np.meshgrid(np.arange(self.width) + 0.5, np.arange(self.height) + 0.5)
+        return self.ray(uu, vv)
 
     def unproject(self, depth) -> np.ndarray:
         """z-depth (H, W) -> camera-frame points (H, W, 3) float32; invalid depth -> NaN."""

@@ -25,7 +25,6 @@ import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -100,9 +99,6 @@ class JobSpec:
     shading_radius: float = DEFAULT_RADIUS
     seed: int = DEFAULT_SEED
     line: int | None = None
-
-    def describe(self) -> str:
-        return f"job {self.index} ({self.name})"
 
 
 @dataclass
@@ -444,6 +440,3 @@ def _parse_placement(p, parent, where, probs, scene: SceneSpec | None) -> Placem
     return Placement(pixel=(float(px[0]), float(px[1])), yaw_deg=float(yaw),
                      height=None if height is None else float(height), scale=float(scale))
 
-
-def manifest_summary(m: Manifest) -> dict[str, Any]:
-    return {"scenes": len(m.scenes), "objects": len(m.objects), "jobs": len(m.jobs)}
