@@ -11,6 +11,31 @@ from zcomp_cli.conventions import K_from_fov, fov_from_K, pixel_ray, valid_depth
 DEFAULT_FOV_DEG = 50.0
 
 
+def K_from_value(value) -> np.ndarray:
+    """The one parser of user-given intrinsics: ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]``
+    or ``[fx, fy, cx, cy]`` (pixels) -> 3x3 float64.
+
+    Raises ValueError saying what is wrong (shape, non-finite values, non-positive focal
+    lengths, a last row other than [0, 0, 1]).
+    """
+    if isinstance(value, (str, bytes)):
+        raise ValueError("expected [[fx,0,cx],[0,fy,cy],[0,0,1]] or [fx, fy, cx, cy]")
+    try:
+        K = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError("expected [[fx,0,cx],[0,fy,cy],[0,0,1]] or [fx, fy, cx, cy] numbers") from None
+    if K.shape == (4,):
+        fx, fy, cx, cy = K
+        K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    if K.shape != (3, 3):
+        raise ValueError("expected [[fx,0,cx],[0,fy,cy],[0,0,1]] or [fx, fy, cx, cy]")
+    if not np.all(np.isfinite(K)):
+        raise ValueError("K has non-finite values")
+    if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0, 0, 1]):
+        raise ValueError("focal lengths must be positive and the last row [0, 0, 1]")
+    return K
+
+
 @dataclass(frozen=True)
 class Camera:
     """Pinhole intrinsics for a ``width`` x ``height`` image.

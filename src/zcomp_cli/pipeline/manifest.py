@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from zcomp_cli.blender import DEFAULT_SAMPLES
+from zcomp_cli.camera import K_from_value
 from zcomp_cli.conventions import DEFAULT_SEED
 from zcomp_cli.errors import ManifestError
 from zcomp_cli.imageio import image_header
@@ -231,16 +232,10 @@ def _parse_defaults(d, parent, probs) -> Defaults:
 
 def _parse_K(value, container, key, where, probs) -> np.ndarray | None:
     try:
-        K = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        K = None
-    if K is None or K.shape != (3, 3) or not np.all(np.isfinite(K)):
-        probs.add(container, key, where, "expected a 3x3 matrix [[fx,0,cx],[0,fy,cy],[0,0,1]]")
+        return K_from_value(value)
+    except ValueError as exc:
+        probs.add(container, key, where, str(exc))
         return None
-    if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0, 0, 1]):
-        probs.add(container, key, where, "focal lengths must be positive and the last row [0, 0, 1]")
-        return None
-    return K
 
 
 def _named_entries(d, parent, section: str, what: str, expected: str, probs):
