@@ -18,7 +18,7 @@ from zcomp_cli.renderers.physical.visibility import march_visibility
 
 _DEFAULTS = {
     "n_light_candidates": 128,   # coarse hemisphere candidates for the light search
-    "march_steps": 32,           # ray-march samples per shadow ray (synthesis)
+    "march_steps": 24,           # ray-march samples per shadow ray (synthesis)
     "estimate_march_steps": 16,  # ray-march samples per shadow ray (estimation)
     "max_resolution": 160,       # long side of the copy used for light estimation
     "cone_samples": 8,           # light directions per pixel for soft shadows
@@ -139,8 +139,9 @@ class PhysicalRenderer(Renderer):
 
         def window(margin, even=False):
             wy0, wx0 = max(0, ys.min() - margin), max(0, xs.min() - margin)
-            if even:  # stride-2 grids line up globally (ROI-independent results)
-                wy0, wx0 = wy0 - wy0 % 2, wx0 - wx0 % 2
+            if even:  # strided grids line up globally (ROI-independent results)
+                a = 2 if even is True else int(even)
+                wy0, wx0 = wy0 - wy0 % a, wx0 - wx0 % a
             return wy0, wx0, min(H, ys.max() + 1 + margin), min(W, xs.max() + 1 + margin)
 
         def points(wy0, wx0, wy1, wx1, step=1):
@@ -154,21 +155,23 @@ class PhysicalRenderer(Renderer):
             return gy, gx, rays * dz[..., None], nv, ok
 
         # ambient occlusion on a stride-2 grid around the todo pixels, then filtered
-        ay0, ax0, ay1, ax1 = window(int(2 * AO_BLUR_PX) + 4, even=True)
-        gy, gx, P, N, ok = points(ay0, ax0, ay1, ax1, 2)
+        # (stride 4 on large frames: ambient occlusion is smooth)
+        ao_st = 4 if H * W > FULL_RES_PIXELS else 2
+        ay0, ax0, ay1, ax1 = window(int(3 * max(AO_BLUR_PX, 1.5 * ao_st)) + 4, even=ao_st)
+        gy, gx, P, N, ok = points(ay0, ax0, ay1, ax1, ao_st)
         ao_c = np.ones(gy.shape)
         if ok.any():
             ao_c[ok] = ambient_occlusion(P[ok], N[ok], gy[ok], gx[ok], d, camera)
         h_, w_ = ay1 - ay0, ax1 - ax0
-        up2 = lambda a: np.repeat(np.repeat(a, 2, 0), 2, 1)[:h_, :w_]
+        up2 = lambda a: np.repeat(np.repeat(a, ao_st, 0), ao_st, 1)[:h_, :w_]
         ao = up2(ao_c)
         okf = geo_all[ay0:ay1, ax0:ax1]
         cls = _depth_classes(d[ay0:ay1, ax0:ax1])
         # a 2x2 block straddling a silhouette must not lend the object's value to the
         # floor (a light rim): only pixels of their anchor's class vouch for it; the
         # normalised blur fills the others from their own class
-        same = up2(ok & True) & (up2(cls[::2, ::2]) == cls)
-        ao = classwise_blur(ao, cls, okf & same, AO_BLUR_PX, fill=okf)
+        same = up2(ok) & (up2(cls[::ao_st, ::ao_st]) == cls)
+        ao = classwise_blur(ao, cls, okf & same, max(AO_BLUR_PX, 1.5 * ao_st), fill=okf)
         # occluded directions still see light bounced off the occluders
         rho = float(np.clip(np.mean(albedo_mean), 0.0, 0.9))
         ao = ao + (1.0 - ao) * rho * AO_BOUNCE
@@ -183,9 +186,12 @@ class PhysicalRenderer(Renderer):
         inten = np.asarray(est.intensity)[None, :]
         if est.fallback:
             return (amb + ndl[:, None] * inten) * ao_t[:, None]
-        # the direct light's shadow: one march, then the penumbra filter
-        wy0, wx0, wy1, wx1 = window(WINDOW_MARGIN_PX)
-        gy, gx, P, N, ok = points(wy0, wx0, wy1, wx1)
+        # the direct light's shadow: one march, then the penumbra filter. Above
+        # FULL_RES_PIXELS the march runs on a stride-2 grid (the filter smooths it
+        # anyway): a quarter of the rays, the synthesis budget at 512x512.
+        st = 2 if H * W > FULL_RES_PIXELS else 1
+        wy0, wx0, wy1, wx1 = window(WINDOW_MARGIN_PX, even=st == 2)
+        gy, gx, P, N, ok = points(wy0, wx0, wy1, wx1, st)
         lit = ok & ((N @ est.direction) > 0)
         vis = np.zeros(gy.shape)
         t_hit = np.full(gy.shape, np.inf)
@@ -196,11 +202,24 @@ class PhysicalRenderer(Renderer):
                                     nearest=True)
             vis[lit], t_hit[lit] = v, t
         vis = np.where(ok & ~lit, 1.0, vis)  # facing away: n.l = 0 does the shading
+        ok_full = geo_all[wy0:wy1, wx0:wx1]
+        if st == 2:
+            h_, w_ = wy1 - wy0, wx1 - wx0
+            up2 = lambda a: np.repeat(np.repeat(a, 2, 0), 2, 1)[:h_, :w_]
+            cls_w = _depth_classes(d[wy0:wy1, wx0:wx1])
+            same = up2(ok) & (up2(cls_w[::2, ::2]) == cls_w)
+            vis = classwise_blur(up2(vis), cls_w, ok_full & same, 1.0, fill=ok_full)
+            t_hit = up2(t_hit)
+            ok = ok_full
         tan_a = np.tan(np.deg2rad(min(est.cone_deg, 89.0)))
         vs = penumbra_filter(vis, t_hit, d[wy0:wy1, wx0:wx1], _depth_classes(d[wy0:wy1, wx0:wx1]),
                              ok, camera.fx, tan_a)
         v_t = vs[ys - wy0, xs - wx0]
         return amb * ao_t[:, None] + (ndl * v_t)[:, None] * inten
+
+
+# Frames larger than this march the direct shadow on a stride-2 grid.
+FULL_RES_PIXELS = 256 * 256
 
 
 def _depth_classes(depth: np.ndarray, rel_jump: float = 0.1) -> np.ndarray:

@@ -36,7 +36,7 @@ MAX_PENUMBRA_PX = LEVEL_RADII[-1]
 WINDOW_MARGIN_PX = 48
 BLOCKER_SEARCH_PX = 24
 # Ambient occlusion: directions, samples per ray, ray length (fraction of depth).
-AO_DIRECTIONS = 12
+AO_DIRECTIONS = 8
 AO_STEPS = 8
 AO_RANGE_REL = 0.1
 AO_BLUR_PX = 3.0
@@ -114,8 +114,11 @@ def penumbra_filter(vis: np.ndarray, t_hit: np.ndarray, z: np.ndarray, classes: 
     r = np.where(has & valid, tb * tan_radius * focal_px / np.maximum(z, 1e-6), 0.0)
     r = np.clip(np.nan_to_num(r), 0.0, MAX_PENUMBRA_PX)
     # 4. interpolate between blur levels (linear in log2(1 + r): continuous, monotone)
-    levels = [classwise_blur(vis, classes, valid, rad) for rad in LEVEL_RADII]
-    lv = np.log2(1.0 + np.asarray(LEVEL_RADII))
+    # only the levels up to the widest penumbra present
+    n_lv = max(2, int(np.searchsorted(LEVEL_RADII, r.max())) + 1)
+    radii = LEVEL_RADII[:n_lv]
+    levels = [classwise_blur(vis, classes, valid, rad) for rad in radii]
+    lv = np.log2(1.0 + np.asarray(radii))
     pos = np.interp(np.log2(1.0 + r), lv, np.arange(len(lv)))
     i0 = np.clip(np.floor(pos).astype(int), 0, len(lv) - 2)
     f = pos - i0

@@ -1,0 +1,72 @@
+"""Speed of the embedded physical renderer (issue 10 targets, on 2 cores):
+
+* per-scene light estimate <= 1 s at 512x384;
+* per-job shading synthesis (background + composite pass) <= 0.3 s at 512x512.
+
+    PYTHONPATH=src python benchmarks/bench_physical_speed.py [--repeats 3]
+
+Analytic scenes (zcomp_cli.testing): a floor, a box casting a shadow, a sphere inserted
+with a shading mask of twice its size. Prints the median wall time of each stage; no
+assertion (timings depend on the machine and its load).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import numpy as np
+
+
+def _requests(W, H):
+    from zcomp_cli.maps import SceneMaps
+    from zcomp_cli.renderers.base import RenderRequest
+    from zcomp_cli.testing import floor_scene, insert_bundle, sphere_object_bundle
+
+    s = floor_scene(W, H, with_box=True, light_dir=(0.7, 1.0, 0.2), ambient=0.3, box_center=(-0.4, -3.2))
+    c = s.world_to_camera([0.4, 0.3, -2.6])
+    b = sphere_object_bundle(s.camera, c, 0.3, (0.7, 0.7, 0.7), floor_normal=s.up_cam, supersample=1)
+    d, n, a, sel = insert_bundle(s.depth, s.normals, s.albedo, b)
+    ys, xs = np.nonzero(sel)
+    h = ys.max() - ys.min()
+    mask = np.zeros(sel.shape, bool)
+    mask[max(0, ys.min() - h // 2):ys.max() + h, max(0, xs.min() - h):xs.max() + h] = True
+    known = ~mask
+    roi = (max(0, xs.min() - h - 20), max(0, ys.min() - h // 2 - 20), xs.max() + h + 20, ys.max() + h + 20)
+    bg = RenderRequest(SceneMaps(s.depth, s.normals, s.albedo), s.shading, known, s.camera, roi=roi, scene_key="s")
+    comp = RenderRequest(SceneMaps(d, n, a), s.shading, known, s.camera, roi=roi, scene_key="s")
+    return bg, comp, s
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--repeats", type=int, default=3)
+    args = ap.parse_args(argv)
+    from zcomp_cli.renderers.physical import PhysicalRenderer
+
+    est_t = []
+    bg, comp, s = _requests(512, 384)
+    for _ in range(args.repeats):
+        r = PhysicalRenderer()
+        t = time.perf_counter()
+        e = r.estimate(bg)
+        est_t.append(time.perf_counter() - t)
+    err = np.degrees(np.arccos(np.clip(e.direction @ s.light_dir_cam, -1, 1)))
+    syn_t = []
+    bg, comp, _ = _requests(512, 512)
+    r = PhysicalRenderer()
+    r.estimate(bg)  # cached: only synthesis is timed below
+    for _ in range(args.repeats):
+        out = r.render([bg, comp])
+        syn_t.append(out.timings["synthesis"])
+    print(f"light estimate, 512x384: median {statistics.median(est_t):.3f} s "
+          f"(runs: {', '.join(f'{t:.3f}' for t in est_t)}); direction error {err:.1f} deg, "
+          f"source: {e.direction_source}")
+    print(f"synthesis (bg + composite pass), 512x512, roi {bg.roi}: median {statistics.median(syn_t):.3f} s "
+          f"(runs: {', '.join(f'{t:.3f}' for t in syn_t)})")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
