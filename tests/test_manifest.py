@@ -99,3 +99,31 @@ def test_manifest_problems(scene_dir, text, needle):
 def test_missing_manifest(tmp_path):
     with pytest.raises(ManifestError, match="file not found"):
         load_manifest(tmp_path / "nope.yaml")
+
+
+def test_scene_light_parsed(scene_dir):
+    p = scene_dir / "jobs.yaml"
+    p.write_text(GOOD.replace("fov_deg: 50", "fov_deg: 50\n    light: {azimuth_deg: 135, elevation_deg: 40, "
+                                              "angular_radius_deg: 2, strength: 3}"))
+    light = load_manifest(p).scenes["room"].light
+    assert light["azimuth_deg"] == 135 and light["elevation_deg"] == 40 and light["strength"] == 3
+    assert light["angular_radius_deg"] == 2 and light["direction"] is None
+    p.write_text(GOOD.replace("fov_deg: 50", "fov_deg: 50\n    light: {direction: [0, 2, 0]}"))
+    light = load_manifest(p).scenes["room"].light
+    assert light["direction"] == [0.0, 1.0, 0.0] and light["strength"] == 2.0
+
+
+def test_scene_light_problems_name_field_and_line(scene_dir):
+    p = scene_dir / "jobs.yaml"
+    p.write_text(GOOD.replace("fov_deg: 50", "fov_deg: 50\n    light:\n      direction: [0, 0]\n"
+                                              "      strength: -1\n      colour: warm"))
+    with pytest.raises(ManifestError) as ei:
+        load_manifest(p)
+    probs = ei.value.problems
+    assert any("scenes.room.light.direction" in x and "jobs.yaml:8" in x for x in probs), probs
+    assert any("scenes.room.light.strength" in x and "jobs.yaml:9" in x for x in probs), probs
+    assert any("scenes.room.light.colour" in x and "unknown key" in x for x in probs), probs
+    p.write_text(GOOD.replace("fov_deg: 50", "fov_deg: 50\n    light: {elevation_deg: 95}"))
+    with pytest.raises(ManifestError) as ei:
+        load_manifest(p)
+    assert any("scenes.room.light" in x and "azimuth_deg" in x for x in ei.value.problems)

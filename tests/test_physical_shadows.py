@@ -99,3 +99,35 @@ def test_contact_shadow_fallback_on_bare_floor():
     far = mask.copy()
     far[:, xs.min() - (xs.max() - xs.min()): xs.max() + (xs.max() - xs.min())] = False
     assert far.any() and np.allclose(ratio[far], 1.0, atol=1e-3)
+
+
+def test_known_light_gives_the_estimated_shadow():
+    s = floor_scene(112, 84, with_box=True, light_dir=SUN, ambient=0.3, box_center=(-0.4, -3.2))
+    bg, comp, sel, mask = _insert(s, [0.4, 0.3, -2.6])
+    est = PhysicalRenderer().render([bg, comp], seed=1)
+    light = {"type": "directional", "direction": list(s.light_dir_cam), "azimuth_deg": None,
+             "elevation_deg": None, "angular_radius_deg": 0.5, "strength": s.light_intensity / s.ambient}
+    import dataclasses
+
+    reqs = [dataclasses.replace(r, light=light) for r in (bg, comp)]
+    known = PhysicalRenderer().render(reqs, seed=1)
+    assert known.info["light"]["source"] == "manifest" and known.info["fallback"] is None
+    assert known.info["light"]["lights"][0]["direction_from"].startswith("manifest")
+    ratio = lambda o: o.images[1].mean(-1) / np.maximum(o.images[0].mean(-1), 1e-6)  # noqa: E731
+    r_est, r_known = ratio(est), ratio(known)
+    floor = mask & ~sel
+    assert (r_known[floor] < 0.7).sum() > 10  # a cast shadow
+    shadow_est, shadow_known = r_est[floor] < 0.8, r_known[floor] < 0.8
+    iou = (shadow_est & shadow_known).sum() / max((shadow_est | shadow_known).sum(), 1)
+    assert iou > 0.7
+    assert np.abs(r_est[floor] - r_known[floor]).mean() < 0.05
+
+
+def test_light_from_angles_matches_camera_direction():
+    from zcomp_cli.renderers.physical.known_light import direction_from_angles
+
+    up = np.array([0.0, np.cos(0.4), np.sin(0.4)])
+    d = direction_from_angles(0.0, 30.0, up)
+    assert d[0] > 0.8 and abs(d @ up - 0.5) < 1e-9  # image right, 30 deg up
+    d = direction_from_angles(90.0, 0.0, up)
+    assert d[2] < -0.9  # away from the camera

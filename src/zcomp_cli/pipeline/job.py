@@ -130,7 +130,8 @@ def prepare_job(
     known = ~s & valid_depth_mask(bg.depth)
     timings["shading_s"] = time.perf_counter() - t
 
-    common = dict(shading=shading, known=known, camera=cam, roi=roi, image=scene.image, scene_key=scene.key)
+    common = dict(shading=shading, known=known, camera=cam, roi=roi, image=scene.image, scene_key=scene.key,
+                  light=getattr(scene, "light", None))
     requests = [RenderRequest(maps=bg, **common), RenderRequest(maps=comp, **common)]
     x0, y0, x1, y1 = roi
     report = {

@@ -68,6 +68,7 @@ class SceneSpec:
     K: np.ndarray | None = None
     maps: dict[str, Path] = field(default_factory=dict)  # provided map files
     estimators: dict[str, dict] = field(default_factory=dict)  # map -> estimator spec
+    light: dict | None = None  # known lighting (pipeline/lightspec.py); None = estimate it
 
 
 @dataclass
@@ -258,7 +259,7 @@ def _named_entries(d, parent, section: str, what: str, expected: str, probs):
 def _parse_scenes(d, parent, root, probs, check_files, defaults) -> dict[str, SceneSpec]:
     out: dict[str, SceneSpec] = {}
     for name, s, where in _named_entries(d, parent, "scenes", "scene", "at least 'image'", probs):
-        _check_keys(s, {"image", "fov_deg", "K", *MAP_CHANNELS}, where, probs, required=("image",))
+        _check_keys(s, {"image", "fov_deg", "K", "light", *MAP_CHANNELS}, where, probs, required=("image",))
         if "fov_deg" in s and "K" in s:
             probs.add(s, "K", where, "give fov_deg or K, not both")
         image = _file(root, s["image"], s, "image", f"{where}.image", probs, IMAGE_EXTS) if "image" in s else None
@@ -280,6 +281,8 @@ def _parse_scenes(d, parent, root, probs, check_files, defaults) -> dict[str, Sc
                 spec.fov_deg = v
         if "K" in s:
             spec.K = _parse_K(s["K"], s, "K", f"{where}.K", probs)
+        if "light" in s:
+            spec.light = _parse_scene_light(s, where, probs)
         for m, ch in MAP_CHANNELS.items():
             if m not in s:
                 continue
@@ -314,6 +317,15 @@ def _parse_scenes(d, parent, root, probs, check_files, defaults) -> dict[str, Sc
                           "use a matching size or 'native'")
         out[name] = spec
     return out
+
+
+def _parse_scene_light(s, where, probs) -> dict | None:
+    from zcomp_cli.pipeline.lightspec import parse_light
+
+    def add(container, key, w, msg):  # problems without a container sit on 'light'
+        probs.add(s if container is None else container, "light" if container is None else key, w, msg)
+
+    return parse_light(s["light"], f"{where}.light", add)
 
 
 def _parse_objects(d, parent, root, probs, check_files) -> dict[str, ObjectSpec]:

@@ -29,6 +29,7 @@ class Scene:
     sources: dict = field(default_factory=dict)  # map -> "provided: path" | estimator
     notes: list = field(default_factory=list)
     timings: dict = field(default_factory=dict)
+    light: dict | None = None  # known lighting from the manifest (pipeline/lightspec.py)
 
 
 def _hash_files(paths: list[Path], extra: str) -> str:
@@ -131,7 +132,8 @@ def load_scene(spec: SceneSpec, resolution: tuple[int, int] | None, *, cache_dir
     )
     files = [spec.image] + [spec.maps[k] for k in sorted(spec.maps)]
     key = _hash_files(files, f"{size}|{camera.K.tolist()}|{sorted(spec.estimators.items())!r}")
-    return Scene(spec.name, image, scene_maps, camera, key, sources, notes, timings)
+    return Scene(spec.name, image, scene_maps, camera, key, sources, notes, timings,
+                 light=getattr(spec, "light", None))
 
 
 def _estimate_missing(spec, image, camera, maps, sources, cache_dir):

@@ -34,6 +34,8 @@ class RenderRequest:
         image: H x W x 3 linear background photograph (x_bg) for context, optional.
         scene_key: a key identifying the background scene (same key = same background),
             so a renderer may cache per-scene work such as lighting estimation.
+        light: the scene's known lighting from the manifest (``pipeline/lightspec.py``),
+            or None: a renderer that models light uses it instead of estimating one.
     """
 
     maps: SceneMaps
@@ -43,6 +45,7 @@ class RenderRequest:
     roi: tuple[int, int, int, int] | None = None
     image: np.ndarray | None = None
     scene_key: str | None = None
+    light: dict | None = None
 
 
 @dataclass

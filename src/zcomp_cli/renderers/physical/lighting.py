@@ -69,7 +69,17 @@ class LightEstimate:
     def to_info(self) -> dict:
         d = asdict(self)
         d["cone_deg"] = self.cone_deg
-        return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in d.items()}
+        d = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in d.items()}
+        # the light model as separate lights: a directional one and the sky (ambient)
+        d["lights"] = [
+            {"kind": "directional", "source": self.source, "direction_camera": d["direction"],
+             "direction_from": self.direction_source, "intensity_rgb": d["intensity"],
+             "angular_radius_deg": self.cone_deg,
+             "shadow": "contact shadow only" if self.fallback else "cast shadow"},
+            {"kind": "ambient (sky, order-1 SH)", "sh_rgb": d["ambient_sh"],
+             "share_on_support": self.ambient_share, "share_from": self.share_source},
+        ]
+        return d
 
 
 def fibonacci_sphere(n: int) -> np.ndarray:

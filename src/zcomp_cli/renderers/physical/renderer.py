@@ -56,10 +56,22 @@ class PhysicalRenderer(Renderer):
 
     # step 1: light (cached per scene and seed)
     def estimate(self, req: RenderRequest, seed: int = DEFAULT_SEED) -> LightEstimate:
-        key = (req.scene_key, seed) if req.scene_key is not None else None
+        """The scene's light: the manifest's known light (``req.light``), else estimated."""
+        light = getattr(req, "light", None)
+        key = ((req.scene_key, seed, repr(sorted(light.items())) if light else None)
+               if req.scene_key is not None else None)
         if key is not None and key in self._cache:
             return self._cache[key]
         d, n, sh, known = self._inputs(req)
+        if light:
+            from zcomp_cli.renderers.physical.known_light import light_from_spec
+
+            est = light_from_spec(light, d, n, sh, known, req.camera,
+                                  max_resolution=int(self._s["max_resolution"]),
+                                  march_steps=int(self._s["estimate_march_steps"]))
+            if key is not None:
+                self._cache[key] = est
+            return est
         est = estimate_lighting(
             d, n, sh, known, req.camera, n_candidates=int(self._s["n_light_candidates"]),
             max_resolution=int(self._s["max_resolution"]),
@@ -98,7 +110,7 @@ class PhysicalRenderer(Renderer):
         for req in requests:
             images.append(self._render_one(req, est))
         timings["synthesis"] = time.perf_counter() - t1
-        shadow = ("contact shadow only (ambient occlusion): the light direction is unconstrained"
+        shadow = ("contact shadow only (ambient occlusion): no cast shadow pins the light direction"
                   if est.fallback else "one soft shadow, penumbra from the occluder distance")
         info = {"light": est.to_info(), "fallback": est.fallback, "shadow": shadow,
                 "settings": self.settings()}

@@ -1,0 +1,85 @@
+"""Figures of the README and docs/physical.md (issue 10).
+
+    PYTHONPATH=src python docs/make_figures.py demo OUT_DEMO            # docs/demo.png
+    PYTHONPATH=src python docs/make_figures.py cases BENCH IDS          # docs/benchmark_cases.png
+    PYTHONPATH=src python docs/make_figures.py coffee OUT_COFFEE        # docs/coffee_known_light.png
+
+``demo``: OUT_DEMO is ``zcomp composite examples/jobs.yaml --out OUT_DEMO`` (``make demo``);
+top row background / job 0 / its Cycles reference, bottom row jobs 1-3.
+``cases``: BENCH is a ``make-benchmark`` folder whose ``results/physical`` holds the
+composites; IDS comma-separated case ids; one row per case: background, physical, GT.
+``coffee``: OUT_COFFEE is the composite output of ``docs/coffee/jobs.yaml``: the
+photograph and the composite, side by side.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from zcomp_cli.imageio import read_image, write_png
+
+
+def _pad(im, p=3):
+    return np.pad(im, ((p, p), (p, p), (0, 0)), constant_values=1.0)
+
+
+def _row(ims):
+    h = max(i.shape[0] for i in ims)
+    ims = [np.pad(i, ((0, h - i.shape[0]), (0, 0), (0, 0)), constant_values=1.0) for i in ims]
+    return np.concatenate([_pad(i) for i in ims], 1)
+
+
+def _resize(im, w):
+    import cv2
+
+    h = int(round(im.shape[0] * w / im.shape[1]))
+    return cv2.resize(im, (w, h), interpolation=cv2.INTER_AREA)
+
+
+def demo(out_dir: Path):
+    jobs = sorted(d for d in out_dir.iterdir() if (d / "report.json").is_file())
+    root = Path("examples")
+    bg = read_image(root / "scenes/room/image.png")
+    comp = [read_image(j / "composite.exr") for j in jobs]
+    ref = read_image(root / "refs/vase_pose.exr")
+    top = _row([bg, comp[0], ref])
+    bottom = _row([_resize(c, bg.shape[1]) for c in comp[1:4]])
+    write_png("docs/demo.png", np.concatenate([top, bottom], 0))
+
+
+def cases(bench: Path, ids: list[str]):
+    b = json.loads((bench / "benchmark.json").read_text())
+    by_id = {c["id"]: c for c in b["cases"]}
+    rows = []
+    for cid in ids:
+        c = by_id[cid]
+        job = next(iter(sorted((bench / "results" / "physical").glob(f"*{cid}*"))))
+        rows.append(_row([read_image(bench / c["files"]["image"]), read_image(job / "composite.exr"),
+                          read_image(bench / c["files"]["gt"])]))
+    half = (len(rows) + 1) // 2
+    left, right = np.concatenate(rows[:half], 0), np.concatenate(rows[half:], 0)
+    right = np.pad(right, ((0, left.shape[0] - right.shape[0]), (0, 0), (0, 0)), constant_values=1.0)
+    write_png("docs/benchmark_cases.png", np.concatenate([left, np.ones((left.shape[0], 12, 3)), right], 1))
+
+
+def coffee(out_dir: Path):
+    job = next(d for d in sorted(out_dir.iterdir()) if (d / "report.json").is_file())
+    rep = json.loads((job / "report.json").read_text())
+    bg = read_image(Path(rep["job"]["manifest"]).parent / "coffee.png")
+    write_png("docs/coffee_known_light.png", _row([bg, read_image(job / "composite.exr")]))
+
+
+if __name__ == "__main__":
+    what = sys.argv[1]
+    if what == "demo":
+        demo(Path(sys.argv[2]))
+    elif what == "cases":
+        cases(Path(sys.argv[2]), sys.argv[3].split(","))
+    elif what == "coffee":
+        coffee(Path(sys.argv[2]))
+    else:
+        raise SystemExit(__doc__)
