@@ -32,6 +32,8 @@ MIN_EVIDENCE_PX = 8.0
 # Normal spread (second eigenvalue's sqrt) from which shading vs orientation alone is
 # trusted for the direction of a cast shadow.
 MIN_NORMAL_SPREAD = 0.3
+# Least ambient share kept when no cast shadow measured it (calibrated on seed 123).
+MIN_FIT_AMBIENT_SHARE = 0.6
 
 
 @dataclass
@@ -400,6 +402,17 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     amb_up = float(np.maximum(sh_basis(up[None]) @ sh_c, 0).mean())
     dir_up = float(inten.mean() * max(best @ up, 0.0))
     share = amb_up / max(amb_up + dir_up, 1e-12)
+    if not from_shadows and share < MIN_FIT_AMBIENT_SHARE:
+        # Without a cast shadow the regression may put all the light in the directional
+        # term (share 0): faces turned from a wrong direction then go black. Keep at
+        # least MIN_FIT_AMBIENT_SHARE of the support's shading in the ambient.
+        cos_b = float(max(best @ up, 0.05))
+        tot = (np.maximum(sh_basis(up[None]) @ sh_c, 0)[0] + inten * cos_b)
+        sh_c = sh_c.copy()
+        sh_c[0] += MIN_FIT_AMBIENT_SHARE * tot - (sh_basis(up[None]) @ sh_c)[0]
+        inten = (1 - MIN_FIT_AMBIENT_SHARE) * tot / cos_b
+        share = MIN_FIT_AMBIENT_SHARE
+        share_src += f" (raised to the minimum {MIN_FIT_AMBIENT_SHARE})"
     # Shading against orientation pins the direction only where several orientations
     # are seen (a room's walls and floor); on the calibration benchmark (floors, one
     # wall: spread <= 0.2) its directions were 30-100 deg off.
