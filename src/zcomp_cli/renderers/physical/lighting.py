@@ -34,6 +34,8 @@ MIN_EVIDENCE_PX = 8.0
 MIN_NORMAL_SPREAD = 0.3
 # Least ambient share kept when no cast shadow measured it (calibrated on seed 123).
 MIN_FIT_AMBIENT_SHARE = 0.6
+# Least elevation of a direction taken from shading alone (no cast shadow).
+MIN_FIT_ELEVATION_DEG = 30.0
 
 
 @dataclass
@@ -339,6 +341,14 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
                          f"(evidence {evidence_px:.3g} px < {MIN_EVIDENCE_PX}) and a flat score landscape "
                          f"(contrast {contrast:.3g} < {flat_threshold}), normal spread {spread:.3g}")
 
+    if not from_shadows and best @ up < np.sin(np.deg2rad(MIN_FIT_ELEVATION_DEG)):
+        # A grazing direction from shading alone fits the support with a huge intensity
+        # that then floods the object's vertical faces (white objects on the fresh
+        # benchmark): lift it to MIN_FIT_ELEVATION_DEG above the support.
+        h = best - (best @ up) * up
+        h = h / max(np.linalg.norm(h), 1e-12)
+        e = np.deg2rad(MIN_FIT_ELEVATION_DEG)
+        best = np.cos(e) * h + np.sin(e) * up
     # softness: refit with cone-averaged visibility
     radii = SOFTNESS_CANDIDATES_DEG if softness_deg is None else (float(softness_deg),)
     fits = []
