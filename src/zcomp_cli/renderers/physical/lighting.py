@@ -416,8 +416,10 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
         # Without a cast shadow the regression may put all the light in the directional
         # term (share 0): faces turned from a wrong direction then go black. Keep at
         # least MIN_FIT_AMBIENT_SHARE of the support's shading in the ambient.
+        # (the level is the support's median shading: the regression's own split can
+        # be wild -- a negative ambient against a huge light -- when shadows mislead it)
         cos_b = float(max(best @ up, 0.05))
-        tot = (np.maximum(sh_basis(up[None]) @ sh_c, 0)[0] + inten * cos_b)
+        tot = np.median(S[on_up], 0) if on_up.sum() >= MIN_SHADOW_PIXELS else np.median(S, 0)
         sh_c = sh_c.copy()
         sh_c[0] += MIN_FIT_AMBIENT_SHARE * tot - (sh_basis(up[None]) @ sh_c)[0]
         inten = (1 - MIN_FIT_AMBIENT_SHARE) * tot / cos_b
