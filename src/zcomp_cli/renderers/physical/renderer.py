@@ -18,7 +18,7 @@ from zcomp_cli.renderers.physical.visibility import march_visibility
 
 _DEFAULTS = {
     "n_light_candidates": 128,   # coarse hemisphere candidates for the light search
-    "march_steps": 24,           # ray-march samples per shadow ray (synthesis)
+    "march_steps": 32,           # ray-march samples per shadow ray (synthesis)
     "estimate_march_steps": 16,  # ray-march samples per shadow ray (estimation)
     "max_resolution": 160,       # long side of the copy used for light estimation
     "cone_samples": 8,           # light directions per pixel for soft shadows
