@@ -17,7 +17,9 @@ pytestmark = [pytest.mark.blender]
 
 
 def _small_example(tmp_path: Path, jobs=None) -> Path:
-    """A copy of the example manifest working at 256 x 192, with absolute paths."""
+    """A copy of the example manifest working at 256 x 192, with absolute paths.
+    Placement pixels stay as written: they are native image pixels, scaled to the
+    working size by zcomp."""
     m = yaml.safe_load((EXAMPLES / "jobs.yaml").read_text())
     m["defaults"]["resolution"] = [256, 192]
     m["defaults"]["samples"] = 4
@@ -29,8 +31,6 @@ def _small_example(tmp_path: Path, jobs=None) -> Path:
     for j in m["jobs"]:
         if "reference" in j:
             j["reference"] = str(EXAMPLES / j["reference"])
-        if "placement" in j:
-            j["placement"]["pixel"] = [v / 2 for v in j["placement"]["pixel"]]
     if jobs is not None:
         m["jobs"] = [m["jobs"][i] for i in jobs]
     p = tmp_path / "jobs.yaml"

@@ -56,9 +56,14 @@ def _camera_from_spec(fov_deg, K, resolution, where: str):
     from zcomp_cli.conventions import K_from_fov
 
     try:
+        from zcomp_cli.limits import pixel_budget_problem
+
         w, h = (int(v) for v in resolution)
         if w <= 0 or h <= 0:
             return None, f"{where}: resolution must be positive, got {w}x{h}"
+        budget = pixel_budget_problem(w, h)
+        if budget:
+            return None, f"{where}: resolution {budget}"
         if K is not None:
             K = np.asarray(K, dtype=np.float64)
             if K.shape == (4,):
@@ -83,6 +88,7 @@ def load_manifest(path) -> list[_Job]:
     zero-size resolution, a missing mesh file) become that item's error instead, so
     the other items still render."""
     from zcomp_cli.errors import ManifestError
+    from zcomp_cli.pipeline.manifest import name_problem
     from zcomp_cli.pose import Pose
     from zcomp_cli.yamlloc import load_yaml
 
@@ -168,8 +174,9 @@ def load_manifest(path) -> list[_Job]:
             except ManifestError as exc:
                 problems += exc.problems
         name = str(r.get("name") or f"{obj}_{i:03d}")
-        if "/" in name or "\\" in name or name in (".", ".."):
-            problems.append(f"{where}.name: {name!r} is not a plain folder name")
+        bad = name_problem(name)
+        if bad:
+            problems.append(f"{where}.name: {bad}")
         if name in names:
             problems.append(f"{where}.name: {name!r} already used by renders[{names[name]}]")
         names.setdefault(name, i)
@@ -199,7 +206,9 @@ def _single_job(mesh, position, rotation_deg, quaternion, scale, height, fov_deg
     K = parse_K(K_text)
     res = resolution or (512, 512)
     name = Path(mesh).stem
-    camera, err = _camera_from_spec(fov_deg, K, res, where="camera")
+    camera, err = _camera_from_spec(fov_deg, K, res, where="--resolution")
+    if err and "pixel budget" in err:
+        raise UsageError(err)  # refused before Blender starts, like a bad flag
     return _Job(name=name, mesh=Path(mesh), pose=pose, camera=camera, error=err)
 
 

@@ -39,13 +39,19 @@ class PhysicalRenderer(Renderer):
             raise UsageError(f"unknown physical renderer setting(s): {', '.join(sorted(unknown))}; "
                              f"known: {', '.join(_DEFAULTS)}")
         self._s = {**_DEFAULTS, **settings}
+        from zcomp_cli.limits import shorten
+
         for k in ("n_light_candidates", "march_steps", "estimate_march_steps", "max_resolution",
                   "cone_samples", "max_fit_pixels"):
-            if int(self._s[k]) < 1:
-                raise UsageError(f"physical setting {k} must be >= 1, got {self._s[k]}")
+            v = self._s[k]
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v <= 1_000_000:
+                raise UsageError(f"physical renderer setting {k}: expected an integer in [1, 1000000], "
+                                 f"got {shorten(v)}")
         sv = self._s["shadow_softness"]
-        if sv is not None and not (0 <= float(sv) <= 60):
-            raise UsageError(f"shadow_softness must be in [0, 60] degrees, got {sv}")
+        if sv is not None and (isinstance(sv, bool) or not isinstance(sv, (int, float))
+                               or not (0 <= float(sv) <= 60)):
+            raise UsageError(f"physical renderer setting shadow_softness: expected degrees in [0, 60], "
+                             f"got {shorten(sv)}")
         self._cache: dict = {}
 
     def settings(self) -> dict:
