@@ -29,6 +29,8 @@ from typing import Any
 
 import numpy as np
 
+from zcomp_cli.blender import DEFAULT_SAMPLES
+from zcomp_cli.conventions import DEFAULT_SEED
 from zcomp_cli.errors import ManifestError
 from zcomp_cli.imageio import verify_image
 from zcomp_cli.limits import MAX_NAME_LEN, pixel_budget_problem, shorten, type_name
@@ -38,9 +40,7 @@ from zcomp_cli.yamlloc import LocDict, line_of, load_yaml
 MESH_EXTS = {".obj", ".glb", ".gltf", ".ply", ".stl"}
 IMAGE_EXTS = {".png", ".jpg", ".jpeg", ".exr", ".hdr", ".tif", ".tiff"}
 MAP_CHANNELS = {"depth": 1, "normals": 3, "albedo": 3, "roughness": 1, "metallic": 1}
-DEFAULT_SEED = 469
 DEFAULT_RADIUS = 1.0
-DEFAULT_SAMPLES = 32
 NAME_RE = re.compile(r"^[A-Za-z0-9_.\-]+$")
 MIN_SCENE_SIDE = 2  # the estimators' finite differences need two pixels each way
 MAX_SEED = 2**32 - 1  # numpy and torch generators both take [0, 2**32)

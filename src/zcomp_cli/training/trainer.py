@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from zcomp_cli.conventions import GAMMA, SHADING_EPS, SHADING_MAX
 from zcomp_cli.errors import NumericalError, UsageError
 from zcomp_cli.training.config import TrainConfig
 
@@ -45,11 +46,11 @@ def make_batch(samples, rng, cfg: TrainConfig, channels: int):
         alb = np.clip(s["albedo"], 0, 1)
         img = np.clip(s["image"], 0, None)
         with np.errstate(divide="ignore", invalid="ignore"):
-            shading = np.clip(np.nan_to_num(img / alb, nan=1e-5, posinf=1e3), 1e-5, 1e3)
+            shading = np.clip(np.nan_to_num(img / alb, nan=SHADING_EPS, posinf=SHADING_MAX), SHADING_EPS, SHADING_MAX)
         maps = SceneMaps(s["depth"], s["normals"], alb, s.get("roughness"), s.get("metallic"))
         req = RenderRequest(maps, shading, ~masked, Camera(K_from_fov(50, w, h), w, h), image=img)
         conds.append(build_conditioning(req, channels, R))
-        tgt = cv2.resize(np.clip(img, 0, 1) ** (1 / 2.2), (R, R), interpolation=cv2.INTER_AREA)
+        tgt = cv2.resize(np.clip(img, 0, 1) ** (1 / GAMMA), (R, R), interpolation=cv2.INTER_AREA)
         imgs.append(tgt.transpose(2, 0, 1) * 2 - 1)
     return np.stack(imgs).astype(np.float32), np.stack(conds)
 
