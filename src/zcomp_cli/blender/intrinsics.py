@@ -21,6 +21,7 @@ A failure of one item (bad mesh, Blender crash, object out of view) is reported 
 
 from __future__ import annotations
 
+import os
 import shutil
 import tempfile
 import time
@@ -329,8 +330,9 @@ def render_object_intrinsics(
     if cdir is not None:
         cdir.mkdir(parents=True, exist_ok=True)
     # Work folder on the cache's filesystem so finished bundles move in by rename.
-    work = Path(tempfile.mkdtemp(prefix=".work-", dir=cdir)) if cdir is not None else Path(
-        tempfile.mkdtemp(prefix="zcomp-intrinsics-work-"))
+    # The pid in the name lets a later run remove the folder if this process is killed.
+    work = Path(tempfile.mkdtemp(prefix=f".work-{os.getpid()}-", dir=cdir)) if cdir is not None else Path(
+        tempfile.mkdtemp(prefix=f"zcomp-intrinsics-work-{os.getpid()}-"))
     by_id = {str(p.request.id): p for p in prepared}
     items = []
     for p in prepared:

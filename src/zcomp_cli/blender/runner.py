@@ -19,6 +19,7 @@ Protocol between this module and a script in ``zcomp_cli/blender/scripts/``:
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import subprocess
@@ -83,8 +84,9 @@ def run_blender_batch(
         raise ValueError("item ids must be unique")
     path = script_path(script)
     result = BatchResult()
+    temporary_log = log_path is None
     if log_path is None:
-        fd, tmp = tempfile.mkstemp(prefix="zcomp-blender-", suffix=".log")
+        fd, tmp = tempfile.mkstemp(prefix=f"zcomp-blender-{os.getpid()}-", suffix=".log")
         os.close(fd)
         log_path = tmp
     result.log_path = Path(log_path)
@@ -119,13 +121,20 @@ def run_blender_batch(
                     ev = {"event": "error", "id": str(it["id"]), "error": "too many Blender crashes"}
                     result.results[str(it["id"])] = ev
                 pending = []
+    if temporary_log and result.restarts == 0 and all(
+            ev.get("event") == "done" for ev in result.results.values()):
+        # Nothing went wrong: nobody will read the log. (A failed batch keeps it: its
+        # errors name it.)
+        with contextlib.suppress(OSError):
+            result.log_path.unlink()
     return result
 
 
 def _run_one_process(path, items, common, on_event, log, result, item_timeout_s) -> str | None:
     """Run one Blender process over ``items``; return the id of the item in progress
     when it ended (None if none started)."""
-    with tempfile.TemporaryDirectory(prefix="zcomp-job-") as tmpdir:
+    # The pid in the name lets a later run remove it if this process is killed.
+    with tempfile.TemporaryDirectory(prefix=f"zcomp-job-{os.getpid()}-") as tmpdir:
         job = Path(tmpdir) / "job.json"
         job.write_text(json.dumps({"common": common, "items": items}))
         env = dict(os.environ)

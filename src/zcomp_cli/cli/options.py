@@ -84,10 +84,26 @@ resolution_opt = click.option(
 )
 seed_opt = click.option("--seed", type=click.IntRange(min=0), default=None,
                         help="Override every job's seed (default: the manifest's, else 469).")
+def _check_cache(ctx, param, value):
+    """The cache root (--cache-dir, else $ZCOMP_CACHE_DIR, else ~/.cache/zcomp) must be
+    writable: otherwise every job would fail one by one on the same cause."""
+    from zcomp_cli.cache import ENV_VAR, cache_root
+
+    root = cache_root(value)
+    problem = check_writable_dir(root, "cache")
+    if problem:
+        source = "--cache-dir" if value is not None else (f"${ENV_VAR}" if ENV_VAR in __import__("os").environ
+                                                          else "the default cache folder")
+        raise click.BadParameter(f"{problem.split(': ', 1)[1]} (set by {source}; give a writable --cache-dir)",
+                                 ctx=ctx, param=param)
+    return value
+
+
 cache_dir_opt = click.option(
     "--cache-dir",
     type=click.Path(file_okay=False),
     default=None,
+    callback=_check_cache,
     help="Cache root for object renders and estimates (default $ZCOMP_CACHE_DIR or ~/.cache/zcomp).",
 )
 debug_opt = click.option(

@@ -256,6 +256,10 @@ def render_intrinsics(ctx, manifest, mesh, position, rotation_deg, quaternion, s
         jobs = _single_job(mesh, position, rotation_deg, quaternion, scale, height, fov_deg, K, resolution)
         jobs = [jobs]
     out = Path(out_dir)
+    from zcomp_cli.pipeline.outguard import check_inside
+
+    for j in jobs:  # every folder written must stay inside --out
+        check_inside(out, out / j.name, f"renders: {j.name}")
     existing = [j.name for j in jobs if (out / j.name / "meta.json").exists()]
     if existing and not overwrite:
         raise UsageError(f"outputs already exist for {', '.join(existing[:5])}"

@@ -12,17 +12,22 @@ def select_jobs(jobs: list[JobSpec], subset: str | None) -> list[JobSpec]:
     Returns the picked jobs in manifest order (each once). Raises UsageError for a part
     that is neither an index, a range nor a name, or for an index out of range.
     """
-    if not subset:
+    if subset is None:
         return list(jobs)
+    parts = [p.strip() for p in subset.split(",")]
+    if not any(parts):
+        raise UsageError(f"--jobs: {subset!r} names no job (give indices, ranges a-b or job names)")
     by_name = {j.name: j for j in jobs}
     picked: dict[int, JobSpec] = {}
-    for part in (p.strip() for p in subset.split(",") if p.strip()):
+    for part in (p for p in parts if p):
         if part in by_name:
             picked[by_name[part].index] = by_name[part]
             continue
         try:
             if "-" in part:
                 a, b = (int(v) for v in part.split("-", 1))
+                if b < a:
+                    raise UsageError(f"--jobs: range {part!r} is backwards (write {b}-{a})")
                 rng = range(a, b + 1)
             else:
                 rng = range(int(part), int(part) + 1)
