@@ -312,6 +312,9 @@ def test_cache_lookup_ignores_incomplete_and_copy_cleans_stale(tmp_path):
     key = "ff" + "0" * 62
     entry = icache.entry_dir(tmp_path / "c", key)
     _tiny_bundle(entry)
+    assert icache.lookup(tmp_path / "c", key) is None  # no recorded hashes: not trusted
+    _tiny_bundle(tmp_path / "w")
+    entry = icache.store(tmp_path / "c", key, tmp_path / "w")
     assert icache.lookup(tmp_path / "c", key) == entry
     (entry / "meta.json").unlink()
     assert icache.lookup(tmp_path / "c", key) is None
