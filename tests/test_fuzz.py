@@ -119,8 +119,13 @@ MAP_DAMAGE = ["nan", "inf", "zero", "negative", "huge", "tiny", "wrong_size", "o
 
 @st.composite
 def cases(draw):
-    """(manifest text, map damage {map: kind}, bundle damage {map: kind}, renderer)."""
+    """(manifest text, map damage {map: kind}, bundle damage {map: kind}, renderer name)."""
     doc = base_manifest()
+    renderer = draw(st.sampled_from(["naive", "naive", "physical"]))
+    # The physical renderer, made cheap (its default shadow marching dominates the run).
+    doc["defaults"]["renderer"] = renderer if renderer == "naive" else {
+        "name": "physical", "march_steps": 4, "estimate_march_steps": 4, "n_light_candidates": 16,
+        "cone_samples": 2, "max_fit_pixels": 500}
     # Few edits, so that about half the cases get past validation and exercise the run.
     n_edits = draw(st.sampled_from([0, 0, 0, 1, 1, 2, 3, 4]))
     for _ in range(n_edits):
@@ -139,29 +144,29 @@ def cases(draw):
             node.pop(path[-1], None)
         else:
             node[draw(st.sampled_from(["colour", "Scene", "pose ", "x"]))] = draw(_scalars)
-    if draw(st.integers(0, 9)) == 0:  # more jobs, sharing one (aliased) pose object
+    if draw(st.integers(0, 9)) == 9:  # more jobs, sharing one (aliased) pose object
         shared = {"position": [0.0, -1.2, -3.0]}
         doc["jobs"] += [{"scene": "room", "object": "ball", "pose": shared, "output": f"extra{i}"}
                         for i in range(draw(st.integers(1, 3)))]
     text = yaml.safe_dump(doc, sort_keys=False, allow_unicode=True)
+    # Hypothesis favours small integers: the rare damage sits at the top of the range.
     raw = draw(st.integers(0, 29))
-    if raw == 0:  # a truncated file
+    if raw == 29:  # a truncated file
         text = text[: draw(st.integers(0, len(text)))]
-    elif raw == 1:  # an alias bomb in an unused key
+    elif raw == 28:  # an alias bomb in an unused key
         text += "x: &a [1,1,1,1,1,1,1,1,1,1]\n" + "".join(
             f"x{i}: &a{i} [{', '.join(['*a' if i == 0 else f'*a{i - 1}'] * 10)}]\n" for i in range(7))
-    elif raw == 2:  # garbage bytes
+    elif raw == 27:  # garbage bytes
         text = text[: len(text) // 2] + draw(st.text(max_size=30)) + text[len(text) // 2:]
     maps = {}
-    if draw(st.integers(0, 1)) == 0:
+    if draw(st.integers(0, 1)) == 1:
         for m in draw(st.lists(st.sampled_from(["image", "depth", "normals", "albedo"]), max_size=3, unique=True)):
             maps[m] = draw(st.sampled_from(MAP_DAMAGE))
     bundle = {}
-    if draw(st.integers(0, 3)) == 0:
+    if draw(st.integers(0, 3)) == 3:
         for m in draw(st.lists(st.sampled_from(["depth", "normals", "albedo", "mask", "footprint_depth"]),
                                min_size=1, max_size=2, unique=True)):
             bundle[m] = draw(st.sampled_from(MAP_DAMAGE))
-    renderer = draw(st.sampled_from(["naive", "naive", "physical"]))
     return text, maps, bundle, renderer
 
 
@@ -264,7 +269,7 @@ def _run_case(root: Path, shared: Path, case, n: int) -> None:
     before = _snapshot(root, out)
     tmp_before = _tmp_zcomp_entries()
 
-    r = CliRunner().invoke(cli, ["-q", "composite", str(manifest), "--out", str(out), "--renderer", renderer])
+    r = CliRunner().invoke(cli, ["-q", "composite", str(manifest), "--out", str(out)])
 
     STATS["cases"] += 1
     assert r.exception is None or isinstance(r.exception, SystemExit), (
@@ -376,6 +381,7 @@ def test_kill_9_at_random_moments_then_resume(tmp_path):
         if rc == 0:
             break
     assert rc == 0, "the batch never finished"
+    print(f"\ncrash test: {kills} kill -9, {attempt + 1} runs until done")
     assert kills >= 3, f"only {kills} kills landed: the batch is too fast for this test"
     assert sorted(finished) == [f"job{i:02d}" for i in range(12)]
     summary = json.loads((out / "summary.json").read_text())

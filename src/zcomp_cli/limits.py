@@ -8,7 +8,7 @@ limit                  environment variable        default
 =====================  ==========================  ==========================================
 pixels per image       ``ZCOMP_MAX_PIXELS``         40,000,000 (e.g. 8000 x 5000)
 manifest file size     ``ZCOMP_MAX_MANIFEST_BYTES`` 4 MiB
-YAML values expanded   ``ZCOMP_MAX_YAML_NODES``     200,000 (aliases counted once per use)
+YAML values expanded   ``ZCOMP_MAX_YAML_NODES``     2,000,000 (aliases counted at each use)
 =====================  ==========================  ==========================================
 
 A job at P pixels holds a few dozen float32 maps of P pixels at once (image, depth,
@@ -28,7 +28,7 @@ MAX_YAML_NODES_ENV = "ZCOMP_MAX_YAML_NODES"
 
 DEFAULT_MAX_PIXELS = 40_000_000
 DEFAULT_MAX_MANIFEST_BYTES = 4 * 1024 * 1024
-DEFAULT_MAX_YAML_NODES = 200_000
+DEFAULT_MAX_YAML_NODES = 2_000_000
 
 # Longest job / scene / object name (it becomes a folder name; file systems stop at 255
 # bytes and the default job name joins a scene and an object name).

@@ -31,7 +31,12 @@ class LocList(list):
     item_lines: list
 
 
-class _Loader(yaml.SafeLoader):
+# libyaml's parser when PyYAML has it (about 10x faster than the pure-Python one: a
+# 4 MiB manifest loads in seconds, not minutes); the constructors below are the same.
+_Base = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
+class _Loader(_Base):
     def construct_document(self, node):
         _check_expansion(node, max_yaml_nodes())
         return super().construct_document(node)
