@@ -15,7 +15,7 @@ def check_writable_dir(path, what: str = "--out") -> str | None:
     import tempfile
     from pathlib import Path
 
-    p = Path(path)
+    p = Path(path).absolute()
     try:
         if p.exists():
             if not p.is_dir():
