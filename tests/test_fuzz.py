@@ -40,12 +40,11 @@ import pytest
 import yaml
 from click.testing import CliRunner
 
-hypothesis = pytest.importorskip("hypothesis")
-from hypothesis import HealthCheck, given, settings  # noqa: E402
-from hypothesis import strategies as st  # noqa: E402
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
-from hostile_project import base_manifest, make_project  # noqa: E402
-from zcomp_cli.cli import cli  # noqa: E402
+from hostile_project import base_manifest, make_project
+from zcomp_cli.cli import cli
 
 settings.register_profile("ci", max_examples=200, deadline=None, derandomize=True, print_blob=True,
                           suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,

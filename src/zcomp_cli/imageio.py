@@ -28,7 +28,6 @@ from zcomp_cli.errors import InputError, OutputError
 from zcomp_cli.limits import pixel_budget_problem
 
 FLOAT_EXTS = {".exr", ".hdr"}
-LDR_EXTS = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp"}
 
 
 @contextlib.contextmanager

@@ -25,11 +25,11 @@ import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from zcomp_cli.blender import DEFAULT_SAMPLES
+from zcomp_cli.camera import K_from_value
 from zcomp_cli.conventions import DEFAULT_SEED
 from zcomp_cli.errors import ManifestError
 from zcomp_cli.imageio import verify_image
@@ -130,9 +130,6 @@ class JobSpec:
     shading_radius: float = DEFAULT_RADIUS
     seed: int = DEFAULT_SEED
     line: int | None = None
-
-    def describe(self) -> str:
-        return f"job {self.index} ({self.name})"
 
 
 @dataclass
@@ -291,14 +288,16 @@ def _seed(v) -> int | None:
 
 
 def _parse_K(value, container, key, where, probs) -> np.ndarray | None:
-    ok = (isinstance(value, list) and len(value) == 3
-          and all(isinstance(r, list) and len(r) == 3 and all(_num(v) is not None for v in r) for r in value))
-    K = np.asarray(value, dtype=np.float64) if ok else None
-    if K is None or K.shape != (3, 3) or not np.all(np.isfinite(K)):
-        probs.add(container, key, where, "expected a 3x3 matrix [[fx,0,cx],[0,fy,cy],[0,0,1]]")
+    flat = [v for r in value for v in (r if isinstance(r, list) else [r])] if isinstance(value, list) else None
+    if flat is None or not all(_num(v) is not None for v in flat):
+        # YAML booleans and quoted numbers are not numbers here either
+        probs.add(container, key, where, f"expected [[fx,0,cx],[0,fy,cy],[0,0,1]] or [fx, fy, cx, cy] "
+                                         f"finite numbers, got {shorten(value)}")
         return None
-    if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0, 0, 1]):
-        probs.add(container, key, where, "focal lengths must be positive and the last row [0, 0, 1]")
+    try:
+        K = K_from_value(value)
+    except ValueError as exc:
+        probs.add(container, key, where, str(exc))
         return None
     if K[0, 1] != 0 or K[1, 0] != 0:
         probs.add(container, key, where, "skewed K (K[0][1] or K[1][0] not 0) is not supported")
@@ -571,6 +570,3 @@ def _check_cameras(data, scenes, objects, jobs, defaults, probs) -> None:
                       f"non-square pixels (fx={fx:g} != fy={fy:g}) at the working size: Blender renders "
                       f"mesh objects with square pixels ({shown} use a mesh object in this scene)")
 
-
-def manifest_summary(m: Manifest) -> dict[str, Any]:
-    return {"scenes": len(m.scenes), "objects": len(m.objects), "jobs": len(m.jobs)}
