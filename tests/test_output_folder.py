@@ -276,6 +276,16 @@ def test_lock_of_a_killed_run_is_taken_over(project):
     assert not list(out.glob(".zcomp-*"))
 
 
+def test_stale_locks_of_jobs_not_taken_are_removed(project):
+    out = project / "out"
+    p = _slow_run(project / "jobs.yaml", out, hold_s=60)
+    p.kill()
+    p.wait()
+    r = _run(project / "jobs.yaml", out, "--jobs", "1")  # job 0's stale lock is not ours
+    assert r.exit_code == 0, r.output
+    assert not list(out.glob(".zcomp-*"))
+
+
 # ------------------------------------------------------------------ litter
 def test_resume_removes_litter_of_killed_runs(project, tmp_path_factory):
     import tempfile

@@ -138,6 +138,7 @@ class OutputLock:
                         f"(pid {pid}{', ' + str(holder.get('command')) if holder.get('command') else ''}); "
                         "wait for it to finish, or use another --out")
                 self._locks.append(lk)
+            self._sweep_stale_job_locks()
         except BaseException:
             self.release()
             raise
@@ -157,6 +158,18 @@ class OutputLock:
                     f"{self.out_root} is being written by another zcomp run (pid {holder.get('pid')}) "
                     f"from another manifest ({holder.get('manifest')}); outputs of two manifests would "
                     "be mixed: wait for it, or use another --out")
+
+    def _sweep_stale_job_locks(self) -> None:
+        """Lock files of jobs this run does not take, left by killed runs: removed when
+        nobody holds them (a live run's locks cannot be taken, so they stay)."""
+        mine = {lk.path.name for lk in self._locks}
+        for p in self.dir.glob(f"{LOCK_PREFIX}job-*.lock"):
+            if p.name in mine:
+                continue
+            probe = _FileLock(p, {})
+            with contextlib.suppress(OSError):
+                if probe.try_acquire() is None:
+                    probe.release()
 
     def release(self) -> None:
         for lk in reversed(self._locks):
