@@ -363,7 +363,10 @@ def test_kill_9_at_random_moments_then_resume(tmp_path):
                 else:
                     finished[job_dir.name] = state
 
+    done_under_kills = 0
     for attempt in range(40):
+        if attempt == 30:
+            done_under_kills = len(finished)
         p = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
         if attempt < 30:
             time.sleep(rng.uniform(0.2, 3.0))
@@ -380,7 +383,10 @@ def test_kill_9_at_random_moments_then_resume(tmp_path):
         if rc == 0:
             break
     assert rc == 0, "the batch never finished"
-    print(f"\ncrash test: {kills} kill -9, {attempt + 1} runs until done")
+    done_under_kills = done_under_kills if attempt >= 30 else len(finished)
+    print(f"\ncrash test: {kills} kill -9, {attempt + 1} runs until done, "
+          f"{done_under_kills} of 12 jobs finished by runs that were then killed")
+    assert done_under_kills >= 3, "the kills never landed between jobs"
     assert kills >= 3, f"only {kills} kills landed: the batch is too fast for this test"
     assert sorted(finished) == [f"job{i:02d}" for i in range(12)]
     summary = json.loads((out / "summary.json").read_text())
