@@ -36,13 +36,13 @@ def test_conditioning_channels_by_hand():
     np.testing.assert_allclose(c[0], r.maps.depth[sl], rtol=1e-6)
     n = r.maps.normals[sl]
     np.testing.assert_allclose(c[1], n[..., 0] * 0.5 + 0.5, atol=1e-6)
-    np.testing.assert_allclose(c[3], -n[..., 2] * 0.5 + 0.5, atol=1e-6)  # z flipped
+    np.testing.assert_allclose(c[3], n[..., 2] * 0.5 + 0.5, atol=1e-6)  # no flip (DESIGN §4)
     np.testing.assert_allclose(c[4:7].transpose(1, 2, 0), r.maps.albedo[sl], atol=1e-6)
     k = r.known[sl]
     assert np.all(c[10][k] == 1) and np.all(c[10][~k] == -1)
     assert np.all(c[7:10][:, ~k] == -1)
     img = r.shading * r.maps.albedo
-    expect = np.clip(img ** (1 / 2.2) / r.maps.albedo, 1e-5, 1e3)[sl]
+    expect = np.clip(np.clip(img, 0, 1) ** (1 / 2.2) / r.maps.albedo, 1e-5, 1e3)[sl]
     np.testing.assert_allclose(c[7:10].transpose(1, 2, 0)[k], expect[k], rtol=1e-5)
     c10 = build_conditioning(r, 10, 24, box=(4, 0, 28, 24))
     np.testing.assert_array_equal(c10, c[1:])
@@ -66,10 +66,11 @@ def test_official_shading_extremes():
 
 
 def test_crop_box():
-    assert crop_box(None, (H, W), 0.5) == (0, 0, W, H)
+    assert crop_box(None, (H, W), 0.5) == (4, 0, 28, 24)  # official centre crop, not squashed
     b = crop_box((10, 8, 20, 16), (H, W), 0.5)
     assert b[2] - b[0] == b[3] - b[1] == 20 and 0 <= b[0] and b[2] <= W and b[3] <= H
-    assert crop_box((0, 0, W, H), (H, W), 1.0) == (4, 0, 28, 24)
+    # a roi longer than the short side is never cut: the window is padded past the frame
+    assert crop_box((0, 0, W, H), (H, W), 1.0) == (0, -4, 32, 28)
 
 
 def test_missing_weights_lists_files(tmp_path, monkeypatch):
