@@ -1,8 +1,13 @@
-"""Test-wide settings: no network for model hubs, caches in a temporary folder."""
+"""Test-wide settings (no network for model hubs, caches in a temporary folder) and the
+helpers several test files share, as fixtures."""
 
 import os
+from pathlib import Path
 
+import numpy as np
 import pytest
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
@@ -21,3 +26,43 @@ def _zcomp_cache(tmp_path_factory):
         os.environ.pop("ZCOMP_CACHE_DIR", None)
     else:
         os.environ["ZCOMP_CACHE_DIR"] = old
+
+
+@pytest.fixture
+def examples_dir() -> Path:
+    """The shipped example (examples/jobs.yaml and its scene and objects)."""
+    return EXAMPLES
+
+
+PHOTO_MANIFEST = """version: 1
+defaults: {renderer: RENDERER}
+scenes:
+  table:
+    image: photo.png
+    fov_deg: 50
+    depth: {proxy: ground_plane, camera_height: 0.6, pitch_deg: -30}
+objects:
+  card: {image: obj.png, mask: mask.png}
+jobs:
+  - {scene: table, object: card, placement: {pixel: [70, 100], height: 0.12}}
+"""
+
+
+@pytest.fixture
+def photo_manifest():
+    """``make(folder, renderer) -> jobs.yaml``: a real photograph (scikit-image's coffee
+    cup, 160x120) with only ``image:`` and a ground-plane line, and a 2D card object."""
+    from PIL import Image
+    from skimage import data as skdata
+
+    def make(folder: Path, renderer: str = "naive") -> Path:
+        folder = Path(folder)
+        Image.fromarray(skdata.coffee()).resize((160, 120)).save(folder / "photo.png")
+        m = np.zeros((60, 30), np.uint8)
+        m[4:56, 4:26] = 255
+        Image.fromarray(m).save(folder / "mask.png")
+        Image.fromarray(np.full((60, 30, 3), 200, np.uint8)).save(folder / "obj.png")
+        (folder / "jobs.yaml").write_text(PHOTO_MANIFEST.replace("RENDERER", renderer))
+        return folder / "jobs.yaml"
+
+    return make

@@ -323,13 +323,6 @@ def test_cache_lookup_ignores_incomplete_and_copy_cleans_stale(tmp_path):
     assert not (dst / "roughness.exr").exists() and ObjectBundle.is_complete(dst)
 
 
-def test_cache_dir_env(monkeypatch, tmp_path):
-    monkeypatch.setenv("ZCOMP_CACHE_DIR", str(tmp_path / "zc"))
-    assert icache.default_cache_dir() == tmp_path / "zc"
-    monkeypatch.delenv("ZCOMP_CACHE_DIR")
-    assert icache.default_cache_dir().parts[-3:] == (".cache", "zcomp", "intrinsics")
-
-
 # ------------------------------------------------------------------------------------
 # the API without Blender: failures are reported, not raised
 # ------------------------------------------------------------------------------------

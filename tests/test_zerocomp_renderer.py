@@ -200,34 +200,39 @@ def _job_requests(seed, h, w, roi):
 
 @pytest.mark.slow
 def test_batched_jobs_equal_jobs_alone(dummy):
-    # three jobs (different frame sizes and windows) in one call, chunks of 3 passes: job 1's
-    # two passes land in different chunks; each job must equal the same job rendered alone
+    # three jobs (different frame sizes, windows and seeds) in one render_jobs call, one job
+    # per GPU call (2 passes): job 0 has a third pass, so job 1's passes straddle two
+    # chunks. Each job must equal the same job rendered alone, and its unbatched passes.
     jobs = [_job_requests(0, 24, 32, (10, 8, 20, 16)), _job_requests(1, 40, 24, (2, 20, 14, 38)),
             _job_requests(2, 16, 16, (4, 4, 9, 9))]
-    flat = [q for j in jobs for q in j]
-    r = _renderer(dummy, batch_size=3)
-    together = r.render(flat, seed=469)
-    assert together.info["chunks"] == 2 and len(together.info["requests"]) == 6
-    alone = [r.render(j, seed=469).images for j in jobs]
-    one_by_one = _renderer(dummy, batch_size=1)
-    for k, j in enumerate(jobs):
-        for p in range(2):
-            got = together.images[2 * k + p]
+    jobs[0].append(_job_requests(5, 24, 32, (10, 8, 20, 16))[1])
+    seeds = [469, 469, 7]
+    r = _renderer(dummy, batch_size=1)
+    together = r.render_jobs(jobs, seeds)
+    assert len(together) == 3 and together[0].info["chunks"] == 4
+    big = _renderer(dummy, batch_size=8).render_jobs(jobs, seeds)  # all 7 passes in one call
+    assert big[0].info["chunks"] == 1
+    for k, (j, sd) in enumerate(zip(jobs, seeds)):
+        alone = r.render(j, seed=sd).images
+        unbatched = [r.render([q], seed=sd).images[0] for q in j]
+        assert len(together[k].images) == len(j) and len(together[k].info["requests"]) == len(j)
+        for p in range(len(j)):
+            got = together[k].images[p]
             assert got.shape == j[p].maps.shape + (3,)
-            np.testing.assert_allclose(got, alone[k][p], atol=2e-6, rtol=0)
-        # and in unbatched passes (the official loop)
-        single = one_by_one.render(j, seed=469).images
-        np.testing.assert_allclose(together.images[2 * k], single[0], atol=2e-6, rtol=0)
-    # a job's two passes share one noise: identical inputs give identical outputs, even
-    # split across chunks
+            for other in (alone[p], unbatched[p], big[k].images[p]):
+                np.testing.assert_allclose(got, other, atol=2e-6, rtol=0)
+    # the seed matters: job 2 with seed 469 differs
+    assert not np.allclose(r.render(jobs[2], seed=469).images[0], together[2].images[0])
+    # a job's passes share one noise: identical inputs give identical outputs
     same = _job_requests(3, 24, 32, (10, 8, 20, 16))[0]
-    out = _renderer(dummy, batch_size=1).render([same, same], seed=469).images
+    out = r.render([same, same]).images
     np.testing.assert_array_equal(out[0], out[1])
-    # window reported per request
-    for q, rep in zip(flat, together.info["requests"]):
-        b = rep["box"]
-        assert b[2] - b[0] == b[3] - b[1] == min(q.maps.shape)
-        assert rep["roi_in_window"] == 1.0 and rep["padded_px"] == 0
+    # the window is reported per request
+    for j, o in zip(jobs, together):
+        for q, rep in zip(j, o.info["requests"]):
+            b = rep["box"]
+            assert b[2] - b[0] == b[3] - b[1] == min(q.maps.shape)
+            assert rep["roi_in_window"] == 1.0 and rep["padded_px"] == 0
 
 
 def test_fp16_autocast_runs_and_matches_fp32(dummy):

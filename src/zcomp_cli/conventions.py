@@ -30,10 +30,33 @@ __all__ = [
     "valid_depth_mask",
     "REC601",
     "REC709",
+    "DEFAULT_SEED",
+    "GAMMA",
+    "SHADING_EPS",
+    "SHADING_MAX",
+    "CONDITIONING_VARIANTS",
 ]
 
+# Luma weights. The official ZeroComp compositor uses Rec.601 for its shadow ratio.
 REC601 = np.array([0.299, 0.587, 0.114], dtype=np.float32)
 REC709 = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+
+# The paper's fixed seed: one latent noise for both passes of a job, and the seed of
+# every deterministic random choice zcomp makes for a job.
+DEFAULT_SEED = 469
+# The official models read and write images gamma-2.2 encoded (not the sRGB curve).
+GAMMA = 2.2
+# Shading = image / max(albedo, SHADING_EPS), clamped to [SHADING_EPS, SHADING_MAX]
+# (DESIGN.md section 3 and the official conditioning).
+SHADING_EPS = 1e-5
+SHADING_MAX = 1e3
+# ZeroComp ControlNet variants by conditioning channel count -> the maps they read, in
+# channel order (DESIGN.md section 4).
+CONDITIONING_VARIANTS = {
+    10: ("normals", "albedo", "shading", "mask"),
+    11: ("depth", "normals", "albedo", "shading", "mask"),
+    13: ("depth", "normals", "albedo", "shading", "mask", "roughness", "metallic"),
+}
 
 
 def _as_float(x) -> np.ndarray:

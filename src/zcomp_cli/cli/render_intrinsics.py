@@ -30,7 +30,8 @@ from pathlib import Path
 
 import click
 
-from zcomp_cli.cli.options import K_opt, fov_opt, out_dir_opt, overwrite_opt, parse_K, resolution_opt
+from zcomp_cli.cli.options import (K_opt, cache_dir_opt, fov_opt, out_dir_opt, overwrite_opt, parse_K,
+                                   resolution_opt)
 
 _TOP_KEYS = {"objects", "cameras", "renders"}
 _CAMERA_KEYS = {"fov_deg", "K", "resolution"}
@@ -220,8 +221,7 @@ def _single_job(mesh, position, rotation_deg, quaternion, scale, height, fov_deg
 @out_dir_opt
 @click.option("--samples", type=click.IntRange(min=1), default=None, help="Cycles samples of the anti-aliased pass (default 16).")
 @click.option("--no-cache", is_flag=True, help="Render everything and leave the cache alone.")
-@click.option("--cache-dir", type=click.Path(file_okay=False), default=None,
-              help="Cache folder (default $ZCOMP_CACHE_DIR or ~/.cache/zcomp/intrinsics).")
+@cache_dir_opt
 @overwrite_opt
 @click.pass_context
 def render_intrinsics(ctx, manifest, mesh, position, rotation_deg, quaternion, scale, height, fov_deg, K,

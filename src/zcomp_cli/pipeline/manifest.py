@@ -29,6 +29,8 @@ from typing import Any
 
 import numpy as np
 
+from zcomp_cli.blender import DEFAULT_SAMPLES
+from zcomp_cli.conventions import DEFAULT_SEED
 from zcomp_cli.errors import ManifestError
 from zcomp_cli.imageio import image_header
 from zcomp_cli.pose import Pose
@@ -37,9 +39,7 @@ from zcomp_cli.yamlloc import LocDict, line_of, load_yaml
 MESH_EXTS = {".obj", ".glb", ".gltf", ".ply", ".stl"}
 IMAGE_EXTS = {".png", ".jpg", ".jpeg", ".exr", ".hdr", ".tif", ".tiff"}
 MAP_CHANNELS = {"depth": 1, "normals": 3, "albedo": 3, "roughness": 1, "metallic": 1}
-DEFAULT_SEED = 469
 DEFAULT_RADIUS = 1.0
-DEFAULT_SAMPLES = 32
 NAME_RE = re.compile(r"^[A-Za-z0-9_.\-]+$")
 
 

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from zcomp_cli.conventions import GAMMA
 from zcomp_cli.errors import NumericalError, UsageError
 from zcomp_cli.training.config import TrainConfig
 
@@ -62,7 +63,7 @@ def make_batch(samples, rng, cfg: TrainConfig, channels: int):
         maps = SceneMaps(s["depth"], s["normals"], alb, s.get("roughness"), s.get("metallic"))
         req = RenderRequest(maps, shading, known, Camera(K_from_fov(50, w, h), w, h), image=img)
         conds.append(build_conditioning(req, channels, R, box, shading=encoding))
-        tgt = resize_square(take_window(np.clip(img, 0, 1) ** (1 / 2.2), box), R)
+        tgt = resize_square(take_window(np.clip(img, 0, 1) ** (1 / GAMMA), box), R)
         imgs.append(tgt.transpose(2, 0, 1) * 2 - 1)
     return np.stack(imgs).astype(np.float32), np.stack(conds)
 

@@ -24,14 +24,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from zcomp_cli.conventions import camera_normals_to_conditioning
+from zcomp_cli.conventions import (
+    CONDITIONING_VARIANTS,
+    GAMMA,
+    SHADING_EPS,
+    SHADING_MAX,
+    camera_normals_to_conditioning,
+)
 from zcomp_cli.errors import InputError, UsageError
 
-GAMMA = 2.2
-SHADING_MIN, SHADING_MAX = 1e-5, 1e3
 # The official training loaders (data/dataset_openrooms.py) use 1e-6 for both bounds.
 TRAIN_SHADING_EPS = 1e-6
-VARIANTS = (10, 11, 13)
+VARIANTS = tuple(CONDITIONING_VARIANTS)
 WINDOWS = ("auto", "center", "roi")
 SHADING_ENCODINGS = ("inference", "linear")
 
@@ -50,7 +54,7 @@ def official_shading(image_lin: np.ndarray, albedo: np.ndarray) -> np.ndarray:
     img = np.clip(np.nan_to_num(np.asarray(image_lin, np.float64), nan=0.0, posinf=1.0,
                                 neginf=0.0), 0.0, 1.0)
     alb = np.nan_to_num(np.asarray(albedo, np.float64), nan=0.0, posinf=0.0, neginf=0.0)
-    return _ratio(img ** (1.0 / GAMMA), alb, SHADING_MIN)
+    return _ratio(img ** (1.0 / GAMMA), alb, SHADING_EPS)
 
 
 def linear_shading(image_lin: np.ndarray, albedo: np.ndarray,

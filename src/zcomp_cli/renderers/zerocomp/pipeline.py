@@ -56,11 +56,14 @@ def initial_noise(seed: int, shape, dtype=None):
     return torch.randn(tuple(shape), generator=g, dtype=torch.float32)
 
 
-def run_pipeline(models, cond: np.ndarray, *, steps: int, seed: int, device: str, dtype,
+def run_pipeline(models, cond: np.ndarray, *, steps: int, seed, device: str, dtype,
                  autocast=None, vae_batch: int = 4) -> PipelineOutput:
     """cond: B x C x R x R float32 conditioning, B passes denoised together (one
-    UNet/ControlNet call per step). One latent noise (from ``seed``) is shared by every
-    batch element, as the official background/composite passes do.
+    UNet/ControlNet call per step).
+
+    seed: one int (every pass gets the noise of that seed, as the official background and
+    composite passes share one noise) or B ints (pass i gets the noise of ``seed[i]``: the
+    passes of one job share its seed, so batching jobs changes no job's noise).
 
     autocast: an optional context manager (``dtype.autocast_context``) around the models.
     vae_batch: passes decoded at once (the VAE decoder at 512 px is memory-hungry)."""
@@ -83,8 +86,13 @@ def run_pipeline(models, cond: np.ndarray, *, steps: int, seed: int, device: str
         sched.set_timesteps(steps, device=device)
         # 3. one latent noise, reused for every pass
         lat_ch = models.unet.config.in_channels
-        noise = initial_noise(seed, (1, lat_ch, r // f, r // f))
-        latents = (noise * sched.init_noise_sigma).to(device, dtype).expand(b, -1, -1, -1).clone()
+        seeds = [int(seed)] * b if np.ndim(seed) == 0 else [int(v) for v in seed]
+        if len(seeds) != b:
+            raise ValueError(f"run_pipeline: {len(seeds)} seeds for {b} passes")
+        shape = (1, lat_ch, r // f, r // f)
+        by_seed = {v: initial_noise(v, shape) for v in set(seeds)}
+        noise = torch.cat([by_seed[v] for v in seeds])
+        latents = (noise * sched.init_noise_sigma).to(device, dtype)
         c = torch.from_numpy(cond).to(device, dtype, non_blocking=True)
         # 4. denoising loop
         for t in sched.timesteps:

@@ -1,10 +1,11 @@
 """``ZeroCompRenderer``: the official ZeroComp diffusion renderer behind zcomp's interface.
 
-One ``render`` call takes any number of requests (N jobs x their background and composite
-passes), builds each one's conditioning in its own square window, and denoises them in
-chunks of ``batch_size`` passes per UNet/ControlNet call. Every pass gets the same latent
-noise from ``seed``, so a job's images do not depend on the other jobs of its batch. The
-next chunk's conditioning is built on a CPU thread while the current chunk denoises.
+``render_jobs`` takes many jobs (each its background and composite passes), builds each
+pass's conditioning in its own square window, and denoises the passes in chunks of
+``2 x batch_size`` per UNet/ControlNet call (``batch_size`` = jobs per GPU batch). Every
+pass of a job gets the same latent noise from the job's seed, so a job's images do not
+depend on the other jobs of its batch (tested). The next chunk's conditioning is built on
+a CPU thread while the current chunk denoises. ``render`` is one job.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from typing import Sequence
 
 import numpy as np
 
+from zcomp_cli.conventions import DEFAULT_SEED
 from zcomp_cli.errors import InputError, NumericalError, UsageError
 from zcomp_cli.renderers.base import Renderer, RenderOutput, RenderRequest
 from zcomp_cli.renderers.zerocomp.conditioning import (
@@ -27,12 +29,14 @@ from zcomp_cli.renderers.zerocomp.conditioning import (
     square_window,
 )
 
-# Passes (images) per UNet/ControlNet call; a job is 2 passes. See docs/zerocomp.md.
-DEFAULT_BATCH_SIZE = 8
+# Jobs per UNet/ControlNet call (x 2 passes each). See docs/zerocomp.md, "Throughput".
+DEFAULT_BATCH_SIZE = 4
 
 
 class ZeroCompRenderer(Renderer):
     name = "zerocomp"
+    # the executor prepares the next chunk of jobs on a CPU thread while this one renders
+    overlap_prepare = True
 
     def __init__(self, controlnet: str | Path | None = None, base: str | Path | None = None, *,
                  steps: int = 20, device: str = "auto", dtype: str = "auto", crop: bool = False,
@@ -95,19 +99,30 @@ class ZeroCompRenderer(Renderer):
         """The square window this request is rendered in (see ``square_window``)."""
         return square_window(request.roi, request.maps.shape, self.window, self.context_margin)
 
-    def render(self, requests: Sequence[RenderRequest], *, seed: int = 469) -> RenderOutput:
+    def render(self, requests: Sequence[RenderRequest], *, seed: int = DEFAULT_SEED) -> RenderOutput:
+        """The requests of one job (any number of passes), all with the noise of ``seed``."""
+        return self.render_jobs([requests], [seed])[0]
+
+    def render_jobs(self, jobs: Sequence[Sequence[RenderRequest]], seeds: Sequence[int]) -> list[RenderOutput]:
+        """Render several jobs in shared GPU batches; equals rendering each job alone."""
         from zcomp_cli.renderers.zerocomp.dtype import autocast_context
         from zcomp_cli.renderers.zerocomp.pipeline import run_pipeline
 
-        if not requests:
+        if len(jobs) != len(seeds):
+            raise ValueError(f"render_jobs: {len(jobs)} jobs but {len(seeds)} seeds")
+        if not jobs or any(not reqs for reqs in jobs):
             raise InputError("zerocomp: no render requests")
         t0 = time.perf_counter()
         models = self.models()
         t1 = time.perf_counter()
         ch = models.conditioning_channels
+        requests = [r for reqs in jobs for r in reqs]
+        owner = [j for j, reqs in enumerate(jobs) for _ in reqs]
+        pass_seeds = [int(seeds[j]) for j in owner]
         boxes = [self.window_for(r) for r in requests]
-        bs = self.batch_size
-        chunks = [list(range(i, min(i + bs, len(requests)))) for i in range(0, len(requests), bs)]
+        per_call = 2 * self.batch_size
+        chunks = [list(range(i, min(i + per_call, len(requests))))
+                  for i in range(0, len(requests), per_call)]
         cpu_s = [0.0]
 
         def conditioning(idx):
@@ -126,10 +141,10 @@ class ZeroCompRenderer(Renderer):
                 cond = nxt.result()
                 if k + 1 < len(chunks):
                     nxt = pool.submit(conditioning, chunks[k + 1])
-                # 2. denoise and decode the chunk
+                # 2. denoise and decode the chunk (each pass with its job's seed)
                 t = time.perf_counter()
-                out = run_pipeline(models, cond, steps=self.steps, seed=seed, device=self._device,
-                                   dtype=self._dtype,
+                out = run_pipeline(models, cond, steps=self.steps, seed=[pass_seeds[i] for i in idx],
+                                   device=self._device, dtype=self._dtype,
                                    autocast=autocast_context(self.dtype_setting, self._device))
                 gpu_s += time.perf_counter() - t
                 # 3. back to linear, pasted into the frame
@@ -144,11 +159,19 @@ class ZeroCompRenderer(Renderer):
                                 "padded_px": int(inside.size - inside.sum()),
                                 "scale": self.resolution / (b[2] - b[0]),
                                 "roi_in_window": _roi_in_window(r.roi, b)})
-        info = {"renderer": self.settings(), "conditioning_channels": ch, "box": list(boxes[0]),
-                "requests": per_request, "batch_size": bs, "chunks": len(chunks),
-                "device": self._device, "dtype": str(self._dtype)}
-        return RenderOutput(images, info, {"load": t1 - t0, "conditioning_cpu": cpu_s[0],
-                                           "diffusion": gpu_s, "render_total": t2 - t1})
+        n = len(jobs)
+        outputs = []
+        for j in range(n):
+            idx = [i for i, o in enumerate(owner) if o == j]
+            info = {"renderer": self.settings(), "conditioning_channels": ch,
+                    "box": per_request[idx[0]]["box"], "requests": [per_request[i] for i in idx],
+                    "batch_size": self.batch_size, "jobs_in_call": n, "chunks": len(chunks),
+                    "device": self._device, "dtype": str(self._dtype)}
+            # shared work is split evenly between the jobs of the call
+            outputs.append(RenderOutput([images[i] for i in idx], info,
+                                        {"load": (t1 - t0) / n, "conditioning_cpu": cpu_s[0] / n,
+                                         "diffusion": gpu_s / n, "render_total": (t2 - t1) / n}))
+        return outputs
 
     def _paste(self, r: RenderRequest, box, gam: np.ndarray) -> np.ndarray:
         """Gamma-2.2 model output (R x R x 3) -> linear H x W x 3: the window's in-frame
