@@ -41,7 +41,7 @@ class ZeroCompRenderer(Renderer):
     def __init__(self, controlnet: str | Path | None = None, base: str | Path | None = None, *,
                  steps: int = 20, device: str = "auto", dtype: str = "auto", crop: bool = False,
                  window: str | None = None, context_margin: float = 0.5, resolution: int = 512,
-                 batch_size: int = DEFAULT_BATCH_SIZE, channels_last: bool = True,
+                 batch_size: int = DEFAULT_BATCH_SIZE, channels_last: bool | None = None,
                  compile: bool = False, allow_network: bool = False,
                  weights: str | Path | None = None):
         if steps < 1:
@@ -64,7 +64,8 @@ class ZeroCompRenderer(Renderer):
         self.window, self.context_margin = window, float(context_margin)
         self.resolution, self.allow_network = int(resolution), bool(allow_network)
         self.batch_size = int(batch_size)
-        self.channels_last, self.compile = bool(channels_last), bool(compile)
+        # None = on CUDA only (tensor-core convolutions want NHWC; CPU gains nothing sure)
+        self.channels_last, self.compile = channels_last, bool(compile)
         self._models = None
         self._device = self._dtype = None
 
@@ -91,7 +92,8 @@ class ZeroCompRenderer(Renderer):
             self._dtype = resolve_dtype(self.dtype_setting, self._device)
             models = load_models(self.controlnet, self.base, device=self._device,
                                  dtype=self._dtype, allow_network=self.allow_network)
-            optimise_models(models, channels_last=self.channels_last, compile=self.compile)
+            cl = self._device.startswith("cuda") if self.channels_last is None else bool(self.channels_last)
+            optimise_models(models, channels_last=cl, compile=self.compile)
             self._models = models
         return self._models
 
