@@ -66,3 +66,33 @@ def photo_manifest():
         return folder / "jobs.yaml"
 
     return make
+
+
+@pytest.fixture
+def small_example():
+    """``make(folder, jobs=None) -> jobs.yaml``: a copy of the shipped example manifest
+    working at 256 x 192 (4 Cycles samples), with absolute paths; ``jobs`` picks a
+    subset by index."""
+    import yaml
+
+    def make(folder: Path, jobs=None) -> Path:
+        m = yaml.safe_load((EXAMPLES / "jobs.yaml").read_text())
+        m["defaults"]["resolution"] = [256, 192]
+        m["defaults"]["samples"] = 4
+        for s in m["scenes"].values():
+            for k in ("image", "depth", "normals", "albedo"):
+                s[k] = str(EXAMPLES / s[k])
+        for o in m["objects"].values():
+            o["mesh"] = str(EXAMPLES / o["mesh"])
+        for j in m["jobs"]:
+            if "reference" in j:
+                j["reference"] = str(EXAMPLES / j["reference"])
+            if "placement" in j:
+                j["placement"]["pixel"] = [v / 2 for v in j["placement"]["pixel"]]
+        if jobs is not None:
+            m["jobs"] = [m["jobs"][i] for i in jobs]
+        p = Path(folder) / "jobs.yaml"
+        p.write_text(yaml.safe_dump(m))
+        return p
+
+    return make

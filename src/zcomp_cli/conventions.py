@@ -28,6 +28,7 @@ __all__ = [
     "camera_normals_to_conditioning",
     "conditioning_to_camera_normals",
     "valid_depth_mask",
+    "pixel_ray",
     "REC601",
     "REC709",
     "DEFAULT_SEED",
@@ -133,15 +134,28 @@ def blender_depth_to_z_depth(z_pass, far: float = 1e9) -> np.ndarray:
     return out.astype(np.float32)
 
 
-def _pixel_rays(K, width: int, height: int) -> np.ndarray:
-    """Camera-frame directions through pixel centres with z = -1 (OpenGL), (H, W, 3)."""
+def pixel_ray(K, x, y) -> np.ndarray:
+    """The camera-frame ray through the image point ``[x, y]`` (continuous pixel
+    coordinates from the top-left corner: the centre of pixel ``(col, row)`` is
+    ``(col + 0.5, row + 0.5)``), scaled to z = -1 (OpenGL: the camera looks along -z, y up).
+
+    This is the one place zcomp writes ``((x - cx) / fx, -(y - cy) / fy, -1)``.
+
+    Args:
+        K: 3x3 intrinsics.
+        x, y: broadcastable arrays (or scalars) of image coordinates.
+    Returns:
+        (..., 3) float64; multiplying by a z-depth gives the camera-frame point.
+    """
     K = np.asarray(K, dtype=np.float64)
-    u = np.arange(width) + 0.5
-    v = np.arange(height) + 0.5
-    uu, vv = np.meshgrid(u, v)
-    x = (uu - K[0, 2]) / K[0, 0]
-    y = -(vv - K[1, 2]) / K[1, 1]
-    return np.stack([x, y, -np.ones_like(x)], axis=-1)
+    x, y = np.broadcast_arrays(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
+    return np.stack([(x - K[0, 2]) / K[0, 0], -(y - K[1, 2]) / K[1, 1], -np.ones_like(x)], axis=-1)
+
+
+def _pixel_rays(K, width: int, height: int) -> np.ndarray:
+    """Rays through every pixel centre, (H, W, 3), z = -1."""
+    uu, vv = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
+    return pixel_ray(K, uu, vv)
 
 
 def ray_distance_to_z_depth(dist, K) -> np.ndarray:

@@ -133,7 +133,7 @@ def place_on_floor(scene: BenchScene, vertices, bbox_min, bbox_max, rng: np.rand
     for _ in range(tries):
         u = rng.uniform(0.2, 0.8) * W
         v = rng.uniform(0.55, 0.92) * H
-        ray = np.array([(u - cam.cx) / cam.fx, -(v - cam.cy) / cam.fy, -1.0])
+        ray = cam.ray(u, v)
         denom = float(ray @ n)
         if denom > -1e-6:
             continue

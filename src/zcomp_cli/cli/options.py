@@ -53,14 +53,15 @@ debug_opt = click.option(
 
 
 def parse_K(text: str | None):
-    """Parse 'fx,fy,cx,cy' into a 3x3 list, or None."""
+    """Parse ``--K 'fx,fy,cx,cy'`` into a 3x3 matrix (``camera.K_from_value``), or None."""
     if text is None:
         return None
+    from zcomp_cli.camera import K_from_value
+
     try:
-        fx, fy, cx, cy = (float(v) for v in text.split(","))
+        return K_from_value([float(v) for v in text.split(",")])
     except ValueError as exc:
-        raise click.BadParameter("expected 'fx,fy,cx,cy'", param_hint="--K") from exc
-    return [[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]
+        raise click.BadParameter(f"expected 'fx,fy,cx,cy': {exc}", param_hint="--K") from exc
 
 
 def renderer_options(f):

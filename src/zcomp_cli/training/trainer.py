@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -68,7 +69,9 @@ def make_batch(samples, rng, cfg: TrainConfig, channels: int):
     return np.stack(imgs).astype(np.float32), np.stack(conds)
 
 
-def train(cfg: TrainConfig, *, progress: bool = True, log=None) -> TrainResult:
+def train(cfg: TrainConfig, *, progress: Callable[[str, int, int, str], None] | None = None) -> TrainResult:
+    """Train the ControlNet. ``progress(stage, done, total, label)`` is called after every
+    step with stage "training" (the same callback the batch commands use)."""
     import torch
     from diffusers import AutoencoderKL, ControlNetModel, UNet2DConditionModel
     from transformers import CLIPTextModel
@@ -115,13 +118,6 @@ def train(cfg: TrainConfig, *, progress: bool = True, log=None) -> TrainResult:
         emb = te(empty_prompt_ids(te.config.max_position_embeddings).to(device))[0]
     T = sched.config.num_train_timesteps
     losses, last = [], None
-    bar = None
-    if progress:
-        from rich.progress import Progress
-
-        bar = Progress(transient=True)
-        bar.start()
-        task = bar.add_task("training", total=cfg.max_steps, completed=step)
     log_f = open(out / "loss_log.tsv", "a")
     try:
         # 2. loop
@@ -151,16 +147,12 @@ def train(cfg: TrainConfig, *, progress: bool = True, log=None) -> TrainResult:
             loss = loss.detach()
             losses.append(float(loss))
             log_f.write(f"{step}\t{float(loss):.6g}\n")
-            if bar is not None:
-                bar.update(task, completed=step, description=f"loss {float(loss):.4f}")
-            if log is not None:
-                log(step, float(loss))
+            if progress is not None:
+                progress("training", step, cfg.max_steps, f"loss {float(loss):.4f}")
             if step % cfg.save_every == 0 or step == cfg.max_steps:
                 last = save_checkpoint(out, step, cn, opt)
     finally:
         log_f.close()
-        if bar is not None:
-            bar.stop()
     return TrainResult(step, losses, last)
 
 
