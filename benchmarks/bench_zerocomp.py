@@ -27,7 +27,7 @@ GPU host, from the repository root:
 CPU (what was run without a GPU; reduced size, numbers are only relative):
 
     PYTHONPATH=src python benchmarks/bench_zerocomp.py --device cpu --res 128 --steps 2 \\
-        --jobs 4 --batch-sizes 1,2 --warmup 0
+        --jobs 2 --batch-sizes 1,2 --warmup 0
 """
 
 from __future__ import annotations

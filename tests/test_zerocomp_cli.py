@@ -34,17 +34,15 @@ def test_composite_cli_zerocomp(tmp_path, small_example):
     assert np.isfinite(img).all() and img.max() > 0
 
 
-def test_composite_cli_zerocomp_batches_equal_singles(tmp_path):
+def test_composite_cli_zerocomp_batches_equal_singles(tmp_path, small_example):
     # two jobs in one GPU batch (--batch-size 2) == one job per batch (--batch-size 1, the
     # executor then prepares the second job on a thread while the first renders); the batch
     # size is a speed setting: --resume with another one skips the finished jobs
-    from test_cli_composite import _small_example
-
     from zcomp_cli.cli import cli
     from zcomp_cli.imageio import read_image
 
     ck, base = save_dummy(tmp_path / "w", 11)
-    manifest = _small_example(tmp_path, jobs=[0, 2])
+    manifest = small_example(tmp_path, jobs=[0, 2])
     m = yaml.safe_load(manifest.read_text())
     m["defaults"]["renderer"] = {"name": "zerocomp", "resolution": 32, "device": "cpu"}
     manifest.write_text(yaml.safe_dump(m))
