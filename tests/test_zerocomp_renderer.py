@@ -8,25 +8,7 @@ from zcomp_cli.maps import SceneMaps
 from zcomp_cli.renderers.base import RenderRequest
 from zcomp_cli.renderers.zerocomp.conditioning import build_conditioning, crop_box, official_shading
 
-from zerocomp_dummy import save_dummy
-
-H, W = 24, 32
-
-
-def _request(seed=0, rough=False, known=None):
-    rng = np.random.default_rng(seed)
-    n = rng.normal(size=(H, W, 3)).astype(np.float32)
-    n /= np.linalg.norm(n, axis=-1, keepdims=True)
-    maps = SceneMaps(depth=rng.uniform(0.5, 5, (H, W)).astype(np.float32), normals=n,
-                     albedo=rng.uniform(0.1, 0.9, (H, W, 3)).astype(np.float32),
-                     roughness=np.full((H, W), 0.3, np.float32) if rough else None,
-                     metallic=np.full((H, W), 0.7, np.float32) if rough else None)
-    if known is None:
-        known = np.ones((H, W), bool)
-        known[8:16, 10:20] = False
-    shading = rng.uniform(0.2, 2.0, (H, W, 3)).astype(np.float32)
-    cam = Camera(K_from_fov(50, W, H), W, H)
-    return RenderRequest(maps, shading, known, cam, roi=(10, 8, 20, 16))
+from zerocomp_dummy import H, W, random_request as _request, save_dummy
 
 
 def test_conditioning_channels_by_hand():

@@ -42,8 +42,7 @@ class ZeroCompRenderer(Renderer):
                  steps: int = 20, device: str = "auto", dtype: str = "auto", crop: bool = False,
                  window: str | None = None, context_margin: float = 0.5, resolution: int = 512,
                  batch_size: int = DEFAULT_BATCH_SIZE, channels_last: bool | None = None,
-                 compile: bool = False, allow_network: bool = False,
-                 weights: str | Path | None = None):
+                 compile: bool = False, allow_network: bool = False):
         if steps < 1:
             raise UsageError(f"zerocomp: steps must be >= 1, got {steps}")
         if context_margin < 0:
@@ -58,7 +57,7 @@ class ZeroCompRenderer(Renderer):
             raise UsageError(f"zerocomp: window must be one of {', '.join(WINDOWS)}, got {window!r}")
         if crop and window != "roi":
             raise UsageError(f"zerocomp: crop: true means window: roi, not {window!r}")
-        self.controlnet = controlnet or weights
+        self.controlnet = controlnet
         self.base = base
         self.steps, self.device_setting, self.dtype_setting = int(steps), device, dtype
         self.window, self.context_margin = window, float(context_margin)
