@@ -102,12 +102,13 @@ def run_batch(
     overwrite: bool = False,
     debug: bool = False,
     cache_dir=None,
-    batch_size: int = 1,
+    batch_size: int | None = None,
     progress: Progress | None = None,
 ) -> BatchSummary:
     """Run the manifest's jobs. ``progress(stage, done, total, label)`` is called for
     the object-render stage ("objects") and the job stage ("jobs"). ``cache_dir`` is
-    the cache root (``zcomp_cli.cache``); ``batch_size`` jobs share one renderer call."""
+    the cache root (``zcomp_cli.cache``); ``batch_size`` jobs share one renderer call
+    (default: the renderer's own ``batch_size``, e.g. zerocomp's GPU batch, else 1)."""
     from zcomp_cli.cache import cache_dir as cache_folder
     from zcomp_cli.cache import cache_root
     from zcomp_cli.pipeline.outguard import (DigestCache, OutputLock, clean_job_folder,
@@ -121,7 +122,7 @@ def run_batch(
         raise UsageError(f"--out: cannot create {out_root}: {exc.strerror or exc}") from exc
     ctx = BatchContext(manifest, out_root, renderer_spec or manifest.defaults.renderer,
                        SceneStore(manifest, cache_folder("estimates", cache_dir)), debug=debug,
-                       cache_root=cache_dir, batch_size=max(1, int(batch_size)), progress=progress)
+                       cache_root=cache_dir, batch_size=max(1, int(batch_size or 1)), progress=progress)
 
     # 1. Plan, holding the selected jobs' locks until the batch ends.
     jobs = select_jobs(manifest.jobs, jobs_subset)
@@ -138,7 +139,7 @@ def run_batch(
         write_summary(out_root, summary, manifest, running=running)
         try:
             if to_run:
-                _run_planned(ctx, summary, to_run)
+                _run_planned(ctx, summary, to_run, batch_size)
         finally:  # also after Ctrl-C or a renderer that cannot start: the folder's true state
             summary.statuses.sort(key=lambda s: s.job.index)
             summary.seconds = time.perf_counter() - t_batch
@@ -163,12 +164,14 @@ def _digest_store(cache_dir) -> Path | None:
     return cache_root(cache_dir) / "file-hashes.json"
 
 
-def _run_planned(ctx: BatchContext, summary: BatchSummary, to_run) -> None:
-    """Stages 2-4 for the planned jobs."""
+def _run_planned(ctx: BatchContext, summary: BatchSummary, to_run, batch_size: int | None = None) -> None:
+    """Stages 2-4 for the planned jobs (``batch_size`` None: the renderer's own)."""
     from zcomp_cli.pipeline.executor import LocalExecutor
     from zcomp_cli.renderers import get_renderer
 
     ctx.renderer = get_renderer(ctx.renderer_spec.name, **ctx.renderer_spec.settings)
+    if batch_size is None:
+        ctx.batch_size = max(1, int(getattr(ctx.renderer, "batch_size", 1)))
     works = [JobWork(job, fp) for job, fp in to_run]
 
     # 2. Poses (placement needs the scene's depth and normals).

@@ -70,12 +70,16 @@ class BatchSummary:
 def job_fingerprint(manifest: Manifest, job: JobSpec, renderer: RendererSpec, samples: int,
                     digests=None) -> str:
     """Identifies a job's inputs: the contents of its files (named relative to the
-    manifest), its pose, settings. ``digests`` is a ``outguard.DigestCache``."""
+    manifest), its pose, settings (not those that only change speed).
+    ``digests`` is a ``outguard.DigestCache``."""
     from zcomp_cli.pipeline.outguard import DigestCache
+    from zcomp_cli.renderers.registry import RENDERERS
 
     digests = digests if digests is not None else DigestCache(None)
     scene = manifest.scenes[job.scene]
     obj = manifest.objects[job.object]
+    entry = RENDERERS.get(renderer.name)
+    speed_only = set(entry.speed_settings) if entry is not None else set()
     roles = [("scene.image", scene.image), *((f"scene.{k}", v) for k, v in sorted(scene.maps.items())),
              ("object.mesh", obj.mesh), ("object.bundle", obj.bundle), ("object.image", obj.image),
              ("object.mask", obj.mask)]
@@ -91,7 +95,8 @@ def job_fingerprint(manifest: Manifest, job: JobSpec, renderer: RendererSpec, sa
         "placement": None if job.placement is None else [job.placement.pixel, job.placement.yaw_deg,
                                                           job.placement.height, job.placement.scale],
         "radius": job.shading_radius, "seed": job.seed,
-        "renderer": {"name": renderer.name, **{k: str(v) for k, v in renderer.settings.items()}},
+        "renderer": {"name": renderer.name, **{k: str(v) for k, v in renderer.settings.items()
+                                               if k not in speed_only}},
         "resolution": manifest.defaults.resolution, "samples": samples,
     }
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:16]
