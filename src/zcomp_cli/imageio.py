@@ -178,8 +178,10 @@ def verify_image(path) -> tuple[int, int, int]:
     try:
         spec = inp.spec()
         if spec.tile_width:
-            ok = inp.read_tiles(0, 0, 0, spec.width, 0, spec.height, 0, max(1, spec.depth), 0,
-                                spec.nchannels, oiio.FLOAT) is not None if w * h <= 4_000_000 else True
+            # Tiled files: the last row of tiles (the end of the file in the usual order).
+            y0 = ((h - 1) // spec.tile_height) * spec.tile_height
+            ok = inp.read_tiles(0, 0, 0, spec.width, y0, h, 0, max(1, spec.depth), 0,
+                                spec.nchannels, oiio.FLOAT) is not None
         else:
             ok = inp.read_scanlines(0, 0, h - 1, h, 0, 0, spec.nchannels, oiio.FLOAT) is not None
         if not ok:
