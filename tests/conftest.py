@@ -1,8 +1,13 @@
-"""Test-wide settings: no network for model hubs, caches in a temporary folder."""
+"""Test-wide settings (no network for model hubs, caches in a temporary folder) and the
+helpers several test files share, as fixtures."""
 
 import os
+from pathlib import Path
 
+import numpy as np
 import pytest
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
@@ -21,3 +26,73 @@ def _zcomp_cache(tmp_path_factory):
         os.environ.pop("ZCOMP_CACHE_DIR", None)
     else:
         os.environ["ZCOMP_CACHE_DIR"] = old
+
+
+@pytest.fixture
+def examples_dir() -> Path:
+    """The shipped example (examples/jobs.yaml and its scene and objects)."""
+    return EXAMPLES
+
+
+PHOTO_MANIFEST = """version: 1
+defaults: {renderer: RENDERER}
+scenes:
+  table:
+    image: photo.png
+    fov_deg: 50
+    depth: {proxy: ground_plane, camera_height: 0.6, pitch_deg: -30}
+objects:
+  card: {image: obj.png, mask: mask.png}
+jobs:
+  - {scene: table, object: card, placement: {pixel: [70, 100], height: 0.12}}
+"""
+
+
+@pytest.fixture
+def photo_manifest():
+    """``make(folder, renderer) -> jobs.yaml``: a real photograph (scikit-image's coffee
+    cup, 160x120) with only ``image:`` and a ground-plane line, and a 2D card object."""
+    from PIL import Image
+    from skimage import data as skdata
+
+    def make(folder: Path, renderer: str = "naive") -> Path:
+        folder = Path(folder)
+        Image.fromarray(skdata.coffee()).resize((160, 120)).save(folder / "photo.png")
+        m = np.zeros((60, 30), np.uint8)
+        m[4:56, 4:26] = 255
+        Image.fromarray(m).save(folder / "mask.png")
+        Image.fromarray(np.full((60, 30, 3), 200, np.uint8)).save(folder / "obj.png")
+        (folder / "jobs.yaml").write_text(PHOTO_MANIFEST.replace("RENDERER", renderer))
+        return folder / "jobs.yaml"
+
+    return make
+
+
+@pytest.fixture
+def small_example():
+    """``make(folder, jobs=None) -> jobs.yaml``: a copy of the shipped example manifest
+    working at 256 x 192 (4 Cycles samples), with absolute paths; ``jobs`` picks a
+    subset by index."""
+    import yaml
+
+    def make(folder: Path, jobs=None) -> Path:
+        m = yaml.safe_load((EXAMPLES / "jobs.yaml").read_text())
+        m["defaults"]["resolution"] = [256, 192]
+        m["defaults"]["samples"] = 4
+        for s in m["scenes"].values():
+            for k in ("image", "depth", "normals", "albedo"):
+                s[k] = str(EXAMPLES / s[k])
+        for o in m["objects"].values():
+            o["mesh"] = str(EXAMPLES / o["mesh"])
+        for j in m["jobs"]:
+            if "reference" in j:
+                j["reference"] = str(EXAMPLES / j["reference"])
+            if "placement" in j:
+                j["placement"]["pixel"] = [v / 2 for v in j["placement"]["pixel"]]
+        if jobs is not None:
+            m["jobs"] = [m["jobs"][i] for i in jobs]
+        p = Path(folder) / "jobs.yaml"
+        p.write_text(yaml.safe_dump(m))
+        return p
+
+    return make

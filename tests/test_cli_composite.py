@@ -1,7 +1,6 @@
 """`zcomp composite` end to end on the shipped example (Blender renders the objects)."""
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,39 +10,15 @@ from click.testing import CliRunner
 from zcomp_cli.cli import cli
 from zcomp_cli.imageio import read_image
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
-
 pytestmark = [pytest.mark.blender]
-
-
-def _small_example(tmp_path: Path, jobs=None) -> Path:
-    """A copy of the example manifest working at 256 x 192, with absolute paths."""
-    m = yaml.safe_load((EXAMPLES / "jobs.yaml").read_text())
-    m["defaults"]["resolution"] = [256, 192]
-    m["defaults"]["samples"] = 4
-    for s in m["scenes"].values():
-        for k in ("image", "depth", "normals", "albedo"):
-            s[k] = str(EXAMPLES / s[k])
-    for o in m["objects"].values():
-        o["mesh"] = str(EXAMPLES / o["mesh"])
-    for j in m["jobs"]:
-        if "reference" in j:
-            j["reference"] = str(EXAMPLES / j["reference"])
-        if "placement" in j:
-            j["placement"]["pixel"] = [v / 2 for v in j["placement"]["pixel"]]
-    if jobs is not None:
-        m["jobs"] = [m["jobs"][i] for i in jobs]
-    p = tmp_path / "jobs.yaml"
-    p.write_text(yaml.safe_dump(m))
-    return p
 
 
 def _run(*args):
     return CliRunner().invoke(cli, list(args), catch_exceptions=False)
 
 
-def test_naive_batch_outputs_resume_overwrite(tmp_path):
-    manifest = _small_example(tmp_path, jobs=[0, 2])
+def test_naive_batch_outputs_resume_overwrite(tmp_path, small_example):
+    manifest = small_example(tmp_path, jobs=[0, 2])
     out = tmp_path / "out"
     r = _run("composite", str(manifest), "--out", str(out), "--renderer", "naive", "--debug")
     assert r.exit_code == 0, r.output
@@ -73,8 +48,8 @@ def test_naive_batch_outputs_resume_overwrite(tmp_path):
     assert r.exit_code == 0 and "1 done" in r.output
 
 
-def test_failed_job_does_not_stop_batch(tmp_path):
-    manifest = _small_example(tmp_path, jobs=[0, 1])
+def test_failed_job_does_not_stop_batch(tmp_path, small_example):
+    manifest = small_example(tmp_path, jobs=[0, 1])
     m = yaml.safe_load(manifest.read_text())
     bad = tmp_path / "broken.glb"
     bad.write_bytes(b"this is not a glb file")
@@ -94,8 +69,8 @@ def test_failed_job_does_not_stop_batch(tmp_path):
     assert not (out / "001_room_broken" / "report.json").exists()
 
 
-def test_usage_errors(tmp_path):
-    manifest = _small_example(tmp_path, jobs=[0])
+def test_usage_errors(tmp_path, small_example):
+    manifest = small_example(tmp_path, jobs=[0])
     r = _run("composite", str(manifest), "--out", str(tmp_path / "o"), "--jobs", "7")
     assert r.exit_code == 2 and "out of range" in r.output
     r = _run("composite", str(manifest), "--out", str(tmp_path / "o"), "--resume", "--overwrite")
@@ -105,13 +80,13 @@ def test_usage_errors(tmp_path):
 
 
 @pytest.mark.slow
-def test_physical_example_casts_shadow_far_pixels_unchanged(tmp_path):
+def test_physical_example_casts_shadow_far_pixels_unchanged(tmp_path, small_example):
     """The shipped example with the default renderer at low resolution."""
     from scipy.ndimage import binary_dilation
 
     from zcomp_cli.imageio import read_map
 
-    manifest = _small_example(tmp_path, jobs=[0])
+    manifest = small_example(tmp_path, jobs=[0])
     out = tmp_path / "out"
     r = _run("composite", str(manifest), "--out", str(out), "--debug")
     assert r.exit_code == 0, r.output

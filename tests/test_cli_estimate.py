@@ -4,41 +4,13 @@
 import json
 
 import numpy as np
-import pytest
 from click.testing import CliRunner
 
 from zcomp_cli.cli import cli
 
 
-def _write_photo(tmp_path):
-    skdata = pytest.importorskip("skimage.data")
-    from PIL import Image
-
-    # A real photograph (scikit-image's coffee cup on a wooden table), downsized.
-    Image.fromarray(skdata.coffee()).resize((160, 120)).save(tmp_path / "photo.png")
-    m = np.zeros((60, 30), np.uint8)
-    m[4:56, 4:26] = 255
-    Image.fromarray(m).save(tmp_path / "mask.png")
-    Image.fromarray(np.full((60, 30, 3), 200, np.uint8)).save(tmp_path / "obj.png")
-
-
-MANIFEST = """version: 1
-defaults: {renderer: RENDERER}
-scenes:
-  table:
-    image: photo.png
-    fov_deg: 50
-    depth: {proxy: ground_plane, camera_height: 0.6, pitch_deg: -30}
-objects:
-  card: {image: obj.png, mask: mask.png}
-jobs:
-  - {scene: table, object: card, placement: {pixel: [70, 100], height: 0.12}}
-"""
-
-
-def test_estimate_writes_maps_and_preview(tmp_path):
-    _write_photo(tmp_path)
-    (tmp_path / "jobs.yaml").write_text(MANIFEST.replace("RENDERER", "naive"))
+def test_estimate_writes_maps_and_preview(tmp_path, photo_manifest):
+    photo_manifest(tmp_path, "naive")
     r = CliRunner().invoke(cli, ["estimate", str(tmp_path / "jobs.yaml"), "--out", str(tmp_path / "out"),
                                  "--cache-dir", str(tmp_path / "cache"), "--native"])
     assert r.exit_code == 0, r.output
@@ -62,17 +34,15 @@ def test_estimate_writes_maps_and_preview(tmp_path):
     assert any((tmp_path / "cache" / "estimates").iterdir())
 
 
-def test_estimate_unknown_scene_is_usage_error(tmp_path):
-    _write_photo(tmp_path)
-    (tmp_path / "jobs.yaml").write_text(MANIFEST.replace("RENDERER", "naive"))
+def test_estimate_unknown_scene_is_usage_error(tmp_path, photo_manifest):
+    photo_manifest(tmp_path, "naive")
     r = CliRunner().invoke(cli, ["estimate", str(tmp_path / "jobs.yaml"), "--out", str(tmp_path / "o"),
                                  "--scenes", "nope"])
     assert r.exit_code == 2
 
 
-def _composite(tmp_path, renderer, *extra):
-    _write_photo(tmp_path)
-    (tmp_path / "jobs.yaml").write_text(MANIFEST.replace("RENDERER", renderer))
+def _composite(tmp_path, photo_manifest, renderer, *extra):
+    photo_manifest(tmp_path, renderer)
     r = CliRunner().invoke(cli, ["composite", str(tmp_path / "jobs.yaml"), "--out", str(tmp_path / "out"),
                                  "--cache-dir", str(tmp_path / "cache"), *extra])
     assert r.exit_code == 0, r.output
@@ -83,14 +53,14 @@ def _composite(tmp_path, renderer, *extra):
     return out, bg
 
 
-def test_composite_from_photo_with_image_only(tmp_path):
-    out, bg = _composite(tmp_path, "naive")
+def test_composite_from_photo_with_image_only(tmp_path, photo_manifest):
+    out, bg = _composite(tmp_path, photo_manifest, "naive")
     assert out.shape == bg.shape and np.isfinite(out).all()
     assert np.abs(out - bg).max() > 0.05  # the object is there
 
 
-def test_composite_from_photo_casts_a_floor_shadow(tmp_path):
-    out, bg = _composite(tmp_path, "physical", "--debug")
+def test_composite_from_photo_casts_a_floor_shadow(tmp_path, photo_manifest):
+    out, bg = _composite(tmp_path, photo_manifest, "physical", "--debug")
     assert np.isfinite(out).all()
     from scipy.ndimage import binary_dilation
 

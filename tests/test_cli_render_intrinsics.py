@@ -8,13 +8,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import trimesh
 
 from zcomp_cli.bundle import ObjectBundle
 from zcomp_cli.cli import main
-from zcomp_cli.cli.render_intrinsics import load_manifest
 from zcomp_cli.errors import ManifestError
-
-trimesh = pytest.importorskip("trimesh")
+from zcomp_cli.pipeline.objects_manifest import load_objects_manifest as load_manifest
 
 
 def _run(argv, capsys):
@@ -63,6 +62,8 @@ def test_manifest_lists_every_problem_with_its_location(scene_dir, capsys):
                   "renders[1].pose.spin", "renders[3].pose.position: required",
                   "renders[3].name: 'a' already used by renders[2]"):
         assert where in probs, where
+    # each problem carries its file and line, like jobs.yaml's
+    assert "objects.yaml:10: renders[1].camera" in probs
     code, out, err = _run(["render-intrinsics", str(p), "--out", str(scene_dir / "out")], capsys)
     assert code == 2 and "renders[1].camera" in err
     assert not (scene_dir / "out").exists()  # nothing rendered
@@ -114,7 +115,6 @@ def test_existing_output_needs_overwrite(scene_dir, capsys):
 @pytest.mark.blender
 @pytest.mark.slow
 def test_batch_with_bad_items_and_cache(scene_dir, capsys, monkeypatch):
-    pytest.importorskip("bpy")
     p = _yaml(scene_dir, """
         objects:
           cube: cube.glb
@@ -158,7 +158,6 @@ def test_batch_with_bad_items_and_cache(scene_dir, capsys, monkeypatch):
 @pytest.mark.blender
 @pytest.mark.slow
 def test_single_object_flags(scene_dir, capsys):
-    pytest.importorskip("bpy")
     out = scene_dir / "single"
     code, stdout, err = _run(["render-intrinsics", "--mesh", str(scene_dir / "cube.glb"),
                               "--position", "0", "-0.5", "-3", "--quaternion", "1", "0", "0", "0",

@@ -149,6 +149,35 @@ def test_shading_mask_radius_and_never_above():
     assert not s[floor & (dist > res.radius_m * 1.05)].any()
 
 
+def test_shading_mask_never_masks_a_wall_above_the_object():
+    """A wall 0.1 m behind the object: its points above the object are well within the
+    radius, yet the object cannot shade them, so they stay known. (Without the rule
+    every wall pixel in the object's columns up to ~d above its top would be masked.)"""
+    cam, bg, od, om = _floor_and_box()
+    rays = cam.pixel_rays()
+    wall_z = 4.1
+    wall = (rays[..., 1] * wall_z >= -1.0) & (bg == 0) | (bg > wall_z)
+    bg = np.where(wall, wall_z, bg).astype(np.float32)
+    res = shading_mask(bg, od, om, cam, radius_scale=1.0)
+    cols = np.flatnonzero(om.any(0))
+    top = min(np.flatnonzero(om[:, c])[0] for c in cols)
+    wall_above = np.zeros_like(res.mask)
+    wall_above[:top, cols] = True
+    wall_above &= wall
+    # the wall right above the object is within d of it...
+    pts = cam.unproject(bg)[wall_above]
+    obj_pts = cam.unproject(od)[om > 0]
+    from scipy.spatial import cKDTree
+
+    near = cKDTree(obj_pts).query(pts)[0] <= res.radius_m
+    assert near.sum() >= 10
+    # ...and yet never masked; beside the object (other columns) the wall within d is.
+    assert not res.mask[wall_above].any()
+    beside = wall & ~res.mask
+    assert res.mask[wall & ~wall_above & (om == 0)].any()
+    assert beside.any()
+
+
 def test_shading_mask_lambda_zero_only_object():
     cam, bg, od, om = _floor_and_box()
     s = shading_mask(bg, od, om, cam, radius_scale=0.0).mask

@@ -1,11 +1,10 @@
-"""benchmarks/sweep_error_vs_time.py: the plan of configurations, the per-configuration
+"""zcomp_cli.benchsuite.sweep (behind benchmarks/sweep_error_vs_time.py): the plan of configurations, the per-configuration
 manifest, timing summaries, upsampling and outputs (fast), and a --quick sweep over a
 2-case Blender benchmark (slow)."""
 
 from __future__ import annotations
 
 import csv
-import importlib.util
 import json
 import math
 import subprocess
@@ -22,10 +21,8 @@ SCRIPT = ROOT / "benchmarks" / "sweep_error_vs_time.py"
 
 @pytest.fixture(scope="module")
 def sweep():
-    spec = importlib.util.spec_from_file_location("sweep_error_vs_time", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod  # dataclasses look their module up by name
-    spec.loader.exec_module(mod)
+    import zcomp_cli.benchsuite.sweep as mod
+
     return mod
 
 

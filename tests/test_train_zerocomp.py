@@ -85,8 +85,9 @@ def test_train_loss_decreases_checkpoint_loads_and_resumes(tmp_path):
     cfg = {"base": str(base), "dataset": {"layout": "zcomp", "root": str(tmp_path / "data")},
            "output_dir": str(tmp_path / "out"), "resolution": 16, "batch_size": 4, "lr": 2e-3,
            "max_steps": 40, "save_every": 20, "seed": 0, "device": "cpu"}
-    res = train(parse_config(cfg), progress=False)
-    assert res.step == 40 and len(res.losses) == 40
+    steps = []
+    res = train(parse_config(cfg), progress=lambda stage, done, total, label: steps.append(done))
+    assert res.step == 40 and len(res.losses) == 40 and steps == list(range(1, 41))
     assert np.mean(res.losses[-10:]) < np.mean(res.losses[:10])
     ck = tmp_path / "out" / "checkpoint-40"
     assert (ck / "controlnet" / "config.json").is_file()

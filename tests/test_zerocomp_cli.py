@@ -12,15 +12,12 @@ from zerocomp_dummy import save_dummy
 pytestmark = [pytest.mark.blender, pytest.mark.slow]
 
 
-def test_composite_cli_zerocomp(tmp_path):
-    pytest.importorskip("zcomp_cli.cli.composite")
-    from test_cli_composite import _small_example
-
+def test_composite_cli_zerocomp(tmp_path, small_example):
     from zcomp_cli.cli import cli
     from zcomp_cli.imageio import read_image
 
     ck, base = save_dummy(tmp_path / "w", 11)
-    manifest = _small_example(tmp_path, jobs=[0])
+    manifest = small_example(tmp_path, jobs=[0])
     m = yaml.safe_load(manifest.read_text())
     m["defaults"]["renderer"] = {"name": "zerocomp", "resolution": 32, "device": "cpu"}
     manifest.write_text(yaml.safe_dump(m))

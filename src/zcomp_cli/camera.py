@@ -6,9 +6,34 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from zcomp_cli.conventions import K_from_fov, fov_from_K, valid_depth_mask
+from zcomp_cli.conventions import K_from_fov, fov_from_K, pixel_ray, valid_depth_mask
 
 DEFAULT_FOV_DEG = 50.0
+
+
+def K_from_value(value) -> np.ndarray:
+    """The one parser of user-given intrinsics: ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]``
+    or ``[fx, fy, cx, cy]`` (pixels) -> 3x3 float64.
+
+    Raises ValueError saying what is wrong (shape, non-finite values, non-positive focal
+    lengths, a last row other than [0, 0, 1]).
+    """
+    if isinstance(value, (str, bytes)):
+        raise ValueError("expected [[fx,0,cx],[0,fy,cy],[0,0,1]] or [fx, fy, cx, cy]")
+    try:
+        K = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError("expected [[fx,0,cx],[0,fy,cy],[0,0,1]] or [fx, fy, cx, cy] numbers") from None
+    if K.shape == (4,):
+        fx, fy, cx, cy = K
+        K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    if K.shape != (3, 3):
+        raise ValueError("expected [[fx,0,cx],[0,fy,cy],[0,0,1]] or [fx, fy, cx, cy]")
+    if not np.all(np.isfinite(K)):
+        raise ValueError("K has non-finite values")
+    if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0, 0, 1]):
+        raise ValueError("focal lengths must be positive and the last row [0, 0, 1]")
+    return K
 
 
 @dataclass(frozen=True)
@@ -68,21 +93,15 @@ class Camera:
         K[1] *= sy
         return Camera(K, width, height)
 
-    def cropped(self, x0: int, y0: int, width: int, height: int) -> "Camera":
-        """The camera of the window ``[x0, x0+width) x [y0, y0+height)``."""
-        K = self.K.copy()
-        K[0, 2] -= x0
-        K[1, 2] -= y0
-        return Camera(K, width, height)
+    def ray(self, x, y) -> np.ndarray:
+        """Camera-frame rays (z = -1) through image points ``[x, y]`` (continuous pixel
+        coordinates; pixel centres at +0.5). ``x``, ``y`` broadcast; returns (..., 3)."""
+        return pixel_ray(self.K, x, y)
 
     def pixel_rays(self) -> np.ndarray:
         """(H, W, 3) camera-frame directions through pixel centres, scaled to z = -1."""
-        u = np.arange(self.width, dtype=np.float64) + 0.5
-        v = np.arange(self.height, dtype=np.float64) + 0.5
-        uu, vv = np.meshgrid(u, v)
-        x = (uu - self.cx) / self.fx
-        y = -(vv - self.cy) / self.fy
-        return np.stack([x, y, -np.ones_like(x)], axis=-1)
+        uu, vv = np.meshgrid(np.arange(self.width) + 0.5, np.arange(self.height) + 0.5)
+        return self.ray(uu, vv)
 
     def unproject(self, depth) -> np.ndarray:
         """z-depth (H, W) -> camera-frame points (H, W, 3) float32; invalid depth -> NaN."""

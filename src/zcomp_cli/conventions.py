@@ -27,12 +27,36 @@ __all__ = [
     "normalize",
     "camera_normals_to_openrooms",
     "valid_depth_mask",
+    "pixel_ray",
     "REC601",
     "REC709",
+    "DEFAULT_SEED",
+    "GAMMA",
+    "SHADING_EPS",
+    "SHADING_MAX",
+    "CONDITIONING_VARIANTS",
 ]
 
+# Luma weights. The official ZeroComp compositor uses Rec.601 for its shadow ratio.
 REC601 = np.array([0.299, 0.587, 0.114], dtype=np.float32)
 REC709 = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+
+# The paper's fixed seed: one latent noise for both passes of a job, and the seed of
+# every deterministic random choice zcomp makes for a job.
+DEFAULT_SEED = 469
+# The official models read and write images gamma-2.2 encoded (not the sRGB curve).
+GAMMA = 2.2
+# Shading = image / max(albedo, SHADING_EPS), clamped to [SHADING_EPS, SHADING_MAX]
+# (DESIGN.md section 3 and the official conditioning).
+SHADING_EPS = 1e-5
+SHADING_MAX = 1e3
+# ZeroComp ControlNet variants by conditioning channel count -> the maps they read, in
+# channel order (DESIGN.md section 4).
+CONDITIONING_VARIANTS = {
+    10: ("normals", "albedo", "shading", "mask"),
+    11: ("depth", "normals", "albedo", "shading", "mask"),
+    13: ("depth", "normals", "albedo", "shading", "mask", "roughness", "metallic"),
+}
 
 
 def _as_float(x) -> np.ndarray:
@@ -109,15 +133,28 @@ def blender_depth_to_z_depth(z_pass, far: float = 1e9) -> np.ndarray:
     return out.astype(np.float32)
 
 
-def _pixel_rays(K, width: int, height: int) -> np.ndarray:
-    """Camera-frame directions through pixel centres with z = -1 (OpenGL), (H, W, 3)."""
+def pixel_ray(K, x, y) -> np.ndarray:
+    """The camera-frame ray through the image point ``[x, y]`` (continuous pixel
+    coordinates from the top-left corner: the centre of pixel ``(col, row)`` is
+    ``(col + 0.5, row + 0.5)``), scaled to z = -1 (OpenGL: the camera looks along -z, y up).
+
+    This is the one place zcomp writes ``((x - cx) / fx, -(y - cy) / fy, -1)``.
+
+    Args:
+        K: 3x3 intrinsics.
+        x, y: broadcastable arrays (or scalars) of image coordinates.
+    Returns:
+        (..., 3) float64; multiplying by a z-depth gives the camera-frame point.
+    """
     K = np.asarray(K, dtype=np.float64)
-    u = np.arange(width) + 0.5
-    v = np.arange(height) + 0.5
-    uu, vv = np.meshgrid(u, v)
-    x = (uu - K[0, 2]) / K[0, 0]
-    y = -(vv - K[1, 2]) / K[1, 1]
-    return np.stack([x, y, -np.ones_like(x)], axis=-1)
+    x, y = np.broadcast_arrays(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
+    return np.stack([(x - K[0, 2]) / K[0, 0], -(y - K[1, 2]) / K[1, 1], -np.ones_like(x)], axis=-1)
+
+
+def _pixel_rays(K, width: int, height: int) -> np.ndarray:
+    """Rays through every pixel centre, (H, W, 3), z = -1."""
+    uu, vv = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
+    return pixel_ray(K, uu, vv)
 
 
 def ray_distance_to_z_depth(dist, K) -> np.ndarray:

@@ -21,7 +21,6 @@ from zcomp_cli.conventions import linear_to_srgb, srgb_to_linear
 from zcomp_cli.errors import InputError
 
 FLOAT_EXTS = {".exr", ".hdr"}
-LDR_EXTS = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp"}
 
 
 @contextlib.contextmanager

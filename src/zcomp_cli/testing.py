@@ -204,8 +204,7 @@ def sphere_object_bundle(camera: Camera, center, radius: float, albedo=(0.8, 0.8
     for oy in off:
         for ox in off:
             uu, vv = np.meshgrid(u0 + ox, v0 + oy)
-            d = np.stack([(uu - camera.cx) / camera.fx, -(vv - camera.cy) / camera.fy,
-                          -np.ones_like(uu)], -1)
+            d = camera.ray(uu, vv)
             dn = d / np.linalg.norm(d, axis=-1, keepdims=True)
             b = dn @ c
             disc = b * b - (c @ c - radius * radius)

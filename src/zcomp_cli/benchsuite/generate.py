@@ -35,12 +35,11 @@ import numpy as np
 from zcomp_cli.benchsuite.objects import SHAPES, ObjectRecipe, sample_recipe, write_object_glb
 from zcomp_cli.benchsuite.scenes import BenchScene, sample_scene, scene_for_blender
 from zcomp_cli.camera import Camera
-from zcomp_cli.conventions import luminance
+from zcomp_cli.conventions import DEFAULT_SEED, luminance
 from zcomp_cli.errors import GeometryError, InputError, UsageError
 from zcomp_cli.pose import Pose, euler_deg_to_matrix, transform_points
 
 BENCHMARK_VERSION = 1
-ZCOMP_SEED = 469
 
 
 @dataclass(frozen=True)
@@ -134,7 +133,7 @@ def place_on_floor(scene: BenchScene, vertices, bbox_min, bbox_max, rng: np.rand
     for _ in range(tries):
         u = rng.uniform(0.2, 0.8) * W
         v = rng.uniform(0.55, 0.92) * H
-        ray = np.array([(u - cam.cx) / cam.fx, -(v - cam.cy) / cam.fy, -1.0])
+        ray = cam.ray(u, v)
         denom = float(ray @ n)
         if denom > -1e-6:
             continue
@@ -388,7 +387,7 @@ def write_jobs_yaml(out_dir: Path, cases: list[dict], resolution) -> Path:
                      "reference": f["gt"]})
     doc = {"version": 1,
            "defaults": {"renderer": "physical", "resolution": [int(resolution[0]), int(resolution[1])],
-                        "shading_radius": 1.0, "seed": ZCOMP_SEED},
+                        "shading_radius": 1.0, "seed": DEFAULT_SEED},
            "scenes": scenes, "objects": objects, "jobs": jobs}
     path = out_dir / "jobs.yaml"
     header = ("# Written by `zcomp make-benchmark`: one scene and one job per case; each job's\n"

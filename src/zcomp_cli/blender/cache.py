@@ -1,4 +1,4 @@
-"""On-disk cache of object intrinsics bundles.
+"""On-disk cache of object intrinsics bundles, in ``zcomp_cli.cache.cache_dir("intrinsics")``.
 
 Key: sha256 of (mesh content hash, pose, K, resolution, render settings, script
 version). An entry is a bundle folder ``<cache>/<key[:2]>/<key>/``; it is complete only
@@ -15,14 +15,6 @@ import shutil
 from pathlib import Path
 
 from zcomp_cli.bundle import ObjectBundle
-
-ENV_VAR = "ZCOMP_CACHE_DIR"
-
-
-def default_cache_dir() -> Path:
-    """``$ZCOMP_CACHE_DIR`` or ``~/.cache/zcomp/intrinsics``."""
-    env = os.environ.get(ENV_VAR)
-    return Path(env).expanduser() if env else Path.home() / ".cache" / "zcomp" / "intrinsics"
 
 
 def _canon(x):

@@ -34,6 +34,9 @@ from zcomp_cli.camera import Camera
 from zcomp_cli.errors import InputError, ZcompError
 from zcomp_cli.pose import Pose, transform_points
 
+from zcomp_cli.blender import DEFAULT_SAMPLES
+from zcomp_cli.cache import cache_dir as _cache_dir
+
 from . import cache as _cache
 from .meshes import MeshInfo, check_in_view, load_mesh_info
 
@@ -52,7 +55,6 @@ SCRIPT = "render_intrinsics.py"
 # Bump when the script or the conversions change what a bundle holds: old cache
 # entries then stop matching.
 SCRIPT_VERSION = "2"
-DEFAULT_SAMPLES = 16
 # The footprint is the mesh squashed to this fraction of its height onto its base plane
 # (not exactly 0, which would give Blender a singular object matrix).
 FOOTPRINT_FLATTEN = 1e-6
@@ -309,8 +311,8 @@ def render_object_intrinsics(
 
     Args:
         requests: items with unique ids.
-        cache_dir: cache folder (default ``$ZCOMP_CACHE_DIR`` or
-            ``~/.cache/zcomp/intrinsics``); ignored when ``use_cache`` is False.
+        cache_dir: the cache ROOT (``--cache-dir``; default ``zcomp_cli.cache.cache_root()``);
+            bundles live in its ``intrinsics/`` folder. Ignored when ``use_cache`` is False.
         samples: Cycles samples of the anti-aliased pass (mask, albedo); depth and
             normals always come from one sample through each pixel centre.
         progress: called as ``progress(done_count, total, id)`` after every item.
@@ -340,8 +342,7 @@ def render_object_intrinsics(
 
     settings = {"engine": "CYCLES", "samples": int(samples), "geometry_samples": 1,
                 "filter_width": 1.5, "footprint_flatten": FOOTPRINT_FLATTEN}
-    cdir = Path(cache_dir).expanduser() if cache_dir is not None else _cache.default_cache_dir()
-    cdir = cdir if use_cache else None
+    cdir = _cache_dir("intrinsics", cache_dir) if use_cache else None
 
     # 1. prepare
     prepared: list[_Prepared] = []

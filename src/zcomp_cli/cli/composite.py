@@ -4,28 +4,23 @@ from __future__ import annotations
 
 import click
 
-from zcomp_cli.cli.options import debug_opt, out_dir_opt, overwrite_opt, resume_opt
+from zcomp_cli.cli.options import (cache_dir_opt, debug_opt, out_dir_opt, overwrite_opt, renderer_options,
+                                   renderer_spec, resume_opt, seed_opt)
 
 
 @click.command("composite")
 @click.argument("manifest", type=click.Path(dir_okay=False))
 @out_dir_opt
-@click.option("--renderer", type=click.Choice(["physical", "zerocomp", "naive"]), default=None,
-              help="Override the manifest's renderer (default: physical; naive = baseline paste).")
-@click.option("--weights", type=click.Path(file_okay=False), default=None,
-              help="zerocomp: the ControlNet checkpoint directory (holding controlnet/).")
-@click.option("--base", "base_dir", type=click.Path(file_okay=False), default=None,
-              help="zerocomp: the Stable Diffusion 2.1 base directory (unet, vae, text_encoder, scheduler).")
-@click.option("--steps", type=int, default=None, help="zerocomp: DDIM steps (default 20).")
+@renderer_options
 @click.option("--jobs", "jobs_subset", default=None, metavar="SUBSET",
               help="Only these jobs: indices, ranges a-b and names, comma-separated.")
+@seed_opt
 @resume_opt
 @overwrite_opt
 @debug_opt
-@click.option("--cache-dir", type=click.Path(file_okay=False), default=None,
-              help="Cache for object renders and estimates (default $ZCOMP_CACHE_DIR or ~/.cache/zcomp).")
+@cache_dir_opt
 @click.pass_context
-def composite(ctx, manifest, out_dir, renderer, weights, base_dir, steps, jobs_subset, resume, overwrite,
+def composite(ctx, manifest, out_dir, renderer, renderer_flags, jobs_subset, seed, resume, overwrite,
               debug, cache_dir):
     """Composite objects into scenes for every job of MANIFEST (jobs.yaml).
 
@@ -34,25 +29,16 @@ def composite(ctx, manifest, out_dir, renderer, weights, base_dir, steps, jobs_s
     """
     from zcomp_cli.errors import UsageError
     from zcomp_cli.pipeline.batch import run_batch
-    from zcomp_cli.pipeline.manifest import RendererSpec, load_manifest
+    from zcomp_cli.pipeline.manifest import load_manifest
 
     if resume and overwrite:
         raise UsageError("--resume and --overwrite exclude each other")
     quiet = bool(ctx.obj and ctx.obj.get("quiet"))
     m = load_manifest(manifest)
-    spec = m.defaults.renderer
-    if renderer is not None and renderer != spec.name:
-        spec = RendererSpec(renderer, {})
-    settings = dict(spec.settings)
-    if weights is not None:
-        settings["controlnet"] = weights
-    if base_dir is not None:
-        settings["base"] = base_dir
-    if steps is not None:
-        settings["steps"] = steps
-    if (weights or base_dir or steps) and spec.name != "zerocomp":
-        raise UsageError("--weights, --base and --steps apply to --renderer zerocomp")
-    spec = RendererSpec(spec.name, settings)
+    spec = renderer_spec(m.defaults.renderer, renderer, renderer_flags)
+    if seed is not None:
+        for job in m.jobs:
+            job.seed = seed
 
     from zcomp_cli.cli.progress import StageProgress
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import click
 
-from zcomp_cli.cli.options import out_dir_opt
+from zcomp_cli.cli.options import cache_dir_opt, out_dir_opt
 
 
 def preview_sheet(image, depth, normals, albedo, shading):
@@ -42,8 +42,7 @@ def preview_sheet(image, depth, normals, albedo, shading):
 @click.option("--scenes", "scene_names", default=None, metavar="NAMES",
               help="Only these scenes (comma-separated names).")
 @click.option("--native", is_flag=True, help="Estimate at each image's own size, not the manifest's resolution.")
-@click.option("--cache-dir", type=click.Path(file_okay=False), default=None,
-              help="Estimate cache (default $ZCOMP_CACHE_DIR or ~/.cache/zcomp).")
+@cache_dir_opt
 @click.pass_context
 def estimate(ctx, manifest, out_dir, scene_names, native, cache_dir):
     """Estimate the missing depth, normals and albedo of MANIFEST's scenes.
@@ -52,11 +51,12 @@ def estimate(ctx, manifest, out_dir, scene_names, native, cache_dir):
     named in the manifest (e.g. depth: {proxy: ground_plane, camera_height: 1.5,
     pitch_deg: -10}). Writes OUT/<scene>/*.exr, sources.json and preview.png.
     """
-    import os
     from pathlib import Path
 
     import numpy as np
 
+    from zcomp_cli.cache import cache_dir as cache_folder
+    from zcomp_cli.compositing.shading import shading_from_image
     from zcomp_cli.errors import UsageError
     from zcomp_cli.imageio import write_exr, write_json_atomic, write_png
     from zcomp_cli.pipeline.manifest import load_manifest
@@ -70,16 +70,14 @@ def estimate(ctx, manifest, out_dir, scene_names, native, cache_dir):
         if unknown:
             raise UsageError(f"unknown scenes {unknown}; the manifest has {names}")
         names = want
-    if cache_dir is None:
-        cache_dir = os.environ.get("ZCOMP_CACHE_DIR") or str(Path.home() / ".cache" / "zcomp")
-    cache = Path(cache_dir) / "estimates"
+    cache = cache_folder("estimates", cache_dir)
     out = Path(out_dir)
     quiet = bool(ctx.obj and ctx.obj.get("quiet"))
     for name in names:
         spec = m.scenes[name]
         scene = load_scene(spec, None if native else m.defaults.resolution, cache_dir=cache)
         mp = scene.maps
-        shading = np.clip(scene.image / np.maximum(mp.albedo, 1e-4), 1e-4, 1e3).astype(np.float32)
+        shading = shading_from_image(scene.image, mp.albedo)
         d = out / name
         d.mkdir(parents=True, exist_ok=True)
         write_exr(d / "depth.exr", mp.depth)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import click
 
 out_dir_opt = click.option(
@@ -37,18 +39,78 @@ resolution_opt = click.option(
     metavar="W H",
     help="Image size in pixels.",
 )
-seed_opt = click.option("--seed", type=int, default=None, help="Random seed (default 469).")
+seed_opt = click.option("--seed", type=click.IntRange(min=0), default=None,
+                        help="Override every job's seed (default: the manifest's, else 469).")
+cache_dir_opt = click.option(
+    "--cache-dir",
+    type=click.Path(file_okay=False),
+    default=None,
+    help="Cache root for object renders and estimates (default $ZCOMP_CACHE_DIR or ~/.cache/zcomp).",
+)
 debug_opt = click.option(
     "--debug", is_flag=True, help="Also write intermediate maps and a debug grid."
 )
 
 
 def parse_K(text: str | None):
-    """Parse 'fx,fy,cx,cy' into a 3x3 list, or None."""
+    """Parse ``--K 'fx,fy,cx,cy'`` into a 3x3 matrix (``camera.K_from_value``), or None."""
     if text is None:
         return None
+    from zcomp_cli.camera import K_from_value
+
     try:
-        fx, fy, cx, cy = (float(v) for v in text.split(","))
+        return K_from_value([float(v) for v in text.split(",")])
     except ValueError as exc:
-        raise click.BadParameter("expected 'fx,fy,cx,cy'", param_hint="--K") from exc
-    return [[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]
+        raise click.BadParameter(f"expected 'fx,fy,cx,cy': {exc}", param_hint="--K") from exc
+
+
+def renderer_options(f):
+    """``--renderer NAME`` plus every renderer's own flags, from the one table
+    ``renderers.registry.RENDERERS``. The command receives ``renderer`` (a name or None)
+    and ``renderer_flags`` ({flag: value} for the flags given); :func:`renderer_spec`
+    turns them into the settings of the chosen renderer."""
+    from zcomp_cli.renderers.registry import RENDERERS
+
+    owners: dict[str, list[str]] = {}
+    first = {}
+    for name, entry in RENDERERS.items():
+        for opt in entry.options:
+            owners.setdefault(opt.flag, []).append(name)
+            first.setdefault(opt.flag, opt)
+    params = {flag: f"rflag_{flag.replace('-', '_')}" for flag in first}
+
+    @functools.wraps(f)
+    def wrapper(*args, **kwargs):
+        kwargs["renderer_flags"] = {flag: kwargs.pop(p) for flag, p in params.items() if kwargs.get(p) is not None}
+        for p in params.values():
+            kwargs.pop(p, None)
+        return f(*args, **kwargs)
+
+    for flag in reversed(list(first)):
+        opt = first[flag]
+        wrapper = click.option(f"--{flag}", params[flag], type=opt.type, default=None, metavar=opt.metavar,
+                               help=f"{', '.join(owners[flag])}: {opt.help}.")(wrapper)
+    summary = "; ".join(f"{n} = {e.summary}" for n, e in RENDERERS.items())
+    return click.option("--renderer", type=click.Choice(list(RENDERERS)), default=None,
+                        help=f"Override the manifest's renderer ({summary}).")(wrapper)
+
+
+def renderer_spec(manifest_spec, renderer: str | None, flags: dict):
+    """The renderer a run uses: the manifest's, or ``--renderer`` (then with no manifest
+    settings), with the renderer's command-line flags applied. A flag that the chosen
+    renderer does not offer is a UsageError naming it."""
+    from zcomp_cli.errors import UsageError
+    from zcomp_cli.pipeline.manifest import RendererSpec
+    from zcomp_cli.renderers.registry import RENDERERS
+
+    spec = manifest_spec
+    if renderer is not None and renderer != spec.name:
+        spec = RendererSpec(renderer, {})
+    offered = {o.flag: o for o in RENDERERS[spec.name].options} if spec.name in RENDERERS else {}
+    settings = dict(spec.settings)
+    for flag, value in flags.items():
+        if flag not in offered:
+            takers = [n for n, e in RENDERERS.items() if any(o.flag == flag for o in e.options)]
+            raise UsageError(f"--{flag} applies to --renderer {' or '.join(takers)}, not {spec.name!r}")
+        settings[offered[flag].setting] = value
+    return RendererSpec(spec.name, settings)

@@ -13,5 +13,8 @@ def train(config, no_progress):
     from zcomp_cli.training.config import load_config
     from zcomp_cli.training.trainer import train as run
 
-    res = run(load_config(config), progress=not no_progress)
+    from zcomp_cli.cli.progress import StageProgress
+
+    with StageProgress(disable=no_progress) as prog:
+        res = run(load_config(config), progress=prog.update)
     click.echo(f"trained to step {res.step}; last checkpoint: {res.last_checkpoint}")

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-SHADING_EPS = 1e-5
-SHADING_MAX = 1e3
+from zcomp_cli.conventions import SHADING_EPS, SHADING_MAX
 
 
 def shading_from_image(image_lin, albedo, *, eps: float = SHADING_EPS, max_value: float = SHADING_MAX):

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from zcomp_cli.camera import Camera
+from zcomp_cli.compositing.shading import shading_from_image
 from zcomp_cli.errors import InputError
 
 __all__ = ["EstimatedMaps", "estimate_scene_maps"]
@@ -171,6 +172,6 @@ def estimate_scene_maps(image_lin, camera: Camera, *, depth_spec=None, normals_s
             cache.put("albedo", key, albedo)
         sources["albedo"] = "retinex"
     timings["albedo"] = time.perf_counter() - t
-    shading = np.clip(np.nan_to_num(img) / np.maximum(albedo, 1e-4), 1e-4, 1e3).astype(np.float32)
+    shading = shading_from_image(img, albedo)
     return EstimatedMaps(depth=depth, normals=normals, albedo=albedo, shading=shading,
                          sources=sources, timings=timings, notes=notes)

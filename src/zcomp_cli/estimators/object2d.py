@@ -104,7 +104,7 @@ def object_bundle_from_image(image_lin, mask, camera: Camera, placement_pixel, h
     # The support plane through the point seen at the pixel centre; the contact point is
     # where the ray through the exact (sub-pixel) placement meets that plane.
     Pc = camera.pixel_rays()[iy, ix] * z0
-    ray0 = np.array([(px - camera.cx) / camera.fx, -(py - camera.cy) / camera.fy, -1.0])
+    ray0 = camera.ray(px, py)
     den = float(ray0 @ up)
     P0 = ray0 * (float(Pc @ up) / den) if abs(den) > 1e-9 and (Pc @ up) / den > 0 else ray0 * z0
     face = -P0 - np.dot(-P0, up) * up  # toward the camera, horizontal

@@ -6,6 +6,10 @@
 4. the background shading, masked by s for both passes;
 5. the renderer, both passes in one call;
 6. the shadow-opacity compositor (eq. 4-5).
+
+Steps 1-4 are :func:`prepare_job` and step 6 is :func:`finish_job`, so that a batch can
+hand the renderer the passes of several jobs at once (step 5, ``Renderer.render_jobs``);
+:func:`run_job` chains the three for one job.
 """
 
 from __future__ import annotations
@@ -26,11 +30,11 @@ from zcomp_cli.compositing import (
     shading_mask,
 )
 from zcomp_cli.compositing.compositor import BLUR_SIZE
-from zcomp_cli.conventions import valid_depth_mask
+from zcomp_cli.conventions import DEFAULT_SEED, valid_depth_mask
 from zcomp_cli.errors import GeometryError, NumericalError
 from zcomp_cli.pipeline.scene import Scene
 from zcomp_cli.maps import SceneMaps
-from zcomp_cli.renderers.base import Renderer, RenderRequest
+from zcomp_cli.renderers.base import Renderer, RenderOutput, RenderRequest
 
 ROI_CONTEXT_PX = 16
 
@@ -55,17 +59,32 @@ def roi_around(mask: np.ndarray, margin: int) -> tuple[int, int, int, int]:
             min(w, int(cols[-1]) + 1 + margin), min(h, int(rows[-1]) + 1 + margin))
 
 
-def run_job(
+@dataclass
+class PreparedJob:
+    """A job after steps 1-4: its two render requests (background, composite) and what
+    step 6 needs. ``seed`` is the job's own, passed to the renderer with its requests."""
+
+    requests: list[RenderRequest]
+    seed: int
+    scene: Scene
+    object_mask: np.ndarray  # m, (H, W) coverage after occlusion
+    shading_mask: np.ndarray  # s, (H, W) bool
+    roi: tuple[int, int, int, int]
+    report: dict
+    timings: dict
+    notes: list
+    debug_maps: dict
+
+
+def prepare_job(
     scene: Scene,
     bundle: ObjectBundle,
-    renderer: Renderer,
     *,
     shading_radius: float = 1.0,
-    seed: int = 469,
+    seed: int = DEFAULT_SEED,
     debug: bool = False,
-) -> JobOutput:
-    """Composite one object bundle into one scene. Raises ZcompError subclasses for
-    per-job failures (the batch records them and goes on)."""
+) -> PreparedJob:
+    """Steps 1-4 of one job. Raises ZcompError subclasses for per-job failures."""
     timings: dict[str, float] = {}
     notes: list[str] = list(scene.notes)
     cam = scene.camera
@@ -111,30 +130,9 @@ def run_job(
     known = ~s & valid_depth_mask(bg.depth)
     timings["shading_s"] = time.perf_counter() - t
 
-    # 5. Renderer: background and composite in one call, same mask, same seed.
-    t = time.perf_counter()
     common = dict(shading=shading, known=known, camera=cam, roi=roi, image=scene.image, scene_key=scene.key)
-    out = renderer.render([RenderRequest(maps=bg, **common), RenderRequest(maps=comp, **common)], seed=seed)
-    f_bg, f_comp = (np.asarray(im, dtype=np.float32) for im in out.images)
-    for name, im in (("f(i_bg)", f_bg), ("f(i_comp)", f_comp)):
-        if im.shape != (H, W, 3):
-            raise NumericalError(f"renderer returned {name} of shape {im.shape}, expected {(H, W, 3)}")
-        if not np.all(np.isfinite(im)):
-            raise NumericalError(f"renderer {renderer.name} returned non-finite values in {name}")
-    timings["render_s"] = time.perf_counter() - t
-
-    # 6. Compositor.
-    t = time.perf_counter()
+    requests = [RenderRequest(maps=bg, **common), RenderRequest(maps=comp, **common)]
     x0, y0, x1, y1 = roi
-    region = np.zeros((H, W), bool)
-    region[y0:y1, x0:x1] = True
-    res = composite(scene.image, f_bg, f_comp, s, m, balance_region=region & ~s)
-    notes.extend(res.notes)
-    if not np.all(np.isfinite(res.image)):
-        raise NumericalError("the composite has non-finite values")
-    timings["compositor_s"] = time.perf_counter() - t
-
-    roi_area = (x1 - x0) * (y1 - y0)
     report = {
         "alignment": alignment.to_dict(),
         "object_pixels": int((m > 0).sum()),
@@ -147,19 +145,67 @@ def run_job(
             "object_extent_m": sm.object_extent_m,
             "lambda": shading_radius,
         },
-        "roi": {"box": list(roi), "frac": roi_area / float(H * W)},
-        "colour_balance": res.balance.tolist(),
-        "renderer": {"settings": renderer.settings(), "info": out.info, "timings": out.timings},
+        "roi": {"box": list(roi), "frac": (x1 - x0) * (y1 - y0) / float(H * W)},
         "seed": seed,
-        "timings": timings,
-        "notes": notes,
     }
     dbg = {}
     if debug:
-        dbg = {
-            "f_bg": f_bg, "f_comp": f_comp, "ratio": res.ratio, "ratio_blurred": res.ratio_blurred,
-            "shading_mask": s.astype(np.float32), "object_mask": m, "weight": res.weight,
-            "comp_depth": comp.depth, "comp_normals": comp.normals, "comp_albedo": comp.albedo,
-            "shading": shading,
-        }
+        dbg = {"shading_mask": s.astype(np.float32), "object_mask": m, "comp_depth": comp.depth,
+               "comp_normals": comp.normals, "comp_albedo": comp.albedo, "shading": shading}
+    return PreparedJob(requests, seed, scene, m, s, roi, report, timings, notes, dbg)
+
+
+def finish_job(prep: PreparedJob, out: RenderOutput, renderer_name: str, renderer_settings: dict,
+               *, debug: bool = False) -> JobOutput:
+    """Check the renderer's two images (step 5's output) and run step 6, the compositor."""
+    H, W = prep.scene.camera.height, prep.scene.camera.width
+    f_bg, f_comp = (np.asarray(im, dtype=np.float32) for im in out.images)
+    for name, im in (("f(i_bg)", f_bg), ("f(i_comp)", f_comp)):
+        if im.shape != (H, W, 3):
+            raise NumericalError(f"renderer returned {name} of shape {im.shape}, expected {(H, W, 3)}")
+        if not np.all(np.isfinite(im)):
+            raise NumericalError(f"renderer {renderer_name} returned non-finite values in {name}")
+
+    # 6. Compositor.
+    timings = dict(prep.timings)
+    t = time.perf_counter()
+    x0, y0, x1, y1 = prep.roi
+    region = np.zeros((H, W), bool)
+    region[y0:y1, x0:x1] = True
+    s = prep.shading_mask
+    res = composite(prep.scene.image, f_bg, f_comp, s, prep.object_mask, balance_region=region & ~s)
+    if not np.all(np.isfinite(res.image)):
+        raise NumericalError("the composite has non-finite values")
+    timings["compositor_s"] = time.perf_counter() - t
+
+    report = {
+        **prep.report,
+        "colour_balance": res.balance.tolist(),
+        "renderer": {"settings": renderer_settings, "info": out.info, "timings": out.timings},
+        "timings": timings,
+        "notes": prep.notes + list(res.notes),
+    }
+    dbg = {}
+    if debug:
+        dbg = {**prep.debug_maps, "f_bg": f_bg, "f_comp": f_comp, "ratio": res.ratio,
+               "ratio_blurred": res.ratio_blurred, "weight": res.weight}
     return JobOutput(res.image, report, dbg)
+
+
+def run_job(
+    scene: Scene,
+    bundle: ObjectBundle,
+    renderer: Renderer,
+    *,
+    shading_radius: float = 1.0,
+    seed: int = DEFAULT_SEED,
+    debug: bool = False,
+) -> JobOutput:
+    """Composite one object bundle into one scene (steps 1-6). Raises ZcompError
+    subclasses for per-job failures (the batch records them and goes on)."""
+    prep = prepare_job(scene, bundle, shading_radius=shading_radius, seed=seed, debug=debug)
+    # 5. Renderer: background and composite in one call, same mask, same seed.
+    t = time.perf_counter()
+    out = renderer.render(prep.requests, seed=seed)
+    prep.timings["render_s"] = time.perf_counter() - t
+    return finish_job(prep, out, renderer.name, renderer.settings(), debug=debug)

@@ -25,10 +25,12 @@ import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
+from zcomp_cli.blender import DEFAULT_SAMPLES
+from zcomp_cli.camera import K_from_value
+from zcomp_cli.conventions import DEFAULT_SEED
 from zcomp_cli.errors import ManifestError
 from zcomp_cli.imageio import image_header
 from zcomp_cli.pose import Pose
@@ -37,9 +39,7 @@ from zcomp_cli.yamlloc import LocDict, line_of, load_yaml
 MESH_EXTS = {".obj", ".glb", ".gltf", ".ply", ".stl"}
 IMAGE_EXTS = {".png", ".jpg", ".jpeg", ".exr", ".hdr", ".tif", ".tiff"}
 MAP_CHANNELS = {"depth": 1, "normals": 3, "albedo": 3, "roughness": 1, "metallic": 1}
-DEFAULT_SEED = 469
 DEFAULT_RADIUS = 1.0
-DEFAULT_SAMPLES = 32
 NAME_RE = re.compile(r"^[A-Za-z0-9_.\-]+$")
 
 
@@ -100,9 +100,6 @@ class JobSpec:
     shading_radius: float = DEFAULT_RADIUS
     seed: int = DEFAULT_SEED
     line: int | None = None
-
-    def describe(self) -> str:
-        return f"job {self.index} ({self.name})"
 
 
 @dataclass
@@ -235,16 +232,10 @@ def _parse_defaults(d, parent, probs) -> Defaults:
 
 def _parse_K(value, container, key, where, probs) -> np.ndarray | None:
     try:
-        K = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        K = None
-    if K is None or K.shape != (3, 3) or not np.all(np.isfinite(K)):
-        probs.add(container, key, where, "expected a 3x3 matrix [[fx,0,cx],[0,fy,cy],[0,0,1]]")
+        return K_from_value(value)
+    except ValueError as exc:
+        probs.add(container, key, where, str(exc))
         return None
-    if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0, 0, 1]):
-        probs.add(container, key, where, "focal lengths must be positive and the last row [0, 0, 1]")
-        return None
-    return K
 
 
 def _named_entries(d, parent, section: str, what: str, expected: str, probs):
@@ -444,6 +435,3 @@ def _parse_placement(p, parent, where, probs, scene: SceneSpec | None) -> Placem
     return Placement(pixel=(float(px[0]), float(px[1])), yaw_deg=float(yaw),
                      height=None if height is None else float(height), scale=float(scale))
 
-
-def manifest_summary(m: Manifest) -> dict[str, Any]:
-    return {"scenes": len(m.scenes), "objects": len(m.objects), "jobs": len(m.jobs)}

@@ -42,7 +42,7 @@ def pose_from_placement(placement: Placement, depth, normals, camera: Camera, *,
     else:
         z = float(np.median(d.reshape(-1)[valid]))
     # Base point: the ray through the exact (sub-pixel) position at that depth.
-    px = np.array([(x - camera.cx) / camera.fx, -(y - camera.cy) / camera.fy, -1.0]) * z
+    px = camera.ray(x, y) * z
     up = n[valid].mean(axis=0)
     up /= max(np.linalg.norm(up), 1e-12)
     if not np.all(np.isfinite(up)) or np.linalg.norm(up) < 0.5:

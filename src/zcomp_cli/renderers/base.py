@@ -14,6 +14,7 @@ from typing import Sequence
 import numpy as np
 
 from zcomp_cli.camera import Camera
+from zcomp_cli.conventions import DEFAULT_SEED
 from zcomp_cli.maps import SceneMaps
 
 
@@ -63,8 +64,18 @@ class Renderer(ABC):
     name: str = "renderer"
 
     @abstractmethod
-    def render(self, requests: Sequence[RenderRequest], *, seed: int = 469) -> RenderOutput:
-        """Render every request (typically [background, composite]) in one call."""
+    def render(self, requests: Sequence[RenderRequest], *, seed: int = DEFAULT_SEED) -> RenderOutput:
+        """Render the requests of ONE job (typically [background, composite]) in one call.
+        Each output image depends only on its own request and the seed."""
+
+    def render_jobs(self, jobs: Sequence[Sequence[RenderRequest]], seeds: Sequence[int]) -> list[RenderOutput]:
+        """Render several jobs' requests; ``jobs[i]`` is rendered with ``seeds[i]``.
+
+        The result must equal ``[self.render(r, seed=s) for r, s in zip(jobs, seeds)]``;
+        a renderer that can share work across jobs (a GPU batch) overrides this."""
+        if len(jobs) != len(seeds):
+            raise ValueError(f"render_jobs: {len(jobs)} jobs but {len(seeds)} seeds")
+        return [self.render(reqs, seed=s) for reqs, s in zip(jobs, seeds)]
 
     def settings(self) -> dict:
         """Settings recorded in each job report (and part of cache keys)."""

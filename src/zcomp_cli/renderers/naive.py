@@ -13,6 +13,7 @@ from typing import Sequence
 
 import numpy as np
 
+from zcomp_cli.conventions import DEFAULT_SEED
 from zcomp_cli.errors import UsageError
 from zcomp_cli.renderers.base import Renderer, RenderOutput, RenderRequest
 
@@ -24,15 +25,14 @@ class NaiveRenderer(Renderer):
         if settings:
             raise UsageError(f"renderer 'naive' takes no settings, got {sorted(settings)}")
 
-    def render(self, requests: Sequence[RenderRequest], *, seed: int = 469) -> RenderOutput:
+    def render(self, requests: Sequence[RenderRequest], *, seed: int = DEFAULT_SEED) -> RenderOutput:
         t = time.perf_counter()
         images = []
-        mean = None
         for req in requests:
             known = np.asarray(req.known, bool)
             shading = np.asarray(req.shading, np.float32)
-            if mean is None:  # the same for every pass: taken from the first (background)
-                mean = shading[known].mean(axis=0) if known.any() else np.ones(3, np.float32)
+            # Both passes of a job share shading and mask, so they get the same mean.
+            mean = shading[known].mean(axis=0) if known.any() else np.ones(3, np.float32)
             filled = np.where(known[..., None], shading, mean[None, None, :])
             out = np.nan_to_num(np.clip(req.maps.albedo, 0, 1) * filled, nan=0.0, posinf=0.0)
             images.append(out.astype(np.float32))

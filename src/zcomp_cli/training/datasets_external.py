@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from zcomp_cli.conventions import camera_normals_to_openrooms, normalize
+from zcomp_cli.conventions import GAMMA, camera_normals_to_openrooms, normalize
 from zcomp_cli.errors import InputError
 
 __all__ = [
@@ -44,7 +44,6 @@ __all__ = [
 
 # Official OpenRooms albedo (imbaseColor) PNGs are decoded with a pure 2.2 gamma, not the
 # sRGB curve (ZeroComp and Li et al. both use x ** 2.2).
-ALBEDO_GAMMA = 2.2
 # Exposure: the 95th percentile of the valid pixels is mapped to this value (the middle of
 # the official training range 0.85-0.95, and its evaluation value), then the image is
 # clipped to [0, 1] as the official loaders do. The percentile is floored so that a dark
@@ -341,7 +340,7 @@ class OpenRoomsDataset:
         a = _read(n, s.albedo)
         _shape(n, s.albedo, a, hw, 3)
         out = {"image": image, "depth": depth, "normals": normals,
-               "albedo": np.clip(a[..., :3], 0, 1).astype(np.float32) ** ALBEDO_GAMMA}
+               "albedo": np.clip(a[..., :3], 0, 1).astype(np.float32) ** GAMMA}
         # 5. material (PNG data, first channel)
         if self.need_material:
             for key, p in (("roughness", s.roughness), ("metallic", s.metallic)):

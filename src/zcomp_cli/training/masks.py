@@ -12,7 +12,8 @@ import numpy as np
 
 from zcomp_cli.errors import InputError
 
-P_SHAPES, P_FULL, P_NONE = 0.6, 0.3, 0.1
+# Branch probabilities; the shapes branch takes the rest (0.6).
+P_FULL, P_NONE = 0.3, 0.1
 
 
 def random_shading_mask(h: int, w: int, rng: np.random.Generator) -> tuple[np.ndarray, str]:

@@ -7,9 +7,11 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
+from zcomp_cli.conventions import GAMMA, SHADING_EPS, SHADING_MAX
 from zcomp_cli.errors import NumericalError, UsageError
 from zcomp_cli.training.config import TrainConfig
 
@@ -45,16 +47,18 @@ def make_batch(samples, rng, cfg: TrainConfig, channels: int):
         alb = np.clip(s["albedo"], 0, 1)
         img = np.clip(s["image"], 0, None)
         with np.errstate(divide="ignore", invalid="ignore"):
-            shading = np.clip(np.nan_to_num(img / alb, nan=1e-5, posinf=1e3), 1e-5, 1e3)
+            shading = np.clip(np.nan_to_num(img / alb, nan=SHADING_EPS, posinf=SHADING_MAX), SHADING_EPS, SHADING_MAX)
         maps = SceneMaps(s["depth"], s["normals"], alb, s.get("roughness"), s.get("metallic"))
         req = RenderRequest(maps, shading, ~masked, Camera(K_from_fov(50, w, h), w, h), image=img)
         conds.append(build_conditioning(req, channels, R))
-        tgt = cv2.resize(np.clip(img, 0, 1) ** (1 / 2.2), (R, R), interpolation=cv2.INTER_AREA)
+        tgt = cv2.resize(np.clip(img, 0, 1) ** (1 / GAMMA), (R, R), interpolation=cv2.INTER_AREA)
         imgs.append(tgt.transpose(2, 0, 1) * 2 - 1)
     return np.stack(imgs).astype(np.float32), np.stack(conds)
 
 
-def train(cfg: TrainConfig, *, progress: bool = True, log=None) -> TrainResult:
+def train(cfg: TrainConfig, *, progress: Callable[[str, int, int, str], None] | None = None) -> TrainResult:
+    """Train the ControlNet. ``progress(stage, done, total, label)`` is called after every
+    step with stage "training" (the same callback the batch commands use)."""
     import torch
     from diffusers import AutoencoderKL, ControlNetModel, UNet2DConditionModel
     from transformers import CLIPTextModel
@@ -101,13 +105,6 @@ def train(cfg: TrainConfig, *, progress: bool = True, log=None) -> TrainResult:
         emb = te(empty_prompt_ids(te.config.max_position_embeddings).to(device))[0]
     T = sched.config.num_train_timesteps
     losses, last = [], None
-    bar = None
-    if progress:
-        from rich.progress import Progress
-
-        bar = Progress(transient=True)
-        bar.start()
-        task = bar.add_task("training", total=cfg.max_steps, completed=step)
     log_f = open(out / "loss_log.tsv", "a")
     try:
         # 2. loop
@@ -137,16 +134,12 @@ def train(cfg: TrainConfig, *, progress: bool = True, log=None) -> TrainResult:
             loss = loss.detach()
             losses.append(float(loss))
             log_f.write(f"{step}\t{float(loss):.6g}\n")
-            if bar is not None:
-                bar.update(task, completed=step, description=f"loss {float(loss):.4f}")
-            if log is not None:
-                log(step, float(loss))
+            if progress is not None:
+                progress("training", step, cfg.max_steps, f"loss {float(loss):.4f}")
             if step % cfg.save_every == 0 or step == cfg.max_steps:
                 last = save_checkpoint(out, step, cn, opt)
     finally:
         log_f.close()
-        if bar is not None:
-            bar.stop()
     return TrainResult(step, losses, last)
 
 

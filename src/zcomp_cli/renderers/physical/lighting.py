@@ -15,6 +15,7 @@ from dataclasses import dataclass, asdict
 import numpy as np
 
 from zcomp_cli.camera import Camera
+from zcomp_cli.conventions import DEFAULT_SEED, REC601
 from zcomp_cli.renderers.physical.shading import cone_directions, direct_term, sh_basis
 from zcomp_cli.renderers.physical.visibility import march_visibility
 
@@ -142,7 +143,7 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
                       march_steps: int = 24, max_fit_pixels: int = 4000,
                       ridge: float = 0.05, cone_samples: int = 8,
                       softness_deg: float | None = None, flat_threshold: float = 0.02,
-                      seed: int = 469) -> LightEstimate:
+                      seed: int = DEFAULT_SEED) -> LightEstimate:
     """Estimate one directional light + SH ambient from the known shading.
 
     Args:
@@ -167,7 +168,7 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     Nrm = n.reshape(-1, 3)[idx].astype(np.float64)
     Nrm /= np.maximum(np.linalg.norm(Nrm, axis=1, keepdims=True), 1e-12)
     S = sh.reshape(-1, 3)[idx].astype(np.float64)
-    Y = S @ np.array([0.299, 0.587, 0.114])
+    Y = S @ REC601.astype(np.float64)
 
     # dominant surface normal (the floor, usually) -> "up" for the hemisphere and prior
     up = np.array([0.0, 1.0, 0.0])

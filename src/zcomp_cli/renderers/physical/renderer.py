@@ -7,6 +7,7 @@ from typing import Sequence
 
 import numpy as np
 
+from zcomp_cli.conventions import DEFAULT_SEED
 from zcomp_cli.errors import InputError, NumericalError, UsageError
 from zcomp_cli.renderers.base import Renderer, RenderOutput, RenderRequest
 from zcomp_cli.renderers.physical.lighting import LightEstimate, estimate_lighting
@@ -52,7 +53,7 @@ class PhysicalRenderer(Renderer):
         return {"name": self.name, **self._s}
 
     # step 1: light (cached per scene and seed)
-    def estimate(self, req: RenderRequest, seed: int = 469) -> LightEstimate:
+    def estimate(self, req: RenderRequest, seed: int = DEFAULT_SEED) -> LightEstimate:
         key = (req.scene_key, seed) if req.scene_key is not None else None
         if key is not None and key in self._cache:
             return self._cache[key]
@@ -83,7 +84,7 @@ class PhysicalRenderer(Renderer):
         sh = _clean(req.shading, 0.0, 1e6)
         return d, n, sh, np.asarray(req.known, bool)
 
-    def render(self, requests: Sequence[RenderRequest], *, seed: int = 469) -> RenderOutput:
+    def render(self, requests: Sequence[RenderRequest], *, seed: int = DEFAULT_SEED) -> RenderOutput:
         if not requests:
             raise UsageError("physical renderer needs at least one request")
         timings = {"estimate": 0.0, "synthesis": 0.0}

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from zcomp_cli.conventions import DEFAULT_SEED
+
 
 def sh_basis(normals: np.ndarray) -> np.ndarray:
     """Order-1 real SH basis (unnormalised): (N, 3) normals -> (N, 4) [1, nx, ny, nz]."""
@@ -18,7 +20,7 @@ def _orthonormal(l: np.ndarray):
     return u, np.cross(l, u)
 
 
-def cone_directions(light_dir, radius_deg: float, k: int, seed: int = 469) -> np.ndarray:
+def cone_directions(light_dir, radius_deg: float, k: int, seed: int = DEFAULT_SEED) -> np.ndarray:
     """K unit directions spread uniformly (in solid angle) over a cone of half-angle
     ``radius_deg`` around ``light_dir`` (Fibonacci spiral, rotated by ``seed``).
     radius 0 or k <= 1 gives just the axis. Returns (K, 3) float64."""

@@ -8,6 +8,7 @@ from typing import Sequence
 
 import numpy as np
 
+from zcomp_cli.conventions import DEFAULT_SEED
 from zcomp_cli.errors import InputError, NumericalError, UsageError
 from zcomp_cli.renderers.base import Renderer, RenderOutput, RenderRequest
 from zcomp_cli.renderers.zerocomp.conditioning import GAMMA, build_conditioning, crop_box
@@ -52,7 +53,7 @@ class ZeroCompRenderer(Renderer):
                                        dtype=self._dtype, allow_network=self.allow_network)
         return self._models
 
-    def render(self, requests: Sequence[RenderRequest], *, seed: int = 469) -> RenderOutput:
+    def render(self, requests: Sequence[RenderRequest], *, seed: int = DEFAULT_SEED) -> RenderOutput:
         import cv2
 
         from zcomp_cli.renderers.zerocomp.pipeline import run_pipeline

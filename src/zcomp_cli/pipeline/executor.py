@@ -1,0 +1,118 @@
+"""Executors run the job stage of a batch (``pipeline.batch`` stage 4).
+
+The local executor takes the jobs in chunks of ``ctx.batch_size``: each job of a chunk is
+prepared (steps 1-4 of ``pipeline.job``), the chunk's passes go to the renderer in ONE
+``Renderer.render_jobs`` call (a GPU renderer batches them), then each job is finished
+(the compositor) and its outputs written. A job that fails in any step is reported and
+the others go on; if a chunk's shared renderer call fails, its jobs are rendered one by
+one so that the failure stays with the job that caused it.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import traceback
+
+from zcomp_cli.errors import ZcompError
+from zcomp_cli.pipeline.outputs import JobStatus, job_report, write_job_outputs
+
+log = logging.getLogger(__name__)
+
+
+def _failure(exc: BaseException) -> str:
+    if isinstance(exc, ZcompError):
+        return str(exc)
+    # A bug must not lose the rest of the batch; -v shows the traceback.
+    log.debug("job crashed:\n%s", "".join(traceback.format_exception(exc)))
+    return f"internal error: {type(exc).__name__}: {exc}"
+
+
+class LocalExecutor:
+    """Runs every job in this process, ``ctx.batch_size`` jobs per renderer call."""
+
+    def run(self, ctx, works) -> list[JobStatus]:
+        statuses: list[JobStatus] = []
+        total = len(works)
+        done = 0
+        todo = []
+        for w in works:
+            if w.error is not None:
+                statuses.append(JobStatus(w.job, "failed", w.error, 0.0, ctx.out_root / w.job.name))
+                done += 1
+            else:
+                todo.append(w)
+        for start in range(0, len(todo), ctx.batch_size):
+            chunk = todo[start:start + ctx.batch_size]
+            ctx.report("jobs", done, total, chunk[0].job.name)
+            statuses.extend(run_chunk(ctx, chunk))
+            done += len(chunk)
+        ctx.report("jobs", total, total, "")
+        return statuses
+
+
+def run_chunk(ctx, chunk) -> list[JobStatus]:
+    """Prepare, render (one call), finish and write a chunk of jobs."""
+    from zcomp_cli.pipeline.batch import load_object_bundle
+    from zcomp_cli.pipeline.job import finish_job, prepare_job
+
+    renderer = ctx.renderer
+    statuses: dict[int, JobStatus] = {}
+    started: dict[int, float] = {}
+    prepared = []  # (work, scene, PreparedJob, load seconds)
+    for w in chunk:
+        t0 = started[w.job.index] = time.perf_counter()
+        try:
+            scene = ctx.scenes.get(w.job.scene)
+            t_load = time.perf_counter() - t0
+            bundle = load_object_bundle(ctx, w, scene)
+            prep = prepare_job(scene, bundle, shading_radius=w.job.shading_radius, seed=w.job.seed,
+                               debug=ctx.debug)
+            prep.timings = {"scene_load_s": t_load, **prep.timings}
+            prepared.append((w, scene, prep))
+        except Exception as exc:  # noqa: BLE001 - reported per job
+            statuses[w.job.index] = JobStatus(w.job, "failed", _failure(exc), time.perf_counter() - t0,
+                                              ctx.out_root / w.job.name)
+
+    # 5. One renderer call for the chunk; on failure, one call per job.
+    outputs: dict[int, object] = {}
+    if prepared:
+        t = time.perf_counter()
+        try:
+            outs = renderer.render_jobs([p.requests for _, _, p in prepared], [p.seed for _, _, p in prepared])
+            share = (time.perf_counter() - t) / len(prepared)
+            for (w, _, p), out in zip(prepared, outs):
+                p.timings["render_s"] = share
+                outputs[w.job.index] = out
+        except Exception as exc:  # noqa: BLE001
+            if len(prepared) == 1:
+                w = prepared[0][0]
+                statuses[w.job.index] = JobStatus(w.job, "failed", _failure(exc),
+                                                  time.perf_counter() - started[w.job.index],
+                                                  ctx.out_root / w.job.name)
+            else:
+                for w, _, p in prepared:
+                    t1 = time.perf_counter()
+                    try:
+                        outputs[w.job.index] = renderer.render(p.requests, seed=p.seed)
+                        p.timings["render_s"] = time.perf_counter() - t1
+                    except Exception as exc1:  # noqa: BLE001
+                        statuses[w.job.index] = JobStatus(w.job, "failed", _failure(exc1),
+                                                          time.perf_counter() - started[w.job.index],
+                                                          ctx.out_root / w.job.name)
+
+    # 6. Compositor and outputs, job by job.
+    for w, scene, prep in prepared:
+        if w.job.index not in outputs:
+            continue
+        out_dir = ctx.out_root / w.job.name
+        try:
+            result = finish_job(prep, outputs[w.job.index], renderer.name, renderer.settings(), debug=ctx.debug)
+            report = job_report(ctx.manifest, w.job, w.fingerprint, scene, w.pose, w.bundle_dir, result)
+            write_job_outputs(out_dir, scene, result, report, debug=ctx.debug, started=started[w.job.index])
+            statuses[w.job.index] = JobStatus(w.job, "done", None, time.perf_counter() - started[w.job.index],
+                                              out_dir)
+        except Exception as exc:  # noqa: BLE001
+            statuses[w.job.index] = JobStatus(w.job, "failed", _failure(exc),
+                                              time.perf_counter() - started[w.job.index], out_dir)
+    return [statuses[w.job.index] for w in chunk]
