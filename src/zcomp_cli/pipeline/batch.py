@@ -22,7 +22,7 @@ from typing import Callable
 from zcomp_cli.errors import InputError, ZcompError
 from zcomp_cli.pipeline.manifest import JobSpec, Manifest, RendererSpec
 from zcomp_cli.pipeline.outputs import BatchSummary, JobStatus, plan_outputs, write_summary
-from zcomp_cli.pipeline.selection import select_jobs
+from zcomp_cli.pipeline.selection import select_jobs, shard_jobs
 
 Progress = Callable[[str, int, int, str], None]
 
@@ -101,11 +101,16 @@ def run_batch(
     debug: bool = False,
     cache_dir=None,
     batch_size: int = 1,
+    shard: tuple[int, int] | None = None,
+    executor=None,
     progress: Progress | None = None,
 ) -> BatchSummary:
     """Run the manifest's jobs. ``progress(stage, done, total, label)`` is called for
     the object-render stage ("objects") and the job stage ("jobs"). ``cache_dir`` is
-    the cache root (``zcomp_cli.cache``); ``batch_size`` jobs share one renderer call."""
+    the cache root (``zcomp_cli.cache``); ``batch_size`` jobs share one renderer call.
+    ``shard=(i, n)`` runs shard i of n of the selected jobs (``selection.shard_jobs``)
+    and writes its own ``summary.shard-i-of-n.json``. ``executor`` runs stage 4
+    (default: ``LocalExecutor``; see ``pipeline.ray_executor``)."""
     from zcomp_cli.cache import cache_dir as cache_folder
     from zcomp_cli.pipeline.executor import LocalExecutor
     from zcomp_cli.renderers import get_renderer
@@ -119,25 +124,35 @@ def run_batch(
 
     # 1. Plan.
     jobs = select_jobs(manifest.jobs, jobs_subset)
+    shard_info = None
+    if shard is not None:
+        jobs = shard_jobs(jobs, *shard)
+        shard_info = {"index": shard[0], "count": shard[1], "jobs": [j.name for j in jobs]}
     to_run, skipped = plan_outputs(manifest, jobs, out_root, ctx.renderer_spec, ctx.samples,
                                    resume=resume, overwrite=overwrite)
-    summary = BatchSummary(statuses=list(skipped))
+    summary = BatchSummary(statuses=list(skipped), shard=shard_info)
+    executor = executor if executor is not None else LocalExecutor()
     if not to_run:
         summary.seconds = time.perf_counter() - t_batch
+        if shard_info is not None:  # `zcomp status` learns that this shard has finished
+            write_summary(out_root, summary)
         return summary
+    executor.check(ctx)
     ctx.renderer = get_renderer(ctx.renderer_spec.name, **ctx.renderer_spec.settings)
     works = [JobWork(job, fp) for job, fp in to_run]
 
     # 2. Poses (placement needs the scene's depth and normals).
     resolve_poses(ctx, works)
 
-    # 3. Object intrinsics.
-    t_obj = time.perf_counter()
-    summary.blender = render_objects(ctx, works)
-    summary.blender["objects_s"] = time.perf_counter() - t_obj
+    # 3. Object intrinsics (here, unless the executor's workers render their own).
+    if not executor.renders_objects:
+        t_obj = time.perf_counter()
+        summary.blender = render_objects(ctx, works)
+        summary.blender["objects_s"] = time.perf_counter() - t_obj
 
     # 4. Jobs.
-    summary.statuses.extend(LocalExecutor().run(ctx, works))
+    summary.statuses.extend(executor.run(ctx, works))
+    summary.executor = getattr(executor, "info", {})
 
     # 5. Summary.
     summary.statuses.sort(key=lambda s: s.job.index)

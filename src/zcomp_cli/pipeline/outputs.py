@@ -39,6 +39,9 @@ class BatchSummary:
     statuses: list[JobStatus] = field(default_factory=list)
     seconds: float = 0.0
     blender: dict = field(default_factory=dict)
+    # --shard: {"index": i, "count": n, "jobs": [names of the shard's jobs]}
+    shard: dict | None = None
+    executor: dict = field(default_factory=dict)
 
     def count(self, status: str) -> int:
         return sum(1 for s in self.statuses if s.status == status)
@@ -50,7 +53,8 @@ class BatchSummary:
     def to_dict(self) -> dict:
         return {
             "done": self.count("done"), "skipped": self.count("skipped"), "failed": self.count("failed"),
-            "seconds": self.seconds, "blender": self.blender,
+            "seconds": self.seconds, "blender": self.blender, "shard": self.shard,
+            "executor": self.executor,
             "jobs": [{"index": s.job.index, "name": s.job.name, "status": s.status, "reason": s.reason,
                       "seconds": s.seconds} for s in self.statuses],
         }
@@ -160,10 +164,18 @@ def write_job_outputs(out_dir: Path, scene, result, report: dict, *, debug: bool
     return t_write
 
 
+def summary_name(shard: dict | None) -> str:
+    """``summary.json``, or ``summary.shard-I-of-N.json`` for shard I (from 0) of N:
+    shards running side by side in one folder never write the same file."""
+    if not shard:
+        return SUMMARY
+    return f"summary.shard-{shard['index']}-of-{shard['count']}.json"
+
+
 def write_summary(out_root: Path, summary: BatchSummary) -> None:
     from zcomp_cli.imageio import write_json_atomic
 
-    write_json_atomic(out_root / SUMMARY, summary.to_dict())
+    write_json_atomic(out_root / summary_name(summary.shard), summary.to_dict())
 
 
 def write_debug(out_dir: Path, scene, result) -> None:
