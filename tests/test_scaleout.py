@@ -170,7 +170,9 @@ def test_ray_worker_killed_mid_batch_every_job_done_once(ray_local, batch, local
     names = [s.job.name for s in summary.statuses]
     assert sorted(names) == sorted(set(names)) and len(names) == 7  # each job once
     assert all(s.status == "done" for s in summary.statuses), [s.reason for s in summary.statuses]
-    assert summary.executor["worker_processes"] > 2  # the dead worker was replaced
+    # the dead worker's unit was finished by another process (Ray restarted the actor)
+    killed = int(marker.read_text())
+    assert killed not in summary.executor["worker_pids"] and len(summary.executor["worker_pids"]) >= 1
     assert _outputs(tmp_path / "out") == _outputs(local_run)
 
 

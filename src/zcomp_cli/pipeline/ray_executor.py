@@ -230,6 +230,6 @@ class RayExecutor:
                 submit(a)
         for a in actors:
             ray.kill(a)
-        self.info.update(workers=n, units=len(units), worker_processes=len(pids),
+        self.info.update(workers=n, units=len(units), worker_pids=sorted(pids),
                          seconds=time.perf_counter() - t0)
         return statuses
