@@ -11,11 +11,13 @@ timed. Every configuration runs the real CLI in a subprocess into a fresh --out:
 * ``local``: ``zcomp composite``;
 * ``ray-W``: ``zcomp composite --executor ray --address auto --workers W`` against a
   Ray started once with ``ray start --head --num-cpus 2`` (a cluster is long-lived, so
-  its start is reported apart, not charged to the batch);
+  its start is reported apart, not charged to the batch; the workers' start is);
 * ``shards-2``: ``zcomp composite --shard 0/2`` and ``--shard 1/2`` started together.
 
-Figures: wall seconds, jobs/s, per-job overhead (wall x workers / jobs minus the mean
-job seconds of the local run: what each job costs beyond its own work) and efficiency
+Each configuration runs ``--repeat`` times, rounds interleaved (the machine is
+shared: load moves). Figures, medians with min-max: wall seconds, jobs/s, per-job
+overhead (wall x workers / jobs minus the run's mean job seconds: what a job costs
+beyond its own work -- process and Ray start, scheduling, scene loads) and efficiency
 (jobs/s over workers x local jobs/s).
 """
 
@@ -25,6 +27,7 @@ import argparse
 import json
 import os
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -69,6 +72,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--jobs", type=int, default=24)
     ap.add_argument("--size", type=int, nargs=2, default=(128, 96), metavar=("W", "H"))
+    ap.add_argument("--repeat", type=int, default=3, help="rounds over all configurations")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--plot", type=Path, default=None)
     args = ap.parse_args(argv)
@@ -77,46 +81,64 @@ def main(argv=None) -> int:
 
     tmp = Path(tempfile.mkdtemp(prefix="zcomp-scaleout-"))
     ray_bin = Path(sys.executable).with_name("ray")
-    rows = []
+    runs: dict[str, list[dict]] = {}
+    workers = {"local": 1, "ray-1": 1, "ray-2": 2, "shards-2": 2}
     try:
         manifest = write_floor_batch(tmp / "batch", args.jobs, n_scenes=3, size=tuple(args.size))
-
-        def measure(name: str, workers: int, cmds_for) -> dict:
-            out = tmp / f"out-{name}"
-            wall = _run(cmds_for(out), tmp / f"cache-{name}")  # a fresh cache: nothing reused
-            row = {"config": name, "workers": workers, "wall_s": round(wall, 2),
-                   "jobs_per_s": round(args.jobs / wall, 3), "mean_job_s": None}
-            secs = _job_seconds(out)
-            assert len(secs) == args.jobs, f"{name}: {len(secs)} of {args.jobs} jobs done"
-            row["mean_job_s"] = round(sum(secs) / len(secs), 3)
-            rows.append(row)
-            print(json.dumps(row), flush=True)
-            return row
-
-        load0 = os.getloadavg()[0]
-        local = measure("local", 1, lambda out: [_zcomp(manifest, "--out", out)])
+        cmds = {
+            "local": lambda out: [_zcomp(manifest, "--out", out)],
+            "ray-1": lambda out: [_zcomp(manifest, "--out", out, "--executor", "ray", "--address", "auto",
+                                         "--workers", 1)],
+            "ray-2": lambda out: [_zcomp(manifest, "--out", out, "--executor", "ray", "--address", "auto",
+                                         "--workers", 2)],
+            "shards-2": lambda out: [_zcomp(manifest, "--out", out, "--shard", f"{i}/2") for i in range(2)],
+        }
         t = time.perf_counter()
         subprocess.run([str(ray_bin), "start", "--head", "--num-cpus", "2", "--include-dashboard", "false",
                         "--disable-usage-stats"], env=_env(), check=True, capture_output=True)
         ray_start = time.perf_counter() - t
         try:
-            for w in (1, 2):
-                measure(f"ray-{w}", w, lambda out, w=w: [_zcomp(manifest, "--out", out, "--executor", "ray",
-                                                                "--address", "auto", "--workers", w)])
+            # Rounds interleave the configurations, so a change in the machine's load
+            # (it is shared) spreads over all of them instead of biasing one.
+            for rnd in range(args.repeat):
+                for name, cmd in cmds.items():
+                    out = tmp / f"out-{name}-{rnd}"
+                    load = os.getloadavg()[0]
+                    wall = _run(cmd(out), tmp / f"cache-{name}-{rnd}")  # fresh cache: nothing reused
+                    secs = _job_seconds(out)
+                    assert len(secs) == args.jobs, f"{name}: {len(secs)} of {args.jobs} jobs done"
+                    run = {"wall_s": wall, "mean_job_s": sum(secs) / len(secs), "load": load,
+                           # time each worker spends outside its jobs' own work, per job
+                           "overhead_s": wall * workers[name] / args.jobs - sum(secs) / len(secs)}
+                    runs.setdefault(name, []).append(run)
+                    print(json.dumps({"round": rnd, "config": name, **{k: round(v, 3) for k, v in run.items()}}),
+                          flush=True)
+                    shutil.rmtree(out, ignore_errors=True)
         finally:
             subprocess.run([str(ray_bin), "stop", "--force"], env=_env(), capture_output=True)
-        measure("shards-2", 2, lambda out: [_zcomp(manifest, "--out", out, "--shard", f"{i}/2")
-                                            for i in range(2)])
-        load1 = os.getloadavg()[0]
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
-    base = local["jobs_per_s"]
-    for r in rows:
-        r["per_job_overhead_s"] = round(r["wall_s"] * r["workers"] / args.jobs - local["mean_job_s"], 3)
-        r["efficiency"] = round(r["jobs_per_s"] / (r["workers"] * base), 3)
+    def med(xs):
+        return statistics.median(xs)
+
+    local_jps = args.jobs / med([r["wall_s"] for r in runs["local"]])
+    rows = []
+    for name, rs in runs.items():
+        walls = [r["wall_s"] for r in rs]
+        jps = args.jobs / med(walls)
+        rows.append({"config": name, "workers": workers[name], "wall_s": round(med(walls), 2),
+                     "wall_min_max_s": [round(min(walls), 2), round(max(walls), 2)],
+                     "jobs_per_s": round(jps, 3),
+                     "jobs_per_s_min_max": [round(args.jobs / max(walls), 3), round(args.jobs / min(walls), 3)],
+                     "mean_job_s": round(med([r["mean_job_s"] for r in rs]), 3),
+                     "per_job_overhead_s": round(med([r["overhead_s"] for r in rs]), 3),
+                     "efficiency": round(jps / (workers[name] * local_jps), 3),
+                     "load_avg": [round(r["load"], 1) for r in rs]})
     figures = {"jobs": args.jobs, "size": list(args.size), "renderer": "physical", "cpu_count": os.cpu_count(),
-               "ray_start_s": round(ray_start, 2), "load_avg_1min": [round(load0, 2), round(load1, 2)],
+               "repeat": args.repeat, "ray_start_s": round(ray_start, 2),
+               "load_avg_1min": [round(min(r["load"] for rs in runs.values() for r in rs), 1),
+                                 round(max(r["load"] for rs in runs.values() for r in rs), 1)],
                "rows": rows}
     print(json.dumps(figures, indent=2))
     if args.json:
@@ -124,6 +146,12 @@ def main(argv=None) -> int:
     if args.plot:
         _plot(figures, args.plot)
     return 0
+
+
+def _spread(rows):
+    lo = [r["jobs_per_s"] - r["jobs_per_s_min_max"][0] for r in rows]
+    hi = [r["jobs_per_s_min_max"][1] - r["jobs_per_s"] for r in rows]
+    return [lo, hi]
 
 
 def _plot(fig: dict, path: Path) -> None:
@@ -136,10 +164,13 @@ def _plot(fig: dict, path: Path) -> None:
     local = next(r for r in rows if r["config"] == "local")
     f, ax = plt.subplots(figsize=(6.4, 4.0), dpi=110)
     ray = [r for r in rows if r["config"].startswith("ray")]
-    ax.plot([r["workers"] for r in ray], [r["jobs_per_s"] for r in ray], "o-", label="Ray executor")
+    ax.errorbar([r["workers"] for r in ray], [r["jobs_per_s"] for r in ray],
+                yerr=_spread(ray), fmt="o-", capsize=3, label="Ray executor")
     sh = [r for r in rows if r["config"].startswith("shards")]
-    ax.plot([r["workers"] for r in sh], [r["jobs_per_s"] for r in sh], "s", ms=9, label="2 shards side by side")
-    ax.plot([1], [local["jobs_per_s"]], "D", ms=8, color="k", label="local executor")
+    ax.errorbar([r["workers"] for r in sh], [r["jobs_per_s"] for r in sh], yerr=_spread(sh), fmt="s", ms=8,
+                capsize=3, label="2 shards side by side")
+    ax.errorbar([1], [local["jobs_per_s"]], yerr=_spread([local]), fmt="D", ms=7, color="k", capsize=3,
+                label="local executor")
     ws = [1, 2]
     ax.plot(ws, [local["jobs_per_s"] * w for w in ws], ":", color="grey", label="ideal (local x workers)")
     for r in rows:
@@ -149,8 +180,9 @@ def _plot(fig: dict, path: Path) -> None:
     ax.set_xlabel("workers (processes)")
     ax.set_ylabel("jobs / s")
     ax.set_ylim(bottom=0)
-    ax.set_title(f"{fig['jobs']} jobs, physical renderer, {fig['size'][0]}x{fig['size'][1]}, "
-                 f"{fig['cpu_count']} shared cores (load {fig['load_avg_1min'][0]:.0f})", fontsize=9)
+    lo, hi = fig["load_avg_1min"]
+    ax.set_title(f"{fig['jobs']} jobs, physical, {fig['size'][0]}x{fig['size'][1]}, {fig['cpu_count']} shared cores "
+                 f"(load {lo:.0f}-{hi:.0f}); median of {fig['repeat']}, bars min-max", fontsize=8)
     ax.legend(fontsize=8, loc="lower right")
     ax.grid(alpha=0.3)
     f.tight_layout()

@@ -613,3 +613,31 @@ def test_poses_of_one_mesh_share_the_scene_and_match_ray_casting(meshes, tmp_pat
     metas = [json.loads((Path(res[f"p{i}"].bundle_dir) / "meta.json").read_text()) for i in range(3)]
     assert [m["blender_mesh_reused"] for m in metas] == [False, True, True]
     assert all(m["render_timings"]["appearance_s"] > 0 for m in metas)
+
+
+@pytest.mark.blender
+def test_blender_session_keeps_one_process_and_replaces_a_dead_one(meshes, tmp_path):
+    """A BlenderSession answers several batches with one Blender start-up, and keeps
+    the imported mesh between them; a process killed while idle is replaced."""
+    pytest.importorskip("bpy")
+    from zcomp_cli.blender.runner import BlenderSession
+
+    def reqs(tag, n):
+        return [IntrinsicsRequest(f"{tag}{i}", meshes["cube"], Pose(position=(0.1 * i, -0.5, -3.0)), CAM_CUBE,
+                                  tmp_path / f"{tag}{i}") for i in range(n)]
+
+    with BlenderSession(ii.SCRIPT) as session:
+        a = render_object_intrinsics(reqs("a", 2), use_cache=False, samples=2, session=session)
+        pid = session.proc.pid
+        b = render_object_intrinsics(reqs("b", 2), use_cache=False, samples=2, session=session)
+        assert all(r.ok for r in a + b), [r.error for r in a + b]
+        assert session.starts == 1 and session.proc.pid == pid
+        meta = json.loads((Path(b[0].bundle_dir) / "meta.json").read_text())
+        assert meta["blender_mesh_reused"] is True  # the second batch found the cube loaded
+        np.testing.assert_array_equal(ObjectBundle.load(a[0].bundle_dir).depth,
+                                      ObjectBundle.load(b[0].bundle_dir).depth)
+        session.proc.kill()
+        session.proc.wait()
+        c = render_object_intrinsics(reqs("c", 1), use_cache=False, samples=2, session=session)
+        assert c[0].ok and session.starts == 2
+    assert session.proc is None

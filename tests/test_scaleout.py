@@ -176,6 +176,7 @@ def test_ray_worker_killed_mid_batch_every_job_done_once(ray_local, batch, local
     assert _outputs(tmp_path / "out") == _outputs(local_run)
 
 
+@pytest.mark.slow
 def test_ray_refuses_an_output_folder_a_node_cannot_see(ray_local, batch, tmp_path, monkeypatch):
     from zcomp_cli.pipeline.ray_executor import RayExecutor
 

@@ -306,6 +306,7 @@ def render_object_intrinsics(
     use_cache: bool = True,
     log_path: str | Path | None = None,
     stats: dict | None = None,
+    session=None,
 ) -> list[IntrinsicsResult]:
     """Render (or fetch from the cache) the intrinsics bundle of every request.
 
@@ -320,6 +321,8 @@ def render_object_intrinsics(
         log_path: where Blender's own output goes (default: a temporary file).
         stats: if given, filled with ``startup_s`` (Blender start-up seconds per
             process), ``restarts`` and ``log_path`` of the batch (benchmarks, reports).
+        session: a ``runner.BlenderSession`` to render in (its Blender process stays
+            up for later calls); default: a Blender process for this call.
     Returns:
         One ``IntrinsicsResult`` per request, in the same order.
     """
@@ -423,8 +426,11 @@ def render_object_intrinsics(
                                              seconds=blender_s + time.monotonic() - t_conv))
 
     try:
-        batch = run_blender_batch(SCRIPT, items, common={"samples": int(samples)},
-                                  on_event=on_event, log_path=log_path)
+        if session is not None:
+            batch = session.run(items, common={"samples": int(samples)}, on_event=on_event)
+        else:
+            batch = run_blender_batch(SCRIPT, items, common={"samples": int(samples)},
+                                      on_event=on_event, log_path=log_path)
         if stats is not None:
             stats.update(startup_s=list(batch.startup_s), restarts=batch.restarts,
                          log_path=str(batch.log_path))

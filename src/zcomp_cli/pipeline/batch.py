@@ -80,6 +80,7 @@ class BatchContext:
     batch_size: int = 1
     progress: Progress | None = None
     renderer: object | None = None  # built once, before the job stage
+    blender_session: object | None = None  # a kept Blender process (Ray workers), else one per batch
 
     @property
     def samples(self) -> int:
@@ -202,7 +203,8 @@ def render_objects(ctx: BatchContext, works: list[JobWork]) -> dict:
     def _cb(done, total, ident):
         ctx.report("objects", done, total, str(ident))
 
-    results = render_object_intrinsics(requests, cache_dir=ctx.cache_root, samples=ctx.samples, progress=_cb)
+    results = render_object_intrinsics(requests, cache_dir=ctx.cache_root, samples=ctx.samples, progress=_cb,
+                                       session=ctx.blender_session)
     for w, res in zip(owners, results):
         if res.ok:
             w.bundle_dir = res.bundle_dir

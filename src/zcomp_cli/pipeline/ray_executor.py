@@ -4,9 +4,10 @@ Ray is an optional dependency: ``pip install 'zcomp[ray]'``. What runs where:
 
 * the driver (this process) plans the batch and resolves poses as a local run does;
 * N workers are Ray actors, each holding ONE renderer (``physical`` asks Ray for a CPU,
-  ``zerocomp`` for a GPU) and the scenes it has loaded. Jobs travel in units: up to
-  ``unit_size`` jobs of one scene. A worker renders its unit's object intrinsics in one
-  Blender process, then runs the jobs exactly as the local executor does
+  ``zerocomp`` for a GPU), the scenes it has loaded, and (once it meets a mesh) ONE
+  Blender process (``runner.BlenderSession``) for all its units. Jobs travel in units:
+  up to ``unit_size`` jobs of one scene. A worker renders its unit's object
+  intrinsics, then runs the jobs exactly as the local executor does
   (``executor.run_chunk``), writing the outputs itself;
 * scene affinity: a worker that becomes free takes the next unit of the scene it last
   worked on when there is one, so a scene is loaded (and estimated) by as few workers
@@ -59,6 +60,17 @@ class _Worker:
                                 SceneStore(manifest, cache_folder("estimates", cache_root)), debug=debug,
                                 cache_root=cache_root, batch_size=batch_size)
         self.ctx.renderer = get_renderer(renderer_spec.name, **renderer_spec.settings)
+        self._session = None
+
+    def _blender(self):
+        """This worker's Blender process, started on the first unit with meshes and
+        kept for the next ones (it exits when this worker's process ends)."""
+        if self._session is None:
+            from zcomp_cli.blender.intrinsics import SCRIPT
+            from zcomp_cli.blender.runner import BlenderSession
+
+            self._session = BlenderSession(SCRIPT)
+        return self._session
 
     def run_unit(self, works) -> tuple[int, list[JobStatus]]:
         """Run a unit (jobs of one scene); returns (this process's pid, statuses)."""
@@ -80,7 +92,8 @@ class _Worker:
             else:
                 todo.append(w)
         if any(ctx.manifest.objects[w.job.object].kind == "mesh" for w in todo):
-            render_objects(ctx, todo)  # one Blender process for the unit's meshes
+            ctx.blender_session = self._blender()
+            render_objects(ctx, todo)
         for w in [w for w in todo if w.error is not None]:
             statuses.append(JobStatus(w.job, "failed", w.error, 0.0, ctx.out_root / w.job.name))
         todo = [w for w in todo if w.error is None]
@@ -203,8 +216,13 @@ class RayExecutor:
         ctx.report("jobs", 0, total, "")
 
         def submit(a: int) -> None:
-            # scene affinity: this worker's last scene first, else the next unit
-            pick = next((u for u in pending if units[u][0].job.scene == last_scene.get(a)), pending[0])
+            # Scene affinity: this worker's last scene first; else a scene no other
+            # worker has touched (its per-scene work is not done twice); else the next.
+            mine = last_scene.get(a)
+            taken = {s for b, s in last_scene.items() if b != a}
+            pick = next((u for u in pending if units[u][0].job.scene == mine), None)
+            if pick is None:
+                pick = next((u for u in pending if units[u][0].job.scene not in taken), pending[0])
             pending.remove(pick)
             last_scene[a] = units[pick][0].job.scene
             in_flight[actors[a].run_unit.remote(units[pick])] = (a, pick)

@@ -338,8 +338,12 @@ def process(item: dict, common: dict) -> dict:
         s, R, tr = sim
         flat = np.linalg.inv(M) @ F  # mesh -> mesh coordinates: the squash onto the base
         S = np.diag([s, s, s, 1.0])
-        if _STATE["offset"] < 2.2 * reach + 2.0:
-            _STATE["offset"] = 4.0 * reach + 10.0  # far beyond every clip so far
+        # The copy must stay beyond the far clip (1.05 reach + 1) from either camera: the
+        # flattened copy reaches at most sqrt(2) * s * radius from its origin, so an
+        # offset of 3 reach + 10 leaves it >= 1.58 reach + 10 away. Moving it costs a
+        # BVH rebuild: when it must move, move it farther than needed.
+        if _STATE["offset"] < 3.0 * reach + 10.0:
+            _STATE["offset"] = 4.0 * reach + 10.0
         off = np.eye(4)
         off[0, 3] = _STATE["offset"]
         # Set the roots only when they change: moving an object costs a BVH rebuild.
@@ -353,6 +357,11 @@ def process(item: dict, common: dict) -> dict:
         cams = {"appearance": cam_to_world, "geometry": cam_to_world, "footprint": off @ cam_to_world}
     else:
         cams = {k: np.eye(4) for k in ("appearance", "geometry", "footprint")}
+        if fp_root is not None:  # (a non-uniform pose) the copy goes behind the camera
+            behind = np.eye(4)
+            behind[2, 3] = 4.0 * reach + 10.0
+            fp_root.matrix_world = _mat(behind)
+            _STATE["S"] = None
     timings["setup_s"] = time.monotonic() - t
     borders = item.get("borders") or {}
     work = item["work_dir"].rstrip("/")
