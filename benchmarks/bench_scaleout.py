@@ -75,7 +75,12 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=3, help="rounds over all configurations")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--plot", type=Path, default=None)
+    ap.add_argument("--replot", type=Path, default=None, metavar="JSON",
+                    help="only redraw --plot from a JSON this script wrote")
     args = ap.parse_args(argv)
+    if args.replot:
+        _plot(json.loads(args.replot.read_text()), args.plot)
+        return 0
     sys.path.insert(0, str(SRC))
     from zcomp_cli.testing import write_floor_batch
 
@@ -174,9 +179,11 @@ def _plot(fig: dict, path: Path) -> None:
     ws = [1, 2]
     ax.plot(ws, [local["jobs_per_s"] * w for w in ws], ":", color="grey", label="ideal (local x workers)")
     for r in rows:
+        left = r["config"] == "local"  # beside Ray-1 at the same x: label it on the other side
         ax.annotate(f"{r['jobs_per_s']:.2f}", (r["workers"], r["jobs_per_s"]), textcoords="offset points",
-                    xytext=(6, -12), fontsize=8)
+                    xytext=(-30 if left else 6, -4 if left else -12), fontsize=8)
     ax.set_xticks(ws)
+    ax.set_xlim(0.6, 2.4)
     ax.set_xlabel("workers (processes)")
     ax.set_ylabel("jobs / s")
     ax.set_ylim(bottom=0)
