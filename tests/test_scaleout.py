@@ -190,3 +190,21 @@ def test_ray_refuses_an_output_folder_a_node_cannot_see(ray_local, batch, tmp_pa
     monkeypatch.setattr(Path, "write_text", write_elsewhere)
     with pytest.raises(UsageError, match="not visible from every Ray node"):
         ex._check_shared_output(tmp_path)
+
+
+@pytest.mark.slow
+@pytest.mark.blender
+def test_ray_renders_meshes_in_its_workers_like_a_local_run(ray_local, small_example, tmp_path):
+    """Mesh jobs: each Ray worker renders its units' objects in its own kept Blender
+    process (BlenderSession); the composites match a local run's."""
+    pytest.importorskip("bpy")
+    manifest = small_example(tmp_path, jobs=[0, 1, 2])
+    local, remote = tmp_path / "local", tmp_path / "ray"
+    r = _composite(manifest, "--out", local, "--renderer", "naive")
+    assert r.exit_code == 0, r.output
+    # a cache of its own, so that the worker does render (not reuse the local run's)
+    r = _composite(manifest, "--out", remote, "--renderer", "naive", "--executor", "ray", "--workers", "1",
+                   "--cache-dir", tmp_path / "cache")
+    assert r.exit_code == 0, r.output
+    assert list((tmp_path / "cache").rglob("meta.json"))  # the worker rendered the objects
+    assert _outputs(remote) == _outputs(local) and len(_outputs(local)) == 6
