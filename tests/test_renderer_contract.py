@@ -63,7 +63,9 @@ def test_every_renderer_is_covered():
     assert set(CONTRACT) == set(RENDERERS)
 
 
-@pytest.fixture(scope="module", params=sorted(CONTRACT))
+# The tiny diffusion model takes seconds per call on a CPU: its rows are slow tests.
+@pytest.fixture(scope="module", params=[pytest.param(n, marks=pytest.mark.slow) if n == "zerocomp" else n
+                                        for n in sorted(CONTRACT)])
 def renderer_case(request, tmp_path_factory):
     name = request.param
     make_settings, exact = CONTRACT[name]

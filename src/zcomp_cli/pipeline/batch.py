@@ -101,14 +101,15 @@ def run_batch(
     overwrite: bool = False,
     debug: bool = False,
     cache_dir=None,
-    batch_size: int = 1,
+    batch_size: int | None = None,
     shard: tuple[int, int] | None = None,
     executor=None,
     progress: Progress | None = None,
 ) -> BatchSummary:
     """Run the manifest's jobs. ``progress(stage, done, total, label)`` is called for
     the object-render stage ("objects") and the job stage ("jobs"). ``cache_dir`` is
-    the cache root (``zcomp_cli.cache``); ``batch_size`` jobs share one renderer call.
+    the cache root (``zcomp_cli.cache``); ``batch_size`` jobs share one renderer call
+    (default: the renderer's own ``batch_size``, e.g. zerocomp's GPU batch, else 1).
     ``shard=(i, n)`` runs shard i of n of the selected jobs (``selection.shard_jobs``)
     and writes its own ``summary.shard-i-of-n.json``. ``executor`` runs stage 4
     (default: ``LocalExecutor``; see ``pipeline.ray_executor``)."""
@@ -121,7 +122,7 @@ def run_batch(
     out_root.mkdir(parents=True, exist_ok=True)
     ctx = BatchContext(manifest, out_root, renderer_spec or manifest.defaults.renderer,
                        SceneStore(manifest, cache_folder("estimates", cache_dir)), debug=debug,
-                       cache_root=cache_dir, batch_size=max(1, int(batch_size)), progress=progress)
+                       cache_root=cache_dir, batch_size=max(1, int(batch_size or 1)), progress=progress)
 
     # 1. Plan.
     jobs = select_jobs(manifest.jobs, jobs_subset)
@@ -140,6 +141,8 @@ def run_batch(
         return summary
     executor.check(ctx)
     ctx.renderer = get_renderer(ctx.renderer_spec.name, **ctx.renderer_spec.settings)
+    if batch_size is None:
+        ctx.batch_size = max(1, int(getattr(ctx.renderer, "batch_size", 1)))
     works = [JobWork(job, fp) for job, fp in to_run]
 
     # 2. Poses (placement needs the scene's depth and normals).

@@ -62,8 +62,12 @@ class BatchSummary:
 
 def job_fingerprint(manifest: Manifest, job: JobSpec, renderer: RendererSpec, samples: int) -> str:
     """Identifies a job's inputs: paths, sizes and mtimes of its files, its pose, settings."""
+    from zcomp_cli.renderers.registry import RENDERERS
+
     scene = manifest.scenes[job.scene]
     obj = manifest.objects[job.object]
+    entry = RENDERERS.get(renderer.name)
+    speed_only = set(entry.speed_settings) if entry is not None else set()
     files = [scene.image, *scene.maps.values(), obj.mesh, obj.bundle, obj.image, obj.mask]
     stats = []
     for f in files:
@@ -77,7 +81,8 @@ def job_fingerprint(manifest: Manifest, job: JobSpec, renderer: RendererSpec, sa
         "pose": None if job.pose is None else job.pose.to_dict(),
         "placement": None if job.placement is None else vars(job.placement),
         "radius": job.shading_radius, "seed": job.seed,
-        "renderer": {"name": renderer.name, **{k: str(v) for k, v in renderer.settings.items()}},
+        "renderer": {"name": renderer.name, **{k: str(v) for k, v in renderer.settings.items()
+                                               if k not in speed_only}},
         "resolution": manifest.defaults.resolution, "samples": samples,
     }
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:16]
