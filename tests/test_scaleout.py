@@ -75,6 +75,7 @@ def test_shards_partition_and_keep_scenes_together(batch):
     assert all(shard_jobs(one_scene, i, 2) for i in range(2))
 
 
+@pytest.mark.slow
 def test_three_shards_equal_the_whole_run_and_status_merges(batch, local_run, tmp_path):
     out = tmp_path / "out"
     for i in range(3):
@@ -94,6 +95,7 @@ def test_three_shards_equal_the_whole_run_and_status_merges(batch, local_run, tm
     assert summ["skipped"] == len(summ["shard"]["jobs"]) and summ["done"] == 0
 
 
+@pytest.mark.slow
 def test_status_reports_missing_and_failed(batch, tmp_path):
     out = tmp_path / "out"
     assert _composite(batch, "--out", out, "--shard", "0/3").exit_code == 0
