@@ -641,3 +641,4 @@ def test_blender_session_keeps_one_process_and_replaces_a_dead_one(meshes, tmp_p
         c = render_object_intrinsics(reqs("c", 1), use_cache=False, samples=2, session=session)
         assert c[0].ok and session.starts == 2
     assert session.proc is None
+    assert session.log_path.exists()  # a process died: the log is kept for whoever looks

@@ -214,10 +214,12 @@ class BlenderSession:
 
     def __init__(self, script: str, *, log_path: str | Path | None = None, item_timeout_s: float = 1800.0):
         self.path = script_path(script)
+        self._temporary_log = log_path is None
         if log_path is None:
             fd, log_path = tempfile.mkstemp(prefix="zcomp-blender-", suffix=".log")
             os.close(fd)
         self.log_path = Path(log_path)
+        self._troubled = False  # an item failed or a process died: keep the log
         self.item_timeout_s = item_timeout_s
         self.proc: subprocess.Popen | None = None
         self.starts = 0
@@ -242,7 +244,8 @@ class BlenderSession:
         while pending:
             fresh = self.proc is None or self.proc.poll() is not None
             if fresh:
-                if self.proc is not None:
+                if self.proc is not None:  # it died while idle
+                    self._troubled = True
                     self._reap()
                 self._start()
             try:
@@ -255,6 +258,7 @@ class BlenderSession:
             if not pending:
                 break
             # the process ended before batch_done: it crashed on `started`
+            self._troubled = True
             self._reap()
             if started is None and not fresh:
                 continue  # it had died while idle: a fresh one takes the batch
@@ -274,6 +278,8 @@ class BlenderSession:
                         on_event(ev)
                 pending = []
             result.restarts += 1
+        if any(ev.get("event") != "done" for ev in result.results.values()):
+            self._troubled = True
         return result
 
     def _reap(self) -> None:
@@ -295,6 +301,8 @@ class BlenderSession:
             except OSError:
                 pass
         self._reap()
+        if self._temporary_log and not self._troubled:  # nobody will read it
+            self.log_path.unlink(missing_ok=True)
 
     def __enter__(self):
         return self

@@ -72,6 +72,12 @@ class _Worker:
             self._session = BlenderSession(SCRIPT)
         return self._session
 
+    def close(self) -> None:
+        """End this worker's Blender process (and drop its log when all went well)."""
+        if self._session is not None:
+            self._session.close()
+            self._session = None
+
     def run_unit(self, works) -> tuple[int, list[JobStatus]]:
         """Run a unit (jobs of one scene); returns (this process's pid, statuses)."""
         from zcomp_cli.pipeline.batch import render_objects
@@ -246,6 +252,10 @@ class RayExecutor:
             ctx.report("jobs", done, total, got[-1].job.name if got else "")
             if pending:
                 submit(a)
+        try:
+            ray.get([a.close.remote() for a in actors], timeout=60)
+        except ray.exceptions.RayError:
+            pass  # a worker that cannot close is killed below all the same
         for a in actors:
             ray.kill(a)
         self.info.update(workers=n, units=len(units), worker_pids=sorted(pids),
