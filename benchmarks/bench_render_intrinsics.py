@@ -8,6 +8,11 @@ The mesh is generated (an icosphere, a torus and a base slab from trimesh primit
 from process launch to bpy imported and reset, as reported by the script's ``ready``
 event; per-item time is the batch wall time minus start-up, divided by the item count
 (it includes the parent's EXR conversion and bundle writing, which overlap Blender).
+Also printed: CPU seconds per item of Blender and of the parent (steadier than wall
+time on a shared machine) and the median per-render split the script reports.
+
+Measured (2 shared cores, 27k triangles, 512x512, 16 samples): 1.23 CPU-s per item
+before the static-scene rewrite, 0.34 after; wall 1.23 -> 0.31-0.38 s/item at load ~4.
 """
 
 from __future__ import annotations
