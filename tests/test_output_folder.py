@@ -334,3 +334,22 @@ def test_cache_entries_verified_and_delivered_as_copies(tmp_path):
     (entry / "albedo.exr").write_bytes(b"damaged")
     assert bcache.lookup(tmp_path / "cache", "ab" * 32) is None  # a damaged entry is dropped
     assert not entry.exists()
+
+
+def test_two_shards_at_once_into_one_out(project):
+    """``--shard`` runs of one manifest hold disjoint job locks: they run side by side;
+    a second copy of the same shard is refused."""
+    m = _three_jobs(project)
+    out = project / "out"
+    p = _slow_run(m, out, "--shard", "0/2", hold_s=3.0)
+    try:
+        r = _run(m, out, "--shard", "1/2")
+        assert r.exit_code == 0, r.output
+        r = _run(m, out, "--shard", "0/2")
+        assert r.exit_code == 2 and f"pid {p.pid}" in r.output
+    finally:
+        p.communicate(timeout=60)
+    assert p.returncode == 0
+    st = CliRunner().invoke(cli, ["status", str(out), "--json"])
+    d = json.loads(st.output)
+    assert d["done"] == 3 and d["complete"], d

@@ -42,6 +42,8 @@ _COMMANDS: dict[str, tuple[str, str, str]] = {
         "Estimate missing background intrinsics of a manifest's scenes.",
     ),
     "train": ("zcomp_cli.cli.train", "train", "Train the ZeroComp ControlNet."),
+    "status": ("zcomp_cli.cli.status", "status",
+               "Merge an output folder's runs and shards: done, failed, missing jobs."),
 }
 
 

@@ -32,7 +32,20 @@ def _failure(exc: BaseException) -> str:
 
 
 class LocalExecutor:
-    """Runs every job in this process, ``ctx.batch_size`` jobs per renderer call."""
+    """Runs every job in this process, ``ctx.batch_size`` jobs per renderer call.
+
+    The executor interface ``run_batch`` uses: ``check(ctx)`` before any work (refuse
+    what cannot work), ``renders_objects`` (True: the executor renders object
+    intrinsics itself, stage 3 is left to it), ``run(ctx, works) -> [JobStatus]`` and
+    ``info`` (figures for the summary)."""
+
+    renders_objects = False
+
+    def __init__(self):
+        self.info: dict = {"name": "local"}
+
+    def check(self, ctx) -> None:
+        pass
 
     def run(self, ctx, works) -> list[JobStatus]:
         statuses: list[JobStatus] = []

@@ -50,6 +50,9 @@ class BatchSummary:
     statuses: list[JobStatus] = field(default_factory=list)
     seconds: float = 0.0
     blender: dict = field(default_factory=dict)
+    # --shard: {"index": i, "count": n, "jobs": [names of the shard's jobs]}
+    shard: dict | None = None
+    executor: dict = field(default_factory=dict)
 
     def count(self, status: str) -> int:
         return sum(1 for s in self.statuses if s.status == status)
@@ -61,7 +64,8 @@ class BatchSummary:
     def to_dict(self) -> dict:
         return {
             "done": self.count("done"), "skipped": self.count("skipped"), "failed": self.count("failed"),
-            "seconds": self.seconds, "blender": self.blender,
+            "seconds": self.seconds, "blender": self.blender, "shard": self.shard,
+            "executor": self.executor,
             "jobs": [{"index": s.job.index, "name": s.job.name, "status": s.status, "reason": s.reason,
                       "seconds": s.seconds} for s in self.statuses],
         }
@@ -208,33 +212,46 @@ def write_job_outputs(out_dir: Path, scene, result, report: dict, *, debug: bool
     return t_write
 
 
+def summary_name(shard: dict | None) -> str:
+    """``summary.json``, or ``summary.shard-I-of-N.json`` for shard I (from 0) of N:
+    shards running side by side in one folder never write the same file."""
+    if not shard:
+        return SUMMARY
+    return f"summary.shard-{shard['index']}-of-{shard['count']}.json"
+
+
 def write_summary(out_root: Path, summary: BatchSummary, manifest: Manifest | None = None, *,
                   running: set[str] | frozenset = frozenset()) -> dict:
-    """Merge this run's statuses with the state of ``out_root`` and write ``summary.json``
-    (under the summary lock, so shards writing side by side do not lose each other's
-    jobs). Jobs in ``running`` are reported ``pending`` (being made). Returns the dict."""
+    """Merge this run's statuses with the state of ``out_root`` and write the summary
+    (``summary_name``; under the summary lock, so runs writing side by side never lose
+    each other's jobs). Jobs in ``running`` are reported ``pending`` (being made).
+    Returns the document."""
     from zcomp_cli.imageio import write_json_atomic
     from zcomp_cli.pipeline.outguard import clean_root_temporaries, summary_lock
 
     with summary_lock(out_root):
         clean_root_temporaries(out_root)
         doc = merged_summary(out_root, summary, manifest, running=running)
-        write_json_atomic(out_root / SUMMARY, doc)
+        write_json_atomic(out_root / summary_name(summary.shard), doc)
     return doc
 
 
 def merged_summary(out_root: Path, summary: BatchSummary, manifest: Manifest | None, *,
                    running=frozenset()) -> dict:
-    """The ``summary.json`` document: every job of the manifest with its state in the
-    folder; ``this_run`` counts what this run did (done, skipped, failed)."""
+    """The summary document: every job of the manifest (of the shard, for a shard) with
+    its state in the folder; ``this_run`` counts what this run did (done, skipped,
+    failed)."""
     prev = {}
     try:
-        old = json.loads((out_root / SUMMARY).read_text())
+        old = json.loads((out_root / summary_name(summary.shard)).read_text())
         prev = {j["name"]: j for j in old.get("jobs", []) if isinstance(j, dict) and "name" in j}
     except (OSError, ValueError, AttributeError, TypeError):
         pass
     mine = {s.job.name: s for s in summary.statuses}
     jobs = list(manifest.jobs) if manifest is not None else [s.job for s in summary.statuses]
+    if summary.shard:
+        keep = set(summary.shard.get("jobs") or [])
+        jobs = [j for j in jobs if j.name in keep]
     rows = []
     for job in jobs:
         st = mine.get(job.name)
@@ -259,7 +276,8 @@ def merged_summary(out_root: Path, summary: BatchSummary, manifest: Manifest | N
         **count,
         "skipped": summary.count("skipped"),
         "this_run": {k: summary.count(k) for k in ("done", "skipped", "failed")},
-        "seconds": summary.seconds, "blender": summary.blender,
+        "seconds": summary.seconds, "blender": summary.blender, "shard": summary.shard,
+        "executor": summary.executor,
         "jobs": rows,
     }
 

@@ -64,6 +64,12 @@ class PhysicalRenderer(Renderer):
         if key is not None and key in self._cache:
             return self._cache[key]
         d, n, sh, known = self._inputs(req)
+        if key is not None:
+            # Cached per scene, so it must depend on the scene alone: fit on every valid
+            # background pixel, not on the first job's shading mask -- else a job's
+            # result would depend on which job of its scene a process ran first, and
+            # shards or Ray workers would give other composites than one local run.
+            known = (d > 0) & np.all(np.isfinite(req.shading), axis=-1)
         est = estimate_lighting(
             d, n, sh, known, req.camera, n_candidates=int(self._s["n_light_candidates"]),
             max_resolution=int(self._s["max_resolution"]),
