@@ -396,7 +396,7 @@ def render_object_intrinsics(
             "id": str(p.request.id), "mesh": str(p.mesh.path), "format": p.mesh.format,
             "mesh_to_camera": p.mesh_to_camera.tolist(),
             "footprint_to_camera": p.footprint_to_camera.tolist(),
-            "K": p.request.camera.K.tolist(), "width": p.request.camera.width,
+            "width": p.request.camera.width,
             "height": p.request.camera.height, "camera": p.blender_camera, "work_dir": str(wd),
             "borders": p.borders,
             "mesh_radius": float(np.linalg.norm(p.mesh.vertices, axis=1).max()),

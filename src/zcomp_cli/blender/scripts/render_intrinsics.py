@@ -11,8 +11,8 @@ Job file::
     {"common": {"samples": 16},
      "items": [{"id": str, "mesh": path, "format": "obj|gltf|ply|stl",
                 "mesh_to_camera": 4x4, "footprint_to_camera": 4x4,
-                "K": 3x3, "width": int, "height": int, "work_dir": path,
-                "camera": {...}, "mesh_radius": float,
+                "width": int, "height": int, "work_dir": path, "mesh_radius": float,
+                "camera": {lens_mm, sensor_width_mm, shift_x, shift_y}  (from K: blender_camera_from_K),
                 "borders": {"appearance"|"geometry"|"footprint": [x0, x1, y0, y1] | None}}, ...]}
 
 Scene layout: Blender's world frame is the mesh's own frame (Y-up file coordinates)
