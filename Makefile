@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml
 	    echo "Set PYTHON=/path/to/python3.11, e.g. 'make test PYTHON=~/.pyenv/versions/3.11.7/bin/python'."; exit 1; }
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -e ".[test]"
+	$(BIN)/python -m pip install -e ".[test,ray]"
 	# The reference LPIPS package, for one test only. --no-deps: its torchvision
 	# requirement would pull a CUDA build that breaks CPU torch (see README).
 	$(BIN)/python -m pip install -q --no-deps lpips==0.1.4

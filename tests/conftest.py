@@ -72,7 +72,8 @@ def photo_manifest():
 def small_example():
     """``make(folder, jobs=None) -> jobs.yaml``: a copy of the shipped example manifest
     working at 256 x 192 (4 Cycles samples), with absolute paths; ``jobs`` picks a
-    subset by index."""
+    subset by index. Placement pixels stay as written: they are the scene image's own
+    pixels, which zcomp scales to the working size."""
     import yaml
 
     def make(folder: Path, jobs=None) -> Path:
@@ -87,8 +88,6 @@ def small_example():
         for j in m["jobs"]:
             if "reference" in j:
                 j["reference"] = str(EXAMPLES / j["reference"])
-            if "placement" in j:
-                j["placement"]["pixel"] = [v / 2 for v in j["placement"]["pixel"]]
         if jobs is not None:
             m["jobs"] = [m["jobs"][i] for i in jobs]
         p = Path(folder) / "jobs.yaml"

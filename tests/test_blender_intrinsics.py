@@ -312,6 +312,9 @@ def test_cache_lookup_ignores_incomplete_and_copy_cleans_stale(tmp_path):
     key = "ff" + "0" * 62
     entry = icache.entry_dir(tmp_path / "c", key)
     _tiny_bundle(entry)
+    assert icache.lookup(tmp_path / "c", key) is None  # no recorded hashes: not trusted
+    _tiny_bundle(tmp_path / "w")
+    entry = icache.store(tmp_path / "c", key, tmp_path / "w")
     assert icache.lookup(tmp_path / "c", key) == entry
     (entry / "meta.json").unlink()
     assert icache.lookup(tmp_path / "c", key) is None
@@ -539,3 +542,106 @@ def test_script_reports_a_failing_item_and_goes_on(meshes, tmp_path):
     assert Path(batch.results["good"]["files"]["geometry"]).is_file()
     assert batch.startup_s and batch.startup_s[0] > 0
     json.dumps(batch.results)  # events are plain JSON
+
+
+# ------------------------------------------------------------------------------------
+# border renders: the window holding the object, pasted back
+# ------------------------------------------------------------------------------------
+def test_render_box_bounds_the_projected_points_and_refuses_unbounded():
+    from zcomp_cli.blender.intrinsics import render_box
+
+    cam = Camera.from_fov(60.0, 64, 48)
+    cube = np.array(np.meshgrid([-0.3, 0.3], [-0.3, 0.3], [-0.3, 0.3])).reshape(3, -1).T + [0.2, 0.1, -3.0]
+    x0, x1, y0, y1 = render_box(cube, cam, pad=2)
+    px, _ = cam.project(cube)
+    assert x0 <= px[:, 0].min() - 2 + 1 and x1 >= px[:, 0].max() + 2 - 1e-9
+    assert y0 <= px[:, 1].min() - 2 + 1 and y1 >= px[:, 1].max() + 2 - 1e-9
+    assert 0 <= x0 < x1 <= 64 and 0 <= y0 < y1 <= 48
+    assert all(isinstance(v, int) for v in (x0, x1, y0, y1))
+    # straddling the camera plane: the image is unbounded -> the whole frame
+    assert render_box(cube + [0, 0, 3.0], cam) is None
+    # filling the frame -> the whole frame; partly outside -> clipped
+    assert render_box((cube - [0.2, 0.1, -3.0]) * 8 + [0, 0, -5.0], cam) is None
+    x0, x1, y0, y1 = render_box(cube + [1.2, 0, 0], cam)
+    assert x1 == 64 and x0 > 0
+    assert render_box(np.array([[np.nan, 0, -1.0]]), cam) is None
+
+
+def test_paste_window_places_and_checks():
+    from zcomp_cli.blender.passes import paste_window
+    from zcomp_cli.errors import RenderError
+
+    win = np.arange(6, dtype=np.float32).reshape(2, 3)
+    out = paste_window(win, [1, 4, 2, 4], 5, 6)
+    assert out.shape == (6, 5) and out.dtype == np.float32
+    np.testing.assert_array_equal(out[2:4, 1:4], win)
+    assert out.sum() == win.sum()
+    n = paste_window(np.ones((2, 3, 3)), [1, 4, 2, 4], 5, 6)
+    assert n.shape == (6, 5, 3) and n[0, 0].sum() == 0
+    assert paste_window(np.ones((6, 5)), None, 5, 6).shape == (6, 5)
+    with pytest.raises(RenderError):
+        paste_window(win, [1, 3, 2, 4], 5, 6)  # window size disagrees
+    with pytest.raises(RenderError):
+        paste_window(win, [4, 7, 2, 4], 5, 6)  # off the frame
+    with pytest.raises(RenderError):
+        paste_window(np.ones((6, 4)), None, 5, 6)
+
+
+@pytest.mark.blender
+def test_poses_of_one_mesh_share_the_scene_and_match_ray_casting(meshes, tmp_path):
+    """Consecutive poses of one mesh reuse the imported mesh (only the camera moves):
+    every pose, whatever its scale and rotation, must still match ray casting, with
+    another mesh in the same batch."""
+    pytest.importorskip("bpy")
+    poses = [POSE_ODD, Pose(position=(-0.3, -0.2, -4.0), rotation=euler_deg_to_matrix(-15, 120, 0), height=1.3),
+             Pose(position=(0.0, -0.5, -2.5), rotation=euler_deg_to_matrix(0, -60, 20), height=0.5)]
+    reqs = [IntrinsicsRequest(f"p{i}", meshes["obj"], p, CAM_ODD, tmp_path / f"p{i}") for i, p in enumerate(poses)]
+    reqs.insert(1, IntrinsicsRequest("other", meshes["ply"], poses[1], CAM_ODD, tmp_path / "other"))
+    res = {r.id: r for r in render_object_intrinsics(reqs, use_cache=False, samples=4)}
+    assert all(r.ok for r in res.values()), [r.error for r in res.values()]
+    for i, pose in enumerate(poses):
+        b = ObjectBundle.load(res[f"p{i}"].bundle_dir)
+        M = pose.object_to_camera(*meshes["odd_mesh"].bounds)
+        want_depth, want_n = _raycast(meshes["odd_mesh"], M, CAM_ODD)
+        hit, want_hit = b.depth > 0, want_depth > 0
+        assert want_hit.sum() > 50 and np.sum(hit != want_hit) <= 3, i
+        both = hit & want_hit
+        assert np.max(np.abs(b.depth[both] - want_depth[both])) < 1e-3, i
+        assert np.percentile(np.sum(b.normals[both] * want_n[both], axis=-1), 1) > 0.999, i
+        # the footprint lies on the support plane
+        fp = b.footprint_depth
+        pts = CAM_ODD.unproject(fp)[fp > 0]
+        assert len(pts) > 3 and np.max(np.abs((pts - np.asarray(pose.position)) @ pose.up)) < 1e-3, i
+    # the parent sorts items by mesh: only the first pose of the OBJ imported it
+    metas = [json.loads((Path(res[f"p{i}"].bundle_dir) / "meta.json").read_text()) for i in range(3)]
+    assert [m["blender_mesh_reused"] for m in metas] == [False, True, True]
+    assert all(m["render_timings"]["appearance_s"] > 0 for m in metas)
+
+
+@pytest.mark.blender
+def test_blender_session_keeps_one_process_and_replaces_a_dead_one(meshes, tmp_path):
+    """A BlenderSession answers several batches with one Blender start-up, and keeps
+    the imported mesh between them; a process killed while idle is replaced."""
+    pytest.importorskip("bpy")
+    from zcomp_cli.blender.runner import BlenderSession
+
+    def reqs(tag, n):
+        return [IntrinsicsRequest(f"{tag}{i}", meshes["cube"], Pose(position=(0.1 * i, -0.5, -3.0)), CAM_CUBE,
+                                  tmp_path / f"{tag}{i}") for i in range(n)]
+
+    with BlenderSession(ii.SCRIPT) as session:
+        a = render_object_intrinsics(reqs("a", 2), use_cache=False, samples=2, session=session)
+        pid = session.proc.pid
+        b = render_object_intrinsics(reqs("b", 2), use_cache=False, samples=2, session=session)
+        assert all(r.ok for r in a + b), [r.error for r in a + b]
+        assert session.starts == 1 and session.proc.pid == pid
+        meta = json.loads((Path(b[0].bundle_dir) / "meta.json").read_text())
+        assert meta["blender_mesh_reused"] is True  # the second batch found the cube loaded
+        np.testing.assert_array_equal(ObjectBundle.load(a[0].bundle_dir).depth,
+                                      ObjectBundle.load(b[0].bundle_dir).depth)
+        session.proc.kill()
+        session.proc.wait()
+        c = render_object_intrinsics(reqs("c", 1), use_cache=False, samples=2, session=session)
+        assert c[0].ok and session.starts == 2
+    assert session.proc is None
+    assert session.log_path.exists()  # a process died: the log is kept for whoever looks

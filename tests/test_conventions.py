@@ -6,7 +6,8 @@ import pytest
 from zcomp_cli.conventions import (
     K_from_fov,
     blender_depth_to_z_depth,
-    camera_normals_to_openrooms,
+    camera_normals_to_conditioning,
+    conditioning_to_camera_normals,
     fov_from_K,
     linear_to_srgb,
     luminance,
@@ -125,11 +126,16 @@ def test_normalize_zero_nan_and_huge():
     np.testing.assert_allclose(out, [[0, 0, 0], [0, 1, 0], [1, 0, 0], [0, 0.6, 0.8]], atol=1e-6)
 
 
-def test_openrooms_encoding_negates_z():
-    out = camera_normals_to_openrooms(np.array([0.0, 0.0, 1.0]))
-    np.testing.assert_allclose(out, [0.5, 0.5, 0.0])
-    out = camera_normals_to_openrooms(np.array([1.0, -1.0, 0.0]))
+def test_conditioning_normals_no_flip():
+    # DESIGN §4: plain n * 0.5 + 0.5 of OpenGL camera normals; camera-facing -> blue = 1
+    out = camera_normals_to_conditioning(np.array([0.0, 0.0, 1.0]))
+    np.testing.assert_allclose(out, [0.5, 0.5, 1.0])
+    out = camera_normals_to_conditioning(np.array([1.0, -1.0, 0.0]))
     np.testing.assert_allclose(out, [1.0, 0.0, 0.5])
+    # a floor seen by a level camera faces up: +y -> green = 1
+    np.testing.assert_allclose(camera_normals_to_conditioning(np.array([0.0, 1.0, 0.0])), [0.5, 1.0, 0.5])
+    back = conditioning_to_camera_normals(np.array([[0.5, 0.5, 1.0], [0.5, 0.5, 0.5]]))
+    np.testing.assert_allclose(back, [[0, 0, 1], [0, 0, 0]], atol=1e-6)
 
 
 def test_luminance_rec601_and_shape_check():

@@ -8,7 +8,7 @@ import pytest
 import yaml
 from click.testing import CliRunner
 
-from zcomp_cli.conventions import camera_normals_to_openrooms, normalize
+from zcomp_cli.conventions import normalize
 from zcomp_cli.errors import InputError
 from zcomp_cli.imageio import write_exr, write_png
 from zcomp_cli.training.datasets import open_dataset
@@ -21,6 +21,12 @@ from zcomp_cli.training.datasets_external import (
 )
 
 H, W = 24, 32
+
+
+def _png_normals(n):
+    """What an OpenRooms normal PNG holds (DESIGN.md §4), written by hand so the fixture
+    does not depend on the code under test: OpenGL camera normals * 0.5 + 0.5, no flip."""
+    return np.asarray(n, np.float32) * 0.5 + 0.5
 
 
 def write_hdr(path, img):
@@ -61,7 +67,7 @@ def make_openrooms(root, split="main_xml1", scene="scene0001_00", views=(1, 2), 
         rel = f"{split}/{scene}"
         write_hdr(root / "Image" / rel / f"im_{v}.hdr", img * 37.0)  # arbitrary absolute scale
         write_dat(root / "Geometry" / rel / f"imdepth_{v}.dat", depth)
-        write_png(root / "Geometry" / rel / f"imnormal_{v}.png", camera_normals_to_openrooms(n),
+        write_png(root / "Geometry" / rel / f"imnormal_{v}.png", _png_normals(n),
                   srgb_encode=False)
         write_png(root / "Material" / rel / f"imbaseColor_{v}.png", albedo ** (1 / 2.2),
                   srgb_encode=False)
@@ -85,7 +91,7 @@ def make_interiorverse(root, scenes=("L3D124S8ENDIDQ5QIAUI5NYALUF3P3XE888",), id
             d = root / sc
             mm = depth * 1000.0
             mm[0, -1] = np.inf  # no surface: a window
-            nrm = camera_normals_to_openrooms(n) * 2 - 1  # the official vector
+            nrm = _png_normals(n) * 2 - 1  # the official vector
             nrm[0, -1] = np.nan  # undefined where there is no surface: allowed
             write_exr(d / f"{i}_im.exr", img)
             write_exr(d / f"{i}_depth.exr", np.repeat(mm[..., None], 3, -1))
@@ -122,12 +128,12 @@ def test_decode_normals_inverts_the_conditioning_encoding():
     rng = np.random.default_rng(0)
     n = normalize(rng.normal(size=(5, 7, 3)))
     n[0, 0] = 0.0  # unknown normal stays 0
-    enc = camera_normals_to_openrooms(n) * 2 - 1
+    enc = _png_normals(n) * 2 - 1
     back = decode_official_normals(enc)
     assert back.dtype == np.float32 and np.allclose(back, n, atol=1e-6)
     # a camera-facing surface (zcomp +z) round-trips through the official encoding
     face = np.array([[[0, 0, 1]]], np.float32)
-    assert np.allclose(decode_official_normals(camera_normals_to_openrooms(face) * 2 - 1), face)
+    assert np.allclose(decode_official_normals(_png_normals(face) * 2 - 1), face)
     with pytest.raises(InputError):
         decode_official_normals(np.zeros((4, 4)))
 
@@ -164,8 +170,8 @@ def test_openrooms_values_and_conventions(tmp_path):
         assert np.allclose(s["normals"], n, atol=0.02)  # 8-bit quantisation
         assert np.allclose(s["normals"][5, 2], (0, 0, 1), atol=0.01)  # faces the camera
         # the conditioning the trainer builds equals the file's encoding
-        png = camera_normals_to_openrooms(n)
-        assert np.allclose(camera_normals_to_openrooms(s["normals"]), png, atol=0.01)
+        png = _png_normals(n)
+        assert np.allclose(_png_normals(s["normals"]), png, atol=0.01)
         assert np.allclose(s["albedo"], albedo, atol=0.006)  # gamma-2.2 PNG -> linear
         assert np.allclose(s["roughness"], 0.25, atol=0.003)
         assert np.allclose(s["metallic"], 0.75, atol=0.003)
@@ -190,7 +196,7 @@ def test_openrooms_difflight_falls_back_to_main_and_flat_layout(tmp_path):
     n, depth, albedo, img = scene_truth(4)
     write_hdr(flat / "im_7.hdr", img)
     write_dat(flat / "imdepth_7.dat", depth)
-    write_png(flat / "imnormal_7.png", camera_normals_to_openrooms(n), srgb_encode=False)
+    write_png(flat / "imnormal_7.png", _png_normals(n), srgb_encode=False)
     write_png(flat / "imbaseColor_7.png", albedo ** (1 / 2.2), srgb_encode=False)
     s = OpenRoomsDataset(tmp_path / "flat")[0]
     assert np.array_equal(s["depth"], depth) and "roughness" not in s
@@ -240,7 +246,7 @@ def test_backfacing_normals_warn_once(tmp_path):
         ds[1]
     rel = root / "Geometry" / "main_xml1" / "scene0001_00"
     flipped = -scene_truth(1)[0]
-    write_png(rel / "imnormal_1.png", camera_normals_to_openrooms(flipped), srgb_encode=False)
+    write_png(rel / "imnormal_1.png", _png_normals(flipped), srgb_encode=False)
     ds = OpenRoomsDataset(root)
     with pytest.warns(UserWarning, match="face away"):
         ds[0]

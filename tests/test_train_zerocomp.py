@@ -8,7 +8,7 @@ from zcomp_cli.training.config import load_config, parse_config
 from zcomp_cli.training.datasets import open_dataset
 from zcomp_cli.training.masks import random_shading_mask
 
-from zerocomp_dummy import save_dummy
+from zerocomp_dummy import random_request as _request, save_dummy
 
 
 def test_mask_branch_frequencies():
@@ -94,7 +94,6 @@ def test_train_loss_decreases_checkpoint_loads_and_resumes(tmp_path):
     assert (ck / "controlnet" / "diffusion_pytorch_model.safetensors").is_file()
     assert (tmp_path / "out" / "loss_log.tsv").read_text().count("\n") == 40
     # the renderer loads it
-    from test_zerocomp_renderer import _request
 
     img = ZeroCompRenderer(ck, base, steps=1, device="cpu", resolution=16).render([_request()]).images[0]
     assert np.isfinite(img).all()

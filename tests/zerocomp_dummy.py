@@ -1,4 +1,5 @@
-"""Tiny random SD-2.1-shaped components saved in the official on-disk layout."""
+"""Shared zerocomp test helpers (a helper module, not a test file): tiny random
+SD-2.1-shaped components saved in the official on-disk layout, and random requests."""
 
 from __future__ import annotations
 
@@ -44,3 +45,30 @@ def save_dummy(root: Path, channels: int = 11, seed: int = 0) -> tuple[Path, Pat
         comps[k].save_pretrained(base / k)
     comps["controlnet"].save_pretrained(ckpt / "controlnet")
     return ckpt, base
+
+
+H, W = 24, 32
+
+
+def random_request(seed=0, rough=False, known=None):
+    """A random (H, W) request with a masked rectangle and roi (10, 8, 20, 16)."""
+    import numpy as np
+
+    from zcomp_cli.camera import Camera
+    from zcomp_cli.conventions import K_from_fov
+    from zcomp_cli.maps import SceneMaps
+    from zcomp_cli.renderers.base import RenderRequest
+
+    rng = np.random.default_rng(seed)
+    n = rng.normal(size=(H, W, 3)).astype(np.float32)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    maps = SceneMaps(depth=rng.uniform(0.5, 5, (H, W)).astype(np.float32), normals=n,
+                     albedo=rng.uniform(0.1, 0.9, (H, W, 3)).astype(np.float32),
+                     roughness=np.full((H, W), 0.3, np.float32) if rough else None,
+                     metallic=np.full((H, W), 0.7, np.float32) if rough else None)
+    if known is None:
+        known = np.ones((H, W), bool)
+        known[8:16, 10:20] = False
+    shading = rng.uniform(0.2, 2.0, (H, W, 3)).astype(np.float32)
+    cam = Camera(K_from_fov(50, W, H), W, H)
+    return RenderRequest(maps, shading, known, cam, roi=(10, 8, 20, 16))

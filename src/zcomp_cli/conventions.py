@@ -25,7 +25,8 @@ __all__ = [
     "z_depth_to_ray_distance",
     "world_to_camera_normals",
     "normalize",
-    "camera_normals_to_openrooms",
+    "camera_normals_to_conditioning",
+    "conditioning_to_camera_normals",
     "valid_depth_mask",
     "pixel_ray",
     "REC601",
@@ -207,9 +208,30 @@ def world_to_camera_normals(normals_world, cam_to_world) -> np.ndarray:
     return normalize(n @ R)
 
 
-def camera_normals_to_openrooms(normals_cam) -> np.ndarray:
-    """Camera-frame (OpenGL) unit normals -> the official ZeroComp conditioning encoding:
-    negate z (OpenRooms camera convention), then map [-1, 1] to [0, 1]."""
-    n = np.asarray(normals_cam, dtype=np.float32).copy()
-    n[..., 2] = -n[..., 2]
-    return n * 0.5 + 0.5
+def camera_normals_to_conditioning(normals_cam) -> np.ndarray:
+    """Camera-frame (OpenGL) unit normals -> the official ZeroComp conditioning encoding
+    ``n * 0.5 + 0.5`` (DESIGN.md section 4), with **no axis flip**: zcomp's camera frame is
+    already the OpenGL frame the checkpoints were trained on, so a surface facing the camera
+    (n = (0, 0, 1)) encodes as (0.5, 0.5, 1.0), "blue".
+
+    (The official code negates z only because it reads Blender's shader camera space,
+    x right, y up, z forward; OpenRooms stores (N.U, N.V, N.(-W)), W = lookat - eye,
+    which is this frame.)
+
+    Args:
+        normals_cam: (..., 3) camera-frame normals, components in [-1, 1].
+    Returns:
+        (..., 3) float32 in [0, 1] for unit input; zero (unknown) normals encode as 0.5.
+    """
+    return np.asarray(normals_cam, dtype=np.float32) * 0.5 + 0.5
+
+
+def conditioning_to_camera_normals(encoded) -> np.ndarray:
+    """Inverse of :func:`camera_normals_to_conditioning`: ``normalize(2 * e - 1)``.
+
+    Args:
+        encoded: (..., 3) values in [0, 1] (e.g. an 8-bit OpenRooms normal PNG / 255).
+    Returns:
+        (..., 3) float32 unit camera-frame normals; (0.5, 0.5, 0.5) (zero vector) stays 0.
+    """
+    return normalize(2.0 * np.asarray(encoded, dtype=np.float32) - 1.0)

@@ -39,7 +39,10 @@ class ManifestError(ZcompError):
         head = f"{source}: " if source else ""
         n = len(self.problems)
         if n == 1:
-            msg = f"{head}{self.problems[0]}"
+            first = self.problems[0]
+            base = source.replace("\\", "/").rsplit("/", 1)[-1] if source else None
+            # "jobs.yaml:12: ..." already names the file: say its full path once.
+            msg = f"{source}{first[len(base):]}" if base and first.startswith(base + ":") else f"{head}{first}"
         else:
             msg = f"{head}{n} problems:\n" + "\n".join(f"  - {p}" for p in self.problems)
         Exception.__init__(self, msg)
@@ -48,6 +51,10 @@ class ManifestError(ZcompError):
 
 class InputError(ZcompError):
     """An input file is missing, unreadable, or holds data of the wrong shape or values."""
+
+
+class OutputError(ZcompError):
+    """An output cannot be written (disk full, no permission, a path that is not a folder)."""
 
 
 class GeometryError(ZcompError):

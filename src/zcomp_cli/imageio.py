@@ -5,6 +5,12 @@
 * EXR/HDR are linear float.
 * Every write is atomic: a temporary file in the same folder, then ``os.replace``, so
   an interrupted run never leaves a half-written output that a resume would trust.
+  Write and close errors of the image library (a full disk) raise ``OutputError``
+  before the rename, so a truncated file is never installed.
+* Every JSON file is strict JSON: non-finite floats are written as ``null`` and the
+  document says where (``json_notes``).
+* Images larger than the pixel budget (``limits.max_pixels``) are refused from their
+  header, before any pixel is allocated.
 """
 
 from __future__ import annotations
@@ -18,7 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from zcomp_cli.conventions import linear_to_srgb, srgb_to_linear
-from zcomp_cli.errors import InputError
+from zcomp_cli.errors import InputError, OutputError
+from zcomp_cli.limits import pixel_budget_problem
 
 FLOAT_EXTS = {".exr", ".hdr"}
 
@@ -31,17 +38,26 @@ def atomic_path(path, suffix: str | None = None):
     the name (OpenImageIO, matplotlib) still work.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     suffix = suffix if suffix is not None else path.suffix
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{suffix}", dir=path.parent)
-    os.close(fd)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{suffix}", dir=path.parent)
+        os.close(fd)
+    except OSError as exc:
+        raise OutputError(f"cannot write: {exc.strerror or exc}", where=str(path)) from exc
     try:
         yield Path(tmp)
+        if os.path.getsize(tmp) == 0:
+            raise OutputError("the writer produced an empty file (disk full?)", where=str(path))
         # mkstemp creates 0600 files; outputs get the usual permissions (umask applied).
         os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise OutputError(f"cannot write: {exc.strerror or exc}", where=str(path)) from exc
     except BaseException:
-        with contextlib.suppress(FileNotFoundError):
+        with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
 
@@ -54,18 +70,51 @@ def _umask() -> int:
 
 def write_text_atomic(path, text: str) -> None:
     with atomic_path(path) as tmp:
-        Path(tmp).write_text(text)
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+
+
+def strict_json(obj) -> tuple[object, list[str]]:
+    """A copy of ``obj`` that strict JSON parsers accept: NaN and +-Inf become None.
+    Returns (copy, the dotted paths of the replaced values)."""
+    replaced: list[str] = []
+
+    def walk(o, path):
+        if isinstance(o, dict):
+            return {k: walk(v, f"{path}.{k}" if path else str(k)) for k, v in o.items()}
+        if isinstance(o, (list, tuple)):
+            return [walk(v, f"{path}[{i}]") for i, v in enumerate(o)]
+        if isinstance(o, np.ndarray):
+            return walk(o.tolist(), path)
+        if isinstance(o, (float, np.floating)) and not np.isfinite(o):
+            replaced.append(path or "(value)")
+            return None
+        return o
+
+    return walk(obj, ""), replaced
+
+
+def dumps_strict(obj, **kw) -> str:
+    """``json.dumps`` that never writes NaN/Infinity: they become null, and a dict
+    document gets a ``json_notes`` entry naming them."""
+    clean, replaced = strict_json(obj)
+    if replaced and isinstance(clean, dict):
+        shown = ", ".join(replaced[:20]) + (f" and {len(replaced) - 20} more" if len(replaced) > 20 else "")
+        clean["json_notes"] = [f"non-finite values (NaN or infinity) written as null: {shown}"]
+    return json.dumps(clean, allow_nan=False, default=_json_default, **kw)
 
 
 def write_json_atomic(path, obj) -> None:
-    write_text_atomic(path, json.dumps(obj, indent=2, sort_keys=False, default=_json_default) + "\n")
+    write_text_atomic(path, dumps_strict(obj, indent=2, sort_keys=False) + "\n")
 
 
 def _json_default(o):
     if isinstance(o, np.ndarray):
-        return o.tolist()
+        return strict_json(o.tolist())[0]
     if isinstance(o, (np.floating,)):
-        return float(o)
+        return float(o) if np.isfinite(o) else None
     if isinstance(o, (np.integer,)):
         return int(o)
     if isinstance(o, (np.bool_,)):
@@ -87,12 +136,59 @@ def image_header(path) -> tuple[int, int, int]:
     oiio = _oiio()
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
-        raise ValueError(oiio.geterror() or "unreadable image")
+        raise ValueError(_first_line(oiio.geterror()) or "unreadable image (unknown format)")
     try:
         spec = inp.spec()
         return int(spec.width), int(spec.height), int(spec.nchannels)
     finally:
         inp.close()
+
+
+def _first_line(text: str | None) -> str:
+    lines = [ln.strip() for ln in (text or "").splitlines() if ln.strip()]
+    return lines[0][:300] if lines else ""
+
+
+def verify_image(path) -> tuple[int, int, int]:
+    """Like ``image_header``, and also detect truncated files cheaply: a PNG must end
+    with its IEND chunk, a JPEG with its end-of-image marker; other formats (EXR,
+    TIFF...) must decode their last scanline (EXR reads it from the offset table,
+    without the rest of the image). Raises ValueError with the reason."""
+    w, h, c = image_header(path)
+    if w <= 0 or h <= 0:
+        raise ValueError(f"empty image ({w}x{h})")
+    ext = Path(path).suffix.lower()
+    if ext == ".png" or ext in (".jpg", ".jpeg"):
+        with open(path, "rb") as f:
+            f.seek(0, os.SEEK_END)
+            size = f.tell()
+            f.seek(max(0, size - 64))
+            tail = f.read()
+        if ext == ".png" and b"IEND" not in tail[-12:]:
+            raise ValueError("truncated PNG (no IEND chunk at the end of the file)")
+        if ext != ".png" and b"\xff\xd9" not in tail:
+            raise ValueError("truncated JPEG (no end-of-image marker)")
+        return w, h, c
+    if pixel_budget_problem(w, 1) is not None:
+        return w, h, c  # a single row over budget: the reader will refuse it anyway
+    oiio = _oiio()
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise ValueError(_first_line(oiio.geterror()) or "unreadable image")
+    try:
+        spec = inp.spec()
+        if spec.tile_width:
+            # Tiled files: the last row of tiles (the end of the file in the usual order).
+            y0 = ((h - 1) // spec.tile_height) * spec.tile_height
+            ok = inp.read_tiles(0, 0, 0, spec.width, y0, h, 0, max(1, spec.depth), 0,
+                                spec.nchannels, oiio.FLOAT) is not None
+        else:
+            ok = inp.read_scanlines(0, 0, h - 1, h, 0, 0, spec.nchannels, oiio.FLOAT) is not None
+        if not ok:
+            raise ValueError(f"truncated or corrupt: {_first_line(inp.geterror()) or 'cannot decode pixels'}")
+    finally:
+        inp.close()
+    return w, h, c
 
 
 def _read_raw(path) -> tuple[np.ndarray, str]:
@@ -106,9 +202,12 @@ def _read_raw(path) -> tuple[np.ndarray, str]:
     oiio = _oiio()
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
-        raise InputError(f"cannot read image: {oiio.geterror() or 'unknown format'}", where=str(path))
+        raise InputError(f"cannot read image: {_first_line(oiio.geterror()) or 'unknown format'}", where=str(path))
     try:
         spec = inp.spec()
+        budget = pixel_budget_problem(spec.width, spec.height)
+        if budget:
+            raise InputError(f"the image is {budget}", where=str(path))
         fmt = spec.format.basetype
         if fmt in (oiio.FLOAT, oiio.HALF, oiio.DOUBLE):
             data = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
@@ -119,10 +218,11 @@ def _read_raw(path) -> tuple[np.ndarray, str]:
         else:
             data = inp.read_image(0, 0, 0, spec.nchannels, oiio.UINT8)
             kind = "uint8"
+        if data is None or not isinstance(data, np.ndarray):
+            why = _first_line(inp.geterror()) or _first_line(oiio.geterror()) or "truncated or corrupt file"
+            raise InputError(f"cannot decode pixels: {why}", where=str(path))
     finally:
         inp.close()
-    if data is None or not isinstance(data, np.ndarray):
-        raise InputError(f"cannot decode pixels: {oiio.geterror()}", where=str(path))
     if data.ndim == 2:
         data = data[..., None]
     return data, kind
@@ -205,14 +305,7 @@ def write_exr(path, data, *, channel_names: list[str] | None = None, half: bool 
     spec.channelnames = tuple(channel_names)
     spec.attribute("compression", "zip")
     with atomic_path(path) as tmp:
-        out = oiio.ImageOutput.create(str(tmp))
-        if out is None or not out.open(str(tmp), spec):
-            raise InputError(f"cannot write EXR: {oiio.geterror()}", where=str(path))
-        try:
-            if not out.write_image(np.ascontiguousarray(arr)):
-                raise InputError(f"cannot write EXR: {out.geterror()}", where=str(path))
-        finally:
-            out.close()
+        _write_checked(oiio, tmp, spec, np.ascontiguousarray(arr), path, "EXR")
 
 
 def to_uint8_srgb(img_lin) -> np.ndarray:
@@ -242,13 +335,31 @@ def write_png(path, img, *, srgb_encode: bool = True, bits: int = 8) -> None:
     h, w, c = pix.shape
     spec = oiio.ImageSpec(w, h, c, fmt)
     with atomic_path(path) as tmp:
-        out = oiio.ImageOutput.create(str(tmp))
-        if out is None or not out.open(str(tmp), spec):
-            raise InputError(f"cannot write PNG: {oiio.geterror()}", where=str(path))
-        try:
-            out.write_image(np.ascontiguousarray(pix))
-        finally:
-            out.close()
+        _write_checked(oiio, tmp, spec, np.ascontiguousarray(pix), path, "PNG")
+
+
+def _write_checked(oiio, tmp, spec, pixels, path, what: str) -> None:
+    """Open, write and close an image, checking each step: the image library reports a
+    full disk through its return values, not exceptions."""
+    out = oiio.ImageOutput.create(str(tmp))
+    if out is None or not out.open(str(tmp), spec):
+        why = (out.geterror() if out is not None else "") or oiio.geterror()
+        raise OutputError(f"cannot write {what}: {_first_line(why) or 'cannot open the file'}", where=str(path))
+    ok = out.write_image(pixels)
+    why = "" if ok else out.geterror()
+    closed = out.close()
+    if not ok or not closed:
+        why = why or out.geterror() or oiio.geterror()
+        raise OutputError(f"cannot write {what}: {_first_line(why) or 'write failed (disk full?)'}",
+                          where=str(path))
+    with open(tmp, "rb+") as f:  # on disk before the rename makes it an output
+        os.fsync(f.fileno())
+    # libpng reports a failed write (EFBIG, ENOSPC) to nobody: read the end back.
+    try:
+        verify_image(tmp)
+    except ValueError as exc:
+        raise OutputError(f"cannot write {what}: the written file is incomplete ({exc}; disk full?)",
+                          where=str(path)) from exc
 
 
 def write_image(path, img_lin) -> None:

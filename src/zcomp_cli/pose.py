@@ -133,8 +133,10 @@ class Pose:
     def from_dict(cls, d: dict, *, where: str = "pose") -> "Pose":
         """Parse ``{position, rotation_deg | quaternion, scale, height}``; errors name
         ``where`` and the key."""
+        from zcomp_cli.limits import shorten, type_name
+
         if not isinstance(d, dict):
-            raise ManifestError(f"{where}: expected a mapping, got {type(d).__name__}")
+            raise ManifestError(f"{where}: expected a mapping, got {type_name(d)} {shorten(d)}")
         known = {"position", "rotation_deg", "quaternion", "scale", "height"}
         problems = [f"{where}.{k}: unknown key (expected one of {sorted(known)})" for k in d if k not in known]
         if "position" not in d:
@@ -143,17 +145,41 @@ class Pose:
             problems.append(f"{where}: give rotation_deg or quaternion, not both")
         if problems:
             raise ManifestError(problems)
+        # Each value is checked on its own so that every problem is reported, each
+        # naming its own key (and no message repeats the prefix).
+        position = R = scale = height = None
         try:
             position = _vec(d["position"], 3, f"{where}.position")
+        except ValueError as exc:
+            problems.append(str(exc))
+        try:
             if "quaternion" in d:
-                R = quaternion_to_matrix(_vec(d["quaternion"], 4, f"{where}.quaternion"))
+                q = _vec(d["quaternion"], 4, f"{where}.quaternion")
+                try:
+                    R = quaternion_to_matrix(q)
+                except ValueError as exc:
+                    raise ValueError(f"{where}.quaternion: {exc}") from None
             else:
                 R = euler_deg_to_matrix(*_vec(d.get("rotation_deg", [0, 0, 0]), 3, f"{where}.rotation_deg"))
-            scale = float(d.get("scale", 1.0))
-            height = d.get("height")
-            height = None if height is None else float(height)
-            return cls(position=tuple(position), rotation=R, scale=scale, height=height)
-        except (TypeError, ValueError) as exc:
+        except ValueError as exc:
+            problems.append(str(exc))
+        for key in ("scale", "height"):
+            v = d.get(key)
+            if v is None:
+                continue
+            if not _is_number(v) or not (math.isfinite(float(v)) and float(v) > 0):
+                what = "metres > 0" if key == "height" else "a number > 0"
+                problems.append(f"{where}.{key}: expected {what}, got {shorten(v)}")
+            elif key == "scale":
+                scale = float(v)
+            else:
+                height = float(v)
+        if problems:
+            raise ManifestError(problems)
+        try:
+            return cls(position=tuple(position), rotation=R, scale=1.0 if scale is None else scale,
+                       height=height)
+        except ValueError as exc:
             raise ManifestError(f"{where}: {exc}") from exc
 
     def to_dict(self) -> dict:
@@ -201,10 +227,17 @@ def transform_points(M, pts) -> np.ndarray:
     return pts @ M[:3, :3].T + M[:3, 3]
 
 
+def _is_number(x) -> bool:
+    # YAML gives bools as ints and quoted numbers as strings: neither is a number here.
+    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, (bool, np.bool_))
+
+
 def _vec(v, n: int, where: str) -> list[float]:
-    if not isinstance(v, (list, tuple)) or len(v) != n:
-        raise ValueError(f"{where}: expected a list of {n} numbers, got {v!r}")
+    from zcomp_cli.limits import shorten
+
+    if not isinstance(v, (list, tuple)) or len(v) != n or not all(_is_number(x) for x in v):
+        raise ValueError(f"{where}: expected a list of {n} numbers, got {shorten(v)}")
     out = [float(x) for x in v]
     if not all(math.isfinite(x) for x in out):
-        raise ValueError(f"{where}: values must be finite, got {v!r}")
+        raise ValueError(f"{where}: values must be finite, got {shorten(v)}")
     return out

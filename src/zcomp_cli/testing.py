@@ -23,7 +23,7 @@ from zcomp_cli.bundle import ObjectBundle
 from zcomp_cli.camera import Camera
 from zcomp_cli.errors import InputError
 
-__all__ = ["SyntheticScene", "floor_scene", "sphere_object_bundle", "insert_bundle"]
+__all__ = ["SyntheticScene", "floor_scene", "sphere_object_bundle", "insert_bundle", "write_floor_batch"]
 
 
 @dataclass
@@ -257,3 +257,45 @@ def insert_bundle(depth, normals, albedo, bundle: ObjectBundle, threshold: float
     n[sel] = bundle.normals[sel]
     a[sel] = bundle.albedo[sel]
     return d, n, a, sel
+
+
+def write_floor_batch(folder, n_jobs: int, *, n_scenes: int = 3, size=(96, 72), renderer: str = "physical"):
+    """A mesh-free batch for executor tests and benchmarks (no Blender, no estimation):
+    ``n_scenes`` analytic floor scenes (``floor_scene``, with a box and different
+    lights) whose image, depth, normals and albedo are given as files, a 2D card object
+    (image + mask), and ``n_jobs`` jobs standing the card at different pixels and
+    heights, scenes taken in turn. Returns the jobs.yaml path."""
+    from pathlib import Path
+
+    import yaml
+    from PIL import Image
+
+    from zcomp_cli.imageio import write_exr, write_png
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    W, H = size
+    scenes = {}
+    for k in range(n_scenes):
+        sc = floor_scene(W, H, with_box=True, light_dir=(0.5 - 0.4 * k, 1.0, 0.3 + 0.2 * k),
+                         box_center=(-0.6 + 0.3 * k, -3.5))
+        write_png(folder / f"floor{k}.png", np.clip(sc.image, 0, 1))
+        write_exr(folder / f"floor{k}_depth.exr", sc.depth)
+        write_exr(folder / f"floor{k}_normals.exr", sc.normals)
+        write_exr(folder / f"floor{k}_albedo.exr", sc.albedo)
+        scenes[f"s{k}"] = {"image": f"floor{k}.png", "fov_deg": 50.0, "depth": f"floor{k}_depth.exr",
+                           "normals": f"floor{k}_normals.exr", "albedo": f"floor{k}_albedo.exr"}
+    m = np.zeros((40, 20), np.uint8)
+    m[3:37, 3:17] = 255
+    Image.fromarray(m).save(folder / "mask.png")
+    Image.fromarray(np.full((40, 20, 3), 200, np.uint8)).save(folder / "obj.png")
+    jobs = []
+    for j in range(n_jobs):
+        px = [round(W * (0.3 + 0.4 * ((j * 7) % 10) / 10), 1), round(H * (0.7 + 0.2 * ((j * 3) % 5) / 5), 1)]
+        jobs.append({"output": f"job{j:03d}", "scene": f"s{j % n_scenes}", "object": "card",
+                     "placement": {"pixel": px, "height": 0.15 + 0.03 * (j % 4)}})
+    manifest = {"version": 1, "defaults": {"renderer": renderer}, "scenes": scenes,
+                "objects": {"card": {"image": "obj.png", "mask": "mask.png"}}, "jobs": jobs}
+    path = folder / "jobs.yaml"
+    path.write_text(yaml.safe_dump(manifest, sort_keys=False))
+    return path

@@ -359,7 +359,7 @@ def upsample_run(run_dir: Path, dst: Path) -> int:
     reference's size (composite.exr and composite.png; report.json copied, so ``zcomp
     eval`` pairs them the same way). Returns how many jobs were written."""
     from zcomp_cli.imageio import read_image, write_exr, write_png
-    from zcomp_cli.pipeline.manifest import image_header
+    from zcomp_cli.imageio import image_header
 
     if dst.exists():
         shutil.rmtree(dst)

@@ -4,6 +4,11 @@ Key: sha256 of (mesh content hash, pose, K, resolution, render settings, script
 version). An entry is a bundle folder ``<cache>/<key[:2]>/<key>/``; it is complete only
 when its ``meta.json`` exists (written last), so entries left by a crash are ignored and
 overwritten. Entries are created in a temporary sibling folder and renamed into place.
+
+Each entry records the sha256 of its files (``cache-hashes.json``); a lookup verifies
+them, so an entry edited or damaged after it was made is dropped and rendered again
+rather than served. Bundles leave the cache as copies, never hard links: editing a
+delivered file cannot reach back into the cache.
 """
 
 from __future__ import annotations
@@ -43,14 +48,34 @@ def entry_dir(cache_dir, key: str) -> Path:
     return Path(cache_dir) / key[:2] / key
 
 
+HASHES = "cache-hashes.json"
+
+
+def _file_hashes(folder: Path) -> dict[str, str]:
+    from zcomp_cli.pipeline.outguard import sha256_file
+
+    return {p.name: sha256_file(p) for p in sorted(Path(folder).iterdir()) if p.is_file() and p.name != HASHES}
+
+
 def lookup(cache_dir, key: str) -> Path | None:
-    """The complete cache entry for ``key``, or None."""
+    """The complete, intact cache entry for ``key``, or None. An entry whose files do
+    not match their recorded hashes (or that has none) is removed."""
     d = entry_dir(cache_dir, key)
-    return d if ObjectBundle.is_complete(d) else None
+    if not ObjectBundle.is_complete(d):
+        return None
+    try:
+        recorded = json.loads((d / HASHES).read_text())
+        ok = isinstance(recorded, dict) and recorded == _file_hashes(d)
+    except (OSError, ValueError):
+        ok = False
+    if not ok:
+        shutil.rmtree(d, ignore_errors=True)
+        return None
+    return d
 
 
 def copy_bundle(src, dst) -> None:
-    """Copy a bundle folder's files into ``dst`` (hard links when possible), meta.json
+    """Copy a bundle folder's files into ``dst`` (real copies, not links), meta.json
     last so a reader never sees a complete-looking partial copy. Stale optional maps
     already in ``dst`` are removed."""
     src, dst = Path(src), Path(dst)
@@ -58,7 +83,7 @@ def copy_bundle(src, dst) -> None:
     stale_meta = dst / "meta.json"
     if stale_meta.exists():
         stale_meta.unlink()
-    names = {p.name for p in src.iterdir() if p.is_file()}
+    names = {p.name for p in src.iterdir() if p.is_file() and p.name != HASHES}
     for name in ("roughness.exr", "metallic.exr"):
         if name not in names and (dst / name).exists():
             (dst / name).unlink()
@@ -67,10 +92,7 @@ def copy_bundle(src, dst) -> None:
         tmp = dst / f".{name}.tmp"
         if tmp.exists():
             tmp.unlink()
-        try:
-            os.link(src / name, tmp)
-        except OSError:
-            shutil.copy2(src / name, tmp)
+        shutil.copy2(src / name, tmp)  # a copy: an edited output must not poison the cache
         os.replace(tmp, target)
 
 
@@ -84,4 +106,7 @@ def store(cache_dir, key: str, bundle_folder) -> Path:
         os.replace(bundle_folder, final)
     except OSError:  # another filesystem: copy instead
         copy_bundle(bundle_folder, final)
+    from zcomp_cli.imageio import write_json_atomic
+
+    write_json_atomic(final / HASHES, _file_hashes(final))
     return final

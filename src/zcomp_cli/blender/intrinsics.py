@@ -21,6 +21,7 @@ A failure of one item (bad mesh, Blender crash, object out of view) is reported 
 
 from __future__ import annotations
 
+import os
 import shutil
 import tempfile
 import time
@@ -54,10 +55,13 @@ __all__ = [
 SCRIPT = "render_intrinsics.py"
 # Bump when the script or the conversions change what a bundle holds: old cache
 # entries then stop matching.
-SCRIPT_VERSION = "1"
+SCRIPT_VERSION = "2"
 # The footprint is the mesh squashed to this fraction of its height onto its base plane
 # (not exactly 0, which would give Blender a singular object matrix).
 FOOTPRINT_FLATTEN = 1e-6
+# Border renders sample only the object's screen box, padded by this many pixels: more
+# than the anti-aliasing filter's reach (1.5 px wide).
+BORDER_PAD_PX = 3
 
 
 @dataclass(frozen=True)
@@ -93,6 +97,7 @@ class _Prepared:
     footprint_to_camera: np.ndarray
     blender_camera: dict
     key: str
+    borders: dict = field(default_factory=dict)
     meta: dict = field(default_factory=dict)
     t0: float = 0.0
 
@@ -126,6 +131,36 @@ def blender_camera_from_K(K, width: int, height: int, *, sensor_width_mm: float 
         "shift_x": float((width / 2.0 - cx) / width),
         "shift_y": float((cy - height / 2.0) / width),
     }
+
+
+def render_box(points_cam, camera: Camera, *, pad: int = BORDER_PAD_PX, near: float = 1e-3):
+    """Pixel window holding the image of ``points_cam``, or None for the whole frame.
+
+    Args:
+        points_cam: (N, 3) camera-frame points (the placed mesh's vertices); the image of
+            a mesh lies inside the convex hull of its vertices' images, so their box
+            bounds it.
+        camera: the ``Camera`` rendered.
+        pad: whole pixels added on every side.
+    Returns:
+        ``[x0, x1, y0, y1]`` integer pixels, top-left origin, ends exclusive, inside the
+        frame; None when the box covers the frame or a point is at or behind the camera
+        plane (its image is unbounded).
+    """
+    p = np.asarray(points_cam, dtype=np.float64).reshape(-1, 3)
+    if p.size == 0 or not np.all(np.isfinite(p)) or np.any(p[:, 2] >= -near):
+        return None
+    px, _ = camera.project(p)
+    W, H = camera.width, camera.height
+    x0 = max(0, int(np.floor(px[:, 0].min())) - pad)
+    x1 = min(W, int(np.ceil(px[:, 0].max())) + pad)
+    y0 = max(0, int(np.floor(px[:, 1].min())) - pad)
+    y1 = min(H, int(np.ceil(px[:, 1].max())) + pad)
+    if x1 <= x0 or y1 <= y0:  # wholly outside: check_in_view has refused it already
+        return None
+    if x0 == 0 and y0 == 0 and x1 == W and y1 == H:
+        return None
+    return [x0, x1, y0, y1]
 
 
 def footprint_matrix(mesh_to_camera, bbox_min, *, flatten: float = FOOTPRINT_FLATTEN) -> np.ndarray:
@@ -163,8 +198,12 @@ def _prepare(i: int, req: IntrinsicsRequest, settings: dict, mesh_cache: dict) -
     cam = req.camera
     bcam = blender_camera_from_K(cam.K, cam.width, cam.height)
     M = req.pose.object_to_camera(info.bbox_min, info.bbox_max)
-    check_in_view(transform_points(M, info.vertices), cam)
+    placed = transform_points(M, info.vertices)
+    check_in_view(placed, cam)
     F = footprint_matrix(M, info.bbox_min)
+    box = render_box(placed, cam)
+    borders = {"appearance": box, "geometry": box,
+               "footprint": render_box(transform_points(F, info.vertices), cam)}
     key = _cache.cache_key(
         mesh_hash=info.content_hash, pose=req.pose.to_dict(), K=cam.K,
         resolution=(cam.width, cam.height), settings=settings, version=SCRIPT_VERSION,
@@ -193,20 +232,29 @@ def _prepare(i: int, req: IntrinsicsRequest, settings: dict, mesh_cache: dict) -
             "footprint_depth": "z-depth of the mesh flattened on its support plane, 0 outside",
         },
     }
-    return _Prepared(i, req, info, M, F, bcam, key, meta)
+    return _Prepared(i, req, info, M, F, bcam, key, meta=meta, borders=borders)
 
 
 def _finish(p: _Prepared, event: dict, work_dir: Path) -> Path:
     """Convert a finished render into a bundle folder inside ``work_dir``."""
     from zcomp_cli.bundle import ObjectBundle
 
-    from .passes import appearance_maps, footprint_depth, geometry_maps, read_multilayer_exr
+    from .passes import appearance_maps, footprint_depth, geometry_maps, paste_window, read_multilayer_exr
 
     files = event.get("files") or {}
+    boxes = event.get("boxes") or {}
+    W, H = p.request.camera.width, p.request.camera.height
+
+    def full(name, arr):  # border renders hold only the object's window
+        return paste_window(arr, boxes.get(name), W, H)
+
     try:
-        app = appearance_maps(read_multilayer_exr(files["appearance"]))
-        depth, normals, _ = geometry_maps(read_multilayer_exr(files["geometry"]))
-        fp = footprint_depth(read_multilayer_exr(files["footprint"]))
+        app = {k: full("appearance", v) for k, v in
+               appearance_maps(read_multilayer_exr(files["appearance"])).items()}
+        depth, normals, _ = geometry_maps(read_multilayer_exr(files["geometry"]),
+                                          cam_to_world=event.get("cam_to_world"))
+        depth, normals = full("geometry", depth), full("geometry", normals)
+        fp = full("footprint", footprint_depth(read_multilayer_exr(files["footprint"])))
     except KeyError as exc:
         raise InputError(f"Blender reported no {exc} render") from exc
     if float(app["mask"].max(initial=0.0)) <= 0.0 and not np.any(depth > 0):
@@ -216,6 +264,8 @@ def _finish(p: _Prepared, event: dict, work_dir: Path) -> Path:
     meta = dict(p.meta)
     meta["blender_version"] = event.get("blender_version")
     meta["render_seconds"] = float(event.get("seconds", float("nan")))
+    meta["render_timings"] = event.get("timings")
+    meta["blender_mesh_reused"] = event.get("mesh_reused")
     bundle = ObjectBundle(
         depth=depth, normals=normals, albedo=app["albedo"], mask=app["mask"],
         footprint_depth=fp, camera=p.request.camera, meta=meta,
@@ -257,6 +307,7 @@ def render_object_intrinsics(
     use_cache: bool = True,
     log_path: str | Path | None = None,
     stats: dict | None = None,
+    session=None,
 ) -> list[IntrinsicsResult]:
     """Render (or fetch from the cache) the intrinsics bundle of every request.
 
@@ -271,6 +322,8 @@ def render_object_intrinsics(
         log_path: where Blender's own output goes (default: a temporary file).
         stats: if given, filled with ``startup_s`` (Blender start-up seconds per
             process), ``restarts`` and ``log_path`` of the batch (benchmarks, reports).
+        session: a ``runner.BlenderSession`` to render in (its Blender process stays
+            up for later calls); default: a Blender process for this call.
     Returns:
         One ``IntrinsicsResult`` per request, in the same order.
     """
@@ -329,19 +382,24 @@ def render_object_intrinsics(
     if cdir is not None:
         cdir.mkdir(parents=True, exist_ok=True)
     # Work folder on the cache's filesystem so finished bundles move in by rename.
-    work = Path(tempfile.mkdtemp(prefix=".work-", dir=cdir)) if cdir is not None else Path(
-        tempfile.mkdtemp(prefix="zcomp-intrinsics-work-"))
+    # The pid in the name lets a later run remove the folder if this process is killed.
+    work = Path(tempfile.mkdtemp(prefix=f".work-{os.getpid()}-", dir=cdir)) if cdir is not None else Path(
+        tempfile.mkdtemp(prefix=f"zcomp-intrinsics-work-{os.getpid()}-"))
     by_id = {str(p.request.id): p for p in prepared}
     items = []
-    for p in prepared:
+    # Poses of one mesh next to each other: the script keeps an imported mesh (and
+    # Cycles' synced scene) for consecutive items of the same file.
+    for p in sorted(prepared, key=lambda q: (str(q.mesh.path), q.mesh.format, q.index)):
         wd = work / f"item-{p.index}"
         wd.mkdir()
         items.append({
             "id": str(p.request.id), "mesh": str(p.mesh.path), "format": p.mesh.format,
             "mesh_to_camera": p.mesh_to_camera.tolist(),
             "footprint_to_camera": p.footprint_to_camera.tolist(),
-            "K": p.request.camera.K.tolist(), "width": p.request.camera.width,
+            "width": p.request.camera.width,
             "height": p.request.camera.height, "camera": p.blender_camera, "work_dir": str(wd),
+            "borders": p.borders,
+            "mesh_radius": float(np.linalg.norm(p.mesh.vertices, axis=1).max()),
         })
 
     def on_event(ev: dict) -> None:
@@ -370,8 +428,11 @@ def render_object_intrinsics(
                                              seconds=blender_s + time.monotonic() - t_conv))
 
     try:
-        batch = run_blender_batch(SCRIPT, items, common={"samples": int(samples)},
-                                  on_event=on_event, log_path=log_path)
+        if session is not None:
+            batch = session.run(items, common={"samples": int(samples)}, on_event=on_event)
+        else:
+            batch = run_blender_batch(SCRIPT, items, common={"samples": int(samples)},
+                                      on_event=on_event, log_path=log_path)
         if stats is not None:
             stats.update(startup_s=list(batch.startup_s), restarts=batch.restarts,
                          log_path=str(batch.log_path))

@@ -28,6 +28,7 @@ __all__ = [
     "geometry_maps",
     "appearance_maps",
     "footprint_depth",
+    "paste_window",
 ]
 
 
@@ -132,6 +133,37 @@ def appearance_maps(channels: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
 
 
 def footprint_depth(channels: dict[str, np.ndarray]) -> np.ndarray:
-    """Footprint z-depth (H, W) from the flattened-mesh render; 0 outside it."""
-    depth, _, _ = geometry_maps(channels)
-    return depth
+    """Footprint z-depth (H, W) from the flattened-mesh render; 0 outside it. Needs only
+    the alpha and Z passes (the same hit rule as ``geometry_maps``)."""
+    alpha = get_pass(channels, "Combined", "A")
+    z = blender_depth_to_z_depth(get_pass(channels, "Depth", "Z"))
+    hit = (np.nan_to_num(alpha) > 0.5) & (z > 0)
+    return np.where(hit, z, 0.0).astype(np.float32)
+
+
+def paste_window(values, box, width: int, height: int) -> np.ndarray:
+    """Put a map rendered in a pixel window back into a full frame of zeros.
+
+    Args:
+        values: (h, w) or (h, w, C) map of the window.
+        box: ``[x0, x1, y0, y1]`` pixels (top-left origin, ends exclusive), or None when
+            ``values`` already covers the frame.
+        width, height: the full frame.
+    Returns:
+        (height, width[, C]) array of ``values``' dtype, zero outside the window (zero is
+        "no surface" for every map: depth, normals, coverage, albedo).
+    Raises:
+        RenderError when the window's size does not match ``values``.
+    """
+    v = np.asarray(values)
+    if box is None:
+        if v.shape[:2] != (height, width):
+            raise RenderError(f"render is {v.shape[1]}x{v.shape[0]}, expected {width}x{height}")
+        return v
+    x0, x1, y0, y1 = (int(b) for b in box)
+    if not (0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height) or v.shape[:2] != (y1 - y0, x1 - x0):
+        raise RenderError(f"border render is {v.shape[1]}x{v.shape[0]}, expected window {box} "
+                          f"of a {width}x{height} frame")
+    out = np.zeros((height, width) + v.shape[2:], dtype=v.dtype)
+    out[y0:y1, x0:x1] = v
+    return out

@@ -19,6 +19,7 @@ Protocol between this module and a script in ``zcomp_cli/blender/scripts/``:
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import subprocess
@@ -83,8 +84,9 @@ def run_blender_batch(
         raise ValueError("item ids must be unique")
     path = script_path(script)
     result = BatchResult()
+    temporary_log = log_path is None
     if log_path is None:
-        fd, tmp = tempfile.mkstemp(prefix="zcomp-blender-", suffix=".log")
+        fd, tmp = tempfile.mkstemp(prefix=f"zcomp-blender-{os.getpid()}-", suffix=".log")
         os.close(fd)
         log_path = tmp
     result.log_path = Path(log_path)
@@ -119,13 +121,20 @@ def run_blender_batch(
                     ev = {"event": "error", "id": str(it["id"]), "error": "too many Blender crashes"}
                     result.results[str(it["id"])] = ev
                 pending = []
+    if temporary_log and result.restarts == 0 and all(
+            ev.get("event") == "done" for ev in result.results.values()):
+        # Nothing went wrong: nobody will read the log. (A failed batch keeps it: its
+        # errors name it.)
+        with contextlib.suppress(OSError):
+            result.log_path.unlink()
     return result
 
 
 def _run_one_process(path, items, common, on_event, log, result, item_timeout_s) -> str | None:
     """Run one Blender process over ``items``; return the id of the item in progress
     when it ended (None if none started)."""
-    with tempfile.TemporaryDirectory(prefix="zcomp-job-") as tmpdir:
+    # The pid in the name lets a later run remove it if this process is killed.
+    with tempfile.TemporaryDirectory(prefix=f"zcomp-job-{os.getpid()}-") as tmpdir:
         job = Path(tmpdir) / "job.json"
         job.write_text(json.dumps({"common": common, "items": items}))
         env = dict(os.environ)
@@ -140,47 +149,9 @@ def _run_one_process(path, items, common, on_event, log, result, item_timeout_s)
             env=env,
             bufsize=1,
         )
-        current: str | None = None
-        # A watchdog, not the reading loop, enforces the per-item limit: a hung Blender
-        # prints nothing, so a check between lines would never run.
-        state = {"current": None, "t": time.monotonic(), "stop": False}
-
-        def _watchdog():
-            while not state["stop"] and proc.poll() is None:
-                if state["current"] is not None and time.monotonic() - state["t"] > item_timeout_s:
-                    log.write(f"\n[zcomp] item {state['current']} exceeded {item_timeout_s:.0f} s: killing Blender\n")
-                    proc.kill()
-                    return
-                time.sleep(0.5)
-
-        watchdog = threading.Thread(target=_watchdog, daemon=True)
-        watchdog.start()
         try:
-            assert proc.stdout is not None
-            for line in proc.stdout:
-                if not line.startswith(EVENT_PREFIX):
-                    log.write(line)
-                    continue
-                try:
-                    ev = json.loads(line[len(EVENT_PREFIX):])
-                except json.JSONDecodeError:
-                    log.write(line)
-                    continue
-                kind = ev.get("event")
-                if kind == "ready":
-                    result.startup_s.append(float(ev.get("startup_s", float("nan"))))
-                elif kind == "start":
-                    current = str(ev.get("id"))
-                    state["t"] = time.monotonic()
-                    state["current"] = current
-                elif kind in ("done", "error"):
-                    result.results[str(ev.get("id"))] = ev
-                    current = None
-                    state["current"] = None
-                if on_event:
-                    on_event(ev)
+            current = _pump(proc, on_event, log, result, item_timeout_s)
         finally:
-            state["stop"] = True
             try:
                 proc.wait(timeout=60)
             except subprocess.TimeoutExpired:
@@ -189,6 +160,164 @@ def _run_one_process(path, items, common, on_event, log, result, item_timeout_s)
         if proc.returncode not in (0, None):
             log.write(f"\n[zcomp] Blender process exited with code {proc.returncode}\n")
         return current
+
+
+def _pump(proc, on_event, log, result, item_timeout_s, *, until_batch_done: bool = False) -> str | None:
+    """Read ``proc``'s events into ``result`` until EOF (or, for a session, the
+    ``batch_done`` event). Returns the id of the item in progress when the stream ended
+    (None if none): a process that ends in the middle of an item crashed on it."""
+    current: str | None = None
+    # A watchdog, not the reading loop, enforces the per-item limit: a hung Blender
+    # prints nothing, so a check between lines would never run.
+    state = {"current": None, "t": time.monotonic(), "stop": False}
+
+    def _watchdog():
+        while not state["stop"] and proc.poll() is None:
+            if state["current"] is not None and time.monotonic() - state["t"] > item_timeout_s:
+                log.write(f"\n[zcomp] item {state['current']} exceeded {item_timeout_s:.0f} s: killing Blender\n")
+                proc.kill()
+                return
+            time.sleep(0.5)
+
+    watchdog = threading.Thread(target=_watchdog, daemon=True)
+    watchdog.start()
+    try:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            if not line.startswith(EVENT_PREFIX):
+                log.write(line)
+                continue
+            try:
+                ev = json.loads(line[len(EVENT_PREFIX):])
+            except json.JSONDecodeError:
+                log.write(line)
+                continue
+            kind = ev.get("event")
+            if kind == "ready":
+                result.startup_s.append(float(ev.get("startup_s", float("nan"))))
+            elif kind == "start":
+                current = str(ev.get("id"))
+                state["t"] = time.monotonic()
+                state["current"] = current
+            elif kind in ("done", "error"):
+                result.results[str(ev.get("id"))] = ev
+                current = None
+                state["current"] = None
+            elif kind == "batch_done" and until_batch_done:
+                return None
+            if on_event and kind != "batch_done":
+                on_event(ev)
+    finally:
+        state["stop"] = True
+    return current
+
+
+class BlenderSession:
+    """One Blender process kept for many batches (a Ray worker renders unit after unit
+    without paying Blender's start-up, and the script keeps its imported mesh and
+    Cycles scene between batches). The script is run as ``python SCRIPT -`` and reads
+    one ``{"common", "items"}`` JSON object per line on stdin, answering each with the
+    usual events and a final ``{"event": "batch_done"}``; it exits when stdin closes.
+    A process that dies is replaced, with the same crash rules as
+    ``run_blender_batch``."""
+
+    def __init__(self, script: str, *, log_path: str | Path | None = None, item_timeout_s: float = 1800.0):
+        self.path = script_path(script)
+        self._temporary_log = log_path is None
+        if log_path is None:
+            fd, log_path = tempfile.mkstemp(prefix="zcomp-blender-", suffix=".log")
+            os.close(fd)
+        self.log_path = Path(log_path)
+        self._troubled = False  # an item failed or a process died: keep the log
+        self.item_timeout_s = item_timeout_s
+        self.proc: subprocess.Popen | None = None
+        self.starts = 0
+
+    def _start(self) -> None:
+        env = dict(os.environ)
+        env.setdefault("PYTHONUNBUFFERED", "1")
+        self._log = open(self.log_path, "a", encoding="utf-8", errors="replace")
+        self.proc = subprocess.Popen([sys.executable, str(self.path), "-"], stdin=subprocess.PIPE,
+                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                     errors="replace", env=env, bufsize=1)
+        self.starts += 1
+
+    def run(self, items: list[dict], *, common: dict | None = None,
+            on_event: Callable[[dict], None] | None = None) -> BatchResult:
+        """Render ``items`` (as ``run_blender_batch``) in the session's process."""
+        ids = [str(it["id"]) for it in items]
+        if len(set(ids)) != len(ids):
+            raise ValueError("item ids must be unique")
+        result = BatchResult(log_path=self.log_path)
+        pending = list(items)
+        while pending:
+            fresh = self.proc is None or self.proc.poll() is not None
+            if fresh:
+                if self.proc is not None:  # it died while idle
+                    self._troubled = True
+                    self._reap()
+                self._start()
+            try:
+                self.proc.stdin.write(json.dumps({"common": common or {}, "items": pending}) + "\n")
+                self.proc.stdin.flush()
+                started = _pump(self.proc, on_event, self._log, result, self.item_timeout_s, until_batch_done=True)
+            except (BrokenPipeError, OSError):
+                started = None
+            pending = [it for it in pending if str(it["id"]) not in result.results]
+            if not pending:
+                break
+            # the process ended before batch_done: it crashed on `started`
+            self._troubled = True
+            self._reap()
+            if started is None and not fresh:
+                continue  # it had died while idle: a fresh one takes the batch
+            if started is not None and started not in result.results:
+                ev = {"event": "error", "id": started,
+                      "error": f"Blender crashed while processing this item (log: {self.log_path})"}
+                result.results[started] = ev
+                if on_event:
+                    on_event(ev)
+                pending = [it for it in pending if str(it["id"]) != started]
+            elif started is None:
+                for it in pending:
+                    ev = {"event": "error", "id": str(it["id"]),
+                          "error": f"Blender failed to start (log: {self.log_path})"}
+                    result.results[str(it["id"])] = ev
+                    if on_event:
+                        on_event(ev)
+                pending = []
+            result.restarts += 1
+        if any(ev.get("event") != "done" for ev in result.results.values()):
+            self._troubled = True
+        return result
+
+    def _reap(self) -> None:
+        if self.proc is not None:
+            try:
+                self.proc.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+            self._log.write(f"\n[zcomp] Blender process exited with code {self.proc.returncode}\n")
+            self._log.close()
+        self.proc = None
+
+    def close(self) -> None:
+        """End the process (it exits on the end of its stdin)."""
+        if self.proc is not None and self.proc.poll() is None:
+            try:
+                self.proc.stdin.close()
+            except OSError:
+                pass
+        self._reap()
+        if self._temporary_log and not self._troubled:  # nobody will read it
+            self.log_path.unlink(missing_ok=True)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
 
 
 def emit(event: dict) -> None:
@@ -203,13 +332,25 @@ def serve_job_file(job_path: str, process: Callable[[dict, dict], dict], *, star
     readiness (with the start-up time since ``started``, a ``time.monotonic()`` taken
     before ``import bpy``), then runs ``process(item, common) -> dict`` per item,
     emitting start/done/error events. An exception fails that item only."""
-    import traceback
-
+    if job_path == "-":  # a BlenderSession: one batch per stdin line, until EOF
+        emit({"event": "ready", "startup_s": time.monotonic() - started, "blender_version": blender_version})
+        for line in sys.stdin:
+            if line.strip():
+                job = json.loads(line)
+                _serve_items(job.get("common", {}), job["items"], process, blender_version)
+                emit({"event": "batch_done"})
+        return 0
     with open(job_path) as f:
         job = json.load(f)
-    common = job.get("common", {})
     emit({"event": "ready", "startup_s": time.monotonic() - started, "blender_version": blender_version})
-    for item in job["items"]:
+    _serve_items(job.get("common", {}), job["items"], process, blender_version)
+    return 0
+
+
+def _serve_items(common: dict, items: list[dict], process, blender_version: str) -> None:
+    import traceback
+
+    for item in items:
         iid = str(item["id"])
         emit({"event": "start", "id": iid})
         t = time.monotonic()
@@ -221,4 +362,3 @@ def serve_job_file(job_path: str, process: Callable[[dict, dict], dict], *, star
             continue
         emit({"event": "done", "id": iid, "seconds": time.monotonic() - t,
               "blender_version": blender_version, **info})
-    return 0

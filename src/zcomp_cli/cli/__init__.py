@@ -16,6 +16,8 @@ import click
 
 from zcomp_cli import __version__
 
+EXIT_INTERRUPTED = 130  # 128 + SIGINT
+
 # command name -> (module, attribute, one-line help shown by `zcomp --help`)
 _COMMANDS: dict[str, tuple[str, str, str]] = {
     "render-intrinsics": (
@@ -40,6 +42,8 @@ _COMMANDS: dict[str, tuple[str, str, str]] = {
         "Estimate missing background intrinsics of a manifest's scenes.",
     ),
     "train": ("zcomp_cli.cli.train", "train", "Train the ZeroComp ControlNet."),
+    "status": ("zcomp_cli.cli.status", "status",
+               "Merge an output folder's runs and shards: done, failed, missing jobs."),
 }
 
 
@@ -69,6 +73,10 @@ class LazyGroup(click.Group):
                 traceback.print_exc()
             click.secho(f"Error: {exc}", fg="red", err=True)
             ctx.exit(exc.exit_code)
+        except KeyboardInterrupt:
+            # Ctrl-C: the shell convention 128 + SIGINT, not click's "Aborted!" and 1.
+            click.echo("\nInterrupted.", err=True)
+            ctx.exit(EXIT_INTERRUPTED)
 
     def format_commands(self, ctx, formatter):
         # Short help from the table: listing commands must not import them.
@@ -112,7 +120,10 @@ def main(argv: list[str] | None = None) -> None:
             traceback.print_exc()
         click.secho(f"Error: {exc}", fg="red", err=True)
         sys.exit(exc.exit_code)
-    except click.exceptions.Abort:
+    except click.exceptions.Abort as exc:
+        if isinstance(exc.__cause__, KeyboardInterrupt):
+            click.echo("Interrupted.", err=True)
+            sys.exit(EXIT_INTERRUPTED)
         click.echo("Aborted.", err=True)
         sys.exit(1)
     except click.ClickException as exc:
@@ -120,7 +131,7 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(exc.exit_code)
     except KeyboardInterrupt:
         click.echo("Interrupted.", err=True)
-        sys.exit(130)
+        sys.exit(EXIT_INTERRUPTED)
     except click.exceptions.Exit as exc:
         sys.exit(exc.exit_code)
     # With standalone_mode=False, click returns ctx.exit()'s code instead of exiting.

@@ -14,14 +14,25 @@ from zcomp_cli.cli.options import (cache_dir_opt, debug_opt, out_dir_opt, overwr
 @renderer_options
 @click.option("--jobs", "jobs_subset", default=None, metavar="SUBSET",
               help="Only these jobs: indices, ranges a-b and names, comma-separated.")
+@click.option("--shard", default=None, metavar="I/N",
+              help="Run only shard I of N (from 0) of the selected jobs; jobs of one scene stay together. "
+                   "Shards may run side by side into one --out; `zcomp status OUT` merges them.")
+@click.option("--executor", type=click.Choice(["local", "ray"]), default="local", show_default=True,
+              help="Where jobs run: this process, or a Ray cluster (needs `pip install 'zcomp[ray]'`; "
+                   "--out must be on a filesystem every Ray worker sees).")
+@click.option("--address", default=None, metavar="auto|HOST:PORT",
+              help="Ray cluster to join (default: $RAY_ADDRESS, else a local Ray started for this run).")
+@click.option("--workers", type=click.IntRange(min=1), default=None,
+              help="Ray: how many workers (actors, one renderer each; default: as many as the cluster's "
+                   "CPUs, or GPUs for zerocomp, allow).")
 @seed_opt
 @resume_opt
 @overwrite_opt
 @debug_opt
 @cache_dir_opt
 @click.pass_context
-def composite(ctx, manifest, out_dir, renderer, renderer_flags, jobs_subset, seed, resume, overwrite,
-              debug, cache_dir):
+def composite(ctx, manifest, out_dir, renderer, renderer_flags, jobs_subset, shard, executor, address, workers,
+              seed, resume, overwrite, debug, cache_dir):
     """Composite objects into scenes for every job of MANIFEST (jobs.yaml).
 
     Each job writes OUT/<job>/composite.png (sRGB), composite.exr (linear) and
@@ -31,8 +42,18 @@ def composite(ctx, manifest, out_dir, renderer, renderer_flags, jobs_subset, see
     from zcomp_cli.pipeline.batch import run_batch
     from zcomp_cli.pipeline.manifest import load_manifest
 
+    from zcomp_cli.pipeline.selection import parse_shard
+
     if resume and overwrite:
         raise UsageError("--resume and --overwrite exclude each other")
+    shard_ix = parse_shard(shard)
+    if executor == "local" and (address is not None or workers is not None):
+        raise UsageError("--address and --workers apply to --executor ray")
+    runner = None
+    if executor == "ray":
+        from zcomp_cli.pipeline.ray_executor import RayExecutor
+
+        runner = RayExecutor(address=address, workers=workers)
     quiet = bool(ctx.obj and ctx.obj.get("quiet"))
     m = load_manifest(manifest)
     spec = renderer_spec(m.defaults.renderer, renderer, renderer_flags)
@@ -44,7 +65,8 @@ def composite(ctx, manifest, out_dir, renderer, renderer_flags, jobs_subset, see
 
     with StageProgress(disable=quiet) as prog:
         summary = run_batch(m, out_dir, renderer_spec=spec, jobs_subset=jobs_subset, resume=resume,
-                            overwrite=overwrite, debug=debug, cache_dir=cache_dir, progress=prog.update)
+                            overwrite=overwrite, debug=debug, cache_dir=cache_dir, shard=shard_ix,
+                            executor=runner, progress=prog.update)
     _print_summary(summary, out_dir, quiet)
     if not summary.ok:
         ctx.exit(1)

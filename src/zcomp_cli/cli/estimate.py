@@ -72,6 +72,10 @@ def estimate(ctx, manifest, out_dir, scene_names, native, cache_dir):
         names = want
     cache = cache_folder("estimates", cache_dir)
     out = Path(out_dir)
+    from zcomp_cli.pipeline.outguard import check_inside
+
+    for name in names:  # every folder written must stay inside --out
+        check_inside(out, out / name, f"scenes.{name}")
     quiet = bool(ctx.obj and ctx.obj.get("quiet"))
     for name in names:
         spec = m.scenes[name]

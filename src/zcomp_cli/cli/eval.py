@@ -62,23 +62,31 @@ def eval_cmd(ctx, pred, ref, metrics, refs_dir, linear, mask, background, out_pr
     )
 
     pred_dir = Path(pred)
+    unscored: dict[str, str] = {}
     if ref is not None and refs_dir is not None:
         raise UsageError("give either REF or --refs, not both")
     if ref is not None:
         pairs = pair_folders(pred_dir, ref, mask, background)
     elif is_composite_output(pred_dir):
-        pairs = pair_composite_output(pred_dir, refs_dir, mask, background)
+        # Score the jobs that have a reference; list the others.
+        pairs = pair_composite_output(pred_dir, refs_dir, mask, background, unscored=unscored)
     else:
         raise UsageError(f"{pred_dir} is not a composite output folder (no */report.json): give REF")
 
     result = evaluate(pairs, metrics, linear=linear, lpips_backbone=lpips_backbone,
                       lpips_weights=lpips_weights)
+    result.unscored = unscored
     prefix = Path(out_prefix) if out_prefix else pred_dir / "eval"
     csv_path, json_path = write_outputs(result, prefix)
 
     quiet = (ctx.obj or {}).get("quiet", False)
     for m, why in result.unavailable.items():
         click.secho(f"Warning: {m} unavailable: {why}", fg="yellow", err=True)
+    for m, why in result.partial.items():
+        click.secho(f"Warning: {m} left out for {why}", fg="yellow", err=True)
+    if unscored:
+        click.secho(f"Not scored ({len(unscored)}): " + "; ".join(f"{k}: {v}" for k, v in list(unscored.items())[:10])
+                    + (" ..." if len(unscored) > 10 else ""), fg="yellow", err=True)
     if not quiet:
         _print_table(result)
     click.echo(f"Wrote {csv_path} and {json_path}")
@@ -100,6 +108,8 @@ def _print_table(result) -> None:
         if m in result.unavailable:
             return "unavailable"
         v = vals[m]
+        if v != v:  # NaN: not computable for this image
+            return "n/a"
         return "inf" if v == float("inf") else f"{v:.4f}"
 
     for p, vals in zip(result.pairs, result.values):

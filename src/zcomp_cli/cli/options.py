@@ -6,11 +6,54 @@ import functools
 
 import click
 
+def check_writable_dir(path, what: str = "--out") -> str | None:
+    """Why ``path`` cannot be used as an output folder (None when it can): it, or its
+    first existing ancestor, must be a folder where a file can be created. Probes by
+    creating (and removing) a file: permission bits lie to root and on /proc or
+    read-only mounts. Leaves nothing behind."""
+    import os
+    import tempfile
+    from pathlib import Path
+
+    p = Path(path).absolute()
+    try:
+        if p.exists():
+            if not p.is_dir():
+                return f"{what}: {p} exists and is not a folder"
+            probe_dir = p
+        else:
+            probe_dir = next((a for a in p.absolute().parents if a.exists()), None)
+            if probe_dir is None or not probe_dir.is_dir():
+                return f"{what}: no existing folder above {p}"
+        fd, tmp = tempfile.mkstemp(prefix=".zcomp-probe.", dir=probe_dir)
+        os.close(fd)
+        os.unlink(tmp)
+        if not p.exists():
+            # A folder can be created in some file systems where files cannot (/proc).
+            p.mkdir(parents=True)
+            created = [p, *[a for a in p.parents if a != probe_dir and probe_dir in a.parents]]
+            for d in created:
+                d.rmdir()
+    except OSError as exc:
+        return f"{what}: cannot write in {p}: {exc.strerror or exc}"
+    return None
+
+
+def _check_out(ctx, param, value):
+    if value is None:
+        return value
+    problem = check_writable_dir(value)
+    if problem:
+        raise click.BadParameter(problem.split(": ", 1)[1], ctx=ctx, param=param)
+    return value
+
+
 out_dir_opt = click.option(
     "--out",
     "out_dir",
     type=click.Path(file_okay=False),
     required=True,
+    callback=_check_out,
     help="Output directory.",
 )
 overwrite_opt = click.option(
@@ -41,10 +84,26 @@ resolution_opt = click.option(
 )
 seed_opt = click.option("--seed", type=click.IntRange(min=0), default=None,
                         help="Override every job's seed (default: the manifest's, else 469).")
+def _check_cache(ctx, param, value):
+    """The cache root (--cache-dir, else $ZCOMP_CACHE_DIR, else ~/.cache/zcomp) must be
+    writable: otherwise every job would fail one by one on the same cause."""
+    from zcomp_cli.cache import ENV_VAR, cache_root
+
+    root = cache_root(value)
+    problem = check_writable_dir(root, "cache")
+    if problem:
+        source = "--cache-dir" if value is not None else (f"${ENV_VAR}" if ENV_VAR in __import__("os").environ
+                                                          else "the default cache folder")
+        raise click.BadParameter(f"{problem.split(': ', 1)[1]} (set by {source}; give a writable --cache-dir)",
+                                 ctx=ctx, param=param)
+    return value
+
+
 cache_dir_opt = click.option(
     "--cache-dir",
     type=click.Path(file_okay=False),
     default=None,
+    callback=_check_cache,
     help="Cache root for object renders and estimates (default $ZCOMP_CACHE_DIR or ~/.cache/zcomp).",
 )
 debug_opt = click.option(

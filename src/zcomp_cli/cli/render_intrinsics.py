@@ -35,7 +35,10 @@ def _single_job(mesh, position, rotation_deg, quaternion, scale, height, fov_deg
     except ValueError as exc:
         raise UsageError(f"invalid pose: {exc}") from exc
     K = parse_K(K_text)
-    camera, err = camera_from_spec(fov_deg, K, resolution or DEFAULT_RESOLUTION, where="camera")
+    camera, err = camera_from_spec(fov_deg, K, resolution or DEFAULT_RESOLUTION,
+                                   where="--resolution" if resolution else "camera")
+    if err and "pixel budget" in err:
+        raise UsageError(err)  # refused before Blender starts, like a bad flag
     return RenderItem(name=Path(mesh).stem, mesh=Path(mesh), pose=pose, camera=camera, error=err)
 
 
@@ -84,6 +87,10 @@ def render_intrinsics(ctx, manifest, mesh, position, rotation_deg, quaternion, s
         jobs = _single_job(mesh, position, rotation_deg, quaternion, scale, height, fov_deg, K, resolution)
         jobs = [jobs]
     out = Path(out_dir)
+    from zcomp_cli.pipeline.outguard import check_inside
+
+    for j in jobs:  # every folder written must stay inside --out
+        check_inside(out, out / j.name, f"renders: {j.name}")
     existing = [j.name for j in jobs if (out / j.name / "meta.json").exists()]
     if existing and not overwrite:
         raise UsageError(f"outputs already exist for {', '.join(existing[:5])}"

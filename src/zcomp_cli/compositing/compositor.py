@@ -1,7 +1,7 @@
 """Shadow-opacity compositor (DESIGN.md section 2, equations 4-5).
 
     R  = clamp((lum(f(i_comp)) + ε) / (lum(f(i_bg)) + ε), 0, 1)   inside s, 1 outside
-    w  = blur(s)            (15 x 15 Gaussian, σ = 1.5)
+    w  = blur(s)            (15 x 15 Gaussian, σ = 1.5, reflect padding as torchvision)
     R' = 1 - w * (1 - R)    (= w R + (1 - w), written so that R' is exactly 1 where w = 0)
     C  = mean(x_bg) / mean(f(i_bg)) per channel, over pixels off the object (guarded)
     x  = (1 - m) * R' * x_bg + m * C * f(i_comp)
@@ -60,13 +60,18 @@ def gaussian_kernel1d(size: int = BLUR_SIZE, sigma: float = BLUR_SIGMA) -> np.nd
 
 def blur_weight(mask, *, size: int = BLUR_SIZE, sigma: float = BLUR_SIGMA) -> np.ndarray:
     """w = blur(s): the shading mask as {0, 1} blurred with a ``size`` x ``size``
-    Gaussian (zero padding). Exactly 0 farther than ``size // 2`` pixels from s.
-    Returns (H, W) float32 in [0, 1]."""
+    Gaussian, padded by reflection as the official compositor's torchvision
+    ``GaussianBlur`` does (``torch.nn.functional.pad(mode="reflect")``: the edge pixel is
+    not repeated, numpy's ``reflect`` = scipy's ``mirror``; scipy's own ``reflect`` is
+    numpy's ``symmetric`` and would differ). A mask touching the frame border therefore
+    keeps its full weight there instead of fading over the last ``size // 2`` pixels.
+    Still exactly 0 farther than ``size // 2`` pixels from s (reflection only reads pixels
+    within that distance). Returns (H, W) float32 in [0, 1]."""
     from scipy.ndimage import convolve1d
 
     s = np.asarray(mask, dtype=np.float64)
     k = gaussian_kernel1d(size, sigma)
-    w = convolve1d(convolve1d(s, k, axis=0, mode="constant"), k, axis=1, mode="constant")
+    w = convolve1d(convolve1d(s, k, axis=0, mode="mirror"), k, axis=1, mode="mirror")
     # Convolution of zeros is exactly zero, but float noise near 0 is cleaned anyway.
     w[w < 1e-7] = 0.0
     return np.clip(w, 0.0, 1.0).astype(np.float32)

@@ -32,6 +32,9 @@ IMAGE_EXTS = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp", ".exr",
 FLOAT_EXTS = {".exr", ".hdr"}
 # Whether a larger value is better, for the table's header.
 HIGHER_IS_BETTER = {"psnr": True, "ssim": True, "shadow-iou": True}
+# Smallest image side each metric can score (SSIM's 7x7 window, FLIP's filters); a
+# smaller image gets no value for that metric instead of aborting the whole evaluation.
+MIN_SIZE = {"ssim": 7, "flip": 2}
 
 
 def parse_metrics(text: str) -> list[str]:
@@ -69,6 +72,10 @@ class EvalResult:
     mean: dict[str, float]
     unavailable: dict[str, str] = field(default_factory=dict)
     linear: bool = False
+    # Items not scored (a job without a reference...): name -> why.
+    unscored: dict[str, str] = field(default_factory=dict)
+    # Metric -> why some images have no value (NaN in ``values``, left out of the mean).
+    partial: dict[str, str] = field(default_factory=dict)
 
     def to_json(self) -> dict:
         return {
@@ -82,6 +89,8 @@ class EvalResult:
             ],
             "mean": {k: _json_num(v) for k, v in self.mean.items()},
             "unavailable": dict(self.unavailable),
+            "unscored": dict(self.unscored),
+            "partial": dict(self.partial),
         }
 
     def to_csv(self) -> str:
@@ -96,13 +105,18 @@ class EvalResult:
 
 
 def _json_num(v: float):
-    """JSON has no infinity: PSNR of identical images is written as the string "inf"."""
+    """JSON has no infinity: PSNR of identical images is written as the string "inf".
+    A value that could not be computed (NaN) is null."""
     if isinstance(v, float) and math.isinf(v):
         return "inf" if v > 0 else "-inf"
+    if isinstance(v, float) and math.isnan(v):
+        return None
     return v
 
 
 def _fmt(v: float) -> str:
+    if math.isnan(v):
+        return ""
     return "inf" if math.isinf(v) else f"{v:.6g}"
 
 
@@ -190,7 +204,8 @@ def _background_of_job(report: dict, job: Path) -> Path | None:
         return None
 
 
-def pair_composite_output(out_dir, refs=None, mask=None, background=None) -> list[Pair]:
+def pair_composite_output(out_dir, refs=None, mask=None, background=None,
+                          unscored: dict | None = None) -> list[Pair]:
     """Pairs of a ``zcomp composite`` output folder.
 
     The reference of a job is ``refs/<job>.*`` when ``refs`` is given, else
@@ -202,6 +217,10 @@ def pair_composite_output(out_dir, refs=None, mask=None, background=None) -> lis
     scene image of the manifest named in ``report.json``; the object mask is
     ``object_mask.png`` beside the reference when there is one (``make-benchmark``
     writes it).
+
+    With an ``unscored`` dict, jobs that cannot be paired (no reference, no composite)
+    are listed there (name -> why) and the others are scored; without it, or when no
+    job can be paired, they are an error.
     """
     bg_imgs = _images(Path(background)) if background is not None and Path(background).is_dir() else None
     out_dir = Path(out_dir)
@@ -250,8 +269,12 @@ def pair_composite_output(out_dir, refs=None, mask=None, background=None) -> lis
             bg = _background_of_job(report, job)
         om = ref.parent / "object_mask.png"
         pairs.append(Pair(job.name, pred, ref, _job_mask(job, mask), bg, om if om.is_file() else None))
-    if problems:
+    if problems and (unscored is None or not pairs):
         raise InputError("missing pairs:\n  " + "\n  ".join(problems), where=str(out_dir))
+    if problems:
+        for p in problems:
+            name, why = p.split(": ", 1)
+            unscored[name] = why
     return pairs
 
 
@@ -314,7 +337,9 @@ def score_pair(pair: Pair, metrics: list[str], *, linear: bool = False, lpips_mo
     out: dict[str, float] = {}
     for m in metrics:
         try:
-            if m in fns:
+            if min(p.shape[:2]) < MIN_SIZE.get(m, 1):
+                out[m] = float("nan")  # too small for this metric: no value, not an abort
+            elif m in fns:
                 out[m] = fns[m](p, r, mask)
             elif m == "flip":
                 if hdr:
@@ -375,13 +400,24 @@ def evaluate(pairs: list[Pair], metrics: list[str], *, linear: bool = False,
         if on_pair is not None:
             on_pair(pair, values[-1])
     mean = {}
+    partial: dict[str, str] = {}
     for m in metrics:
         if m in unavailable:
             continue
         # inf (PSNR of an identical pair) propagates to the mean on purpose: hiding it
         # would overstate how far the other images are from their references.
-        mean[m] = float(np.mean([v[m] for v in values]))
-    return EvalResult(list(metrics), list(pairs), values, mean, unavailable, linear)
+        vals = [v[m] for v in values if m in v and not math.isnan(v[m])]
+        skipped = [pr.name for pr, v in zip(pairs, values) if m in v and math.isnan(v[m])]
+        if skipped:
+            n = MIN_SIZE.get(m)
+            why = f"images smaller than {n}x{n}" if n else "not computable"
+            partial[m] = f"{why}: {', '.join(skipped[:10])}{' ...' if len(skipped) > 10 else ''}"
+        if not vals:
+            unavailable[m] = partial.pop(m, "no value")
+            continue
+        mean[m] = float(np.mean(vals))
+    return EvalResult(list(metrics), list(pairs), values, mean, unavailable, linear, partial=partial)
+
 
 
 def write_outputs(result: EvalResult, prefix) -> tuple[Path, Path]:

@@ -1,6 +1,8 @@
 """Run every job of a manifest, in numbered stages:
 
-1. plan: select the jobs (``--jobs``) and decide from the output folder which run;
+1. plan: select the jobs (``--jobs``), lock them in the output folder
+   (``pipeline.outguard``: a second run of the same jobs is refused), clear what killed
+   runs left behind, and decide from the folder which jobs run;
 2. poses: a job's pose, or its placement on the scene (scenes load once, lazily);
 3. objects: every mesh job's intrinsics in ONE Blender batch (cached);
 4. jobs: an executor runs the jobs, several per renderer call (``batch_size``), and
@@ -19,10 +21,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from zcomp_cli.errors import InputError, ZcompError
+from zcomp_cli.errors import InputError, UsageError, ZcompError
 from zcomp_cli.pipeline.manifest import JobSpec, Manifest, RendererSpec
 from zcomp_cli.pipeline.outputs import BatchSummary, JobStatus, plan_outputs, write_summary
-from zcomp_cli.pipeline.selection import select_jobs
+from zcomp_cli.pipeline.selection import select_jobs, shard_jobs
 
 Progress = Callable[[str, int, int, str], None]
 
@@ -80,6 +82,7 @@ class BatchContext:
     batch_size: int = 1
     progress: Progress | None = None
     renderer: object | None = None  # built once, before the job stage
+    blender_session: object | None = None  # a kept Blender process (Ray workers), else one per batch
 
     @property
     def samples(self) -> int:
@@ -100,50 +103,106 @@ def run_batch(
     overwrite: bool = False,
     debug: bool = False,
     cache_dir=None,
-    batch_size: int = 1,
+    batch_size: int | None = None,
+    shard: tuple[int, int] | None = None,
+    executor=None,
     progress: Progress | None = None,
 ) -> BatchSummary:
     """Run the manifest's jobs. ``progress(stage, done, total, label)`` is called for
     the object-render stage ("objects") and the job stage ("jobs"). ``cache_dir`` is
-    the cache root (``zcomp_cli.cache``); ``batch_size`` jobs share one renderer call."""
+    the cache root (``zcomp_cli.cache``); ``batch_size`` jobs share one renderer call
+    (default: the renderer's own ``batch_size``, e.g. zerocomp's GPU batch, else 1).
+    ``shard=(i, n)`` runs shard i of n of the selected jobs (``selection.shard_jobs``)
+    and writes its own ``summary.shard-i-of-n.json``. ``executor`` runs stage 4
+    (default: ``LocalExecutor``; see ``pipeline.ray_executor``)."""
     from zcomp_cli.cache import cache_dir as cache_folder
+    from zcomp_cli.cache import cache_root
     from zcomp_cli.pipeline.executor import LocalExecutor
-    from zcomp_cli.renderers import get_renderer
+    from zcomp_cli.pipeline.outguard import (DigestCache, OutputLock, clean_job_folder,
+                                             sweep_dead_temporaries)
 
     t_batch = time.perf_counter()
     out_root = Path(out_root)
-    out_root.mkdir(parents=True, exist_ok=True)
+    try:
+        out_root.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(f"--out: cannot create {out_root}: {exc.strerror or exc}") from exc
     ctx = BatchContext(manifest, out_root, renderer_spec or manifest.defaults.renderer,
                        SceneStore(manifest, cache_folder("estimates", cache_dir)), debug=debug,
-                       cache_root=cache_dir, batch_size=max(1, int(batch_size)), progress=progress)
+                       cache_root=cache_dir, batch_size=max(1, int(batch_size or 1)), progress=progress)
 
-    # 1. Plan.
+    # 1. Plan, holding the selected jobs' locks until the batch ends.
     jobs = select_jobs(manifest.jobs, jobs_subset)
-    to_run, skipped = plan_outputs(manifest, jobs, out_root, ctx.renderer_spec, ctx.samples,
-                                   resume=resume, overwrite=overwrite)
-    summary = BatchSummary(statuses=list(skipped))
-    if not to_run:
-        summary.seconds = time.perf_counter() - t_batch
-        return summary
+    shard_info = None
+    if shard is not None:
+        jobs = shard_jobs(jobs, *shard)
+        shard_info = {"index": shard[0], "count": shard[1], "jobs": [j.name for j in jobs]}
+    executor = executor if executor is not None else LocalExecutor()
+    # Locks are per job: shards of one manifest, holding disjoint jobs, share --out.
+    with OutputLock(out_root, manifest.path, _manifest_id(manifest), [j.name for j in jobs]):
+        for j in jobs:  # ours now: what a killed run left in them can go
+            clean_job_folder(out_root / j.name)
+        sweep_dead_temporaries(cache_root(cache_dir))
+        digests = DigestCache(_digest_store(cache_dir))
+        to_run, skipped = plan_outputs(manifest, jobs, out_root, ctx.renderer_spec, ctx.samples,
+                                       resume=resume, overwrite=overwrite, digests=digests)
+        digests.save()
+        summary = BatchSummary(statuses=list(skipped), shard=shard_info)
+        running = {job.name for job, _ in to_run}
+        if shard_info is None:  # (a shard's own summary tells `zcomp status` it finished)
+            write_summary(out_root, summary, manifest, running=running)
+        completed = False
+        try:
+            if to_run:
+                _run_planned(ctx, summary, to_run, batch_size, executor)
+            completed = True
+        finally:  # also after Ctrl-C or a renderer that cannot start: the folder's true state
+            summary.statuses.sort(key=lambda s: s.job.index)
+            summary.seconds = time.perf_counter() - t_batch
+            if completed or shard_info is None:
+                write_summary(out_root, summary, manifest)
+    return summary
+
+
+def _manifest_id(manifest: Manifest) -> str:
+    """Identifies a manifest for the output lock: runs (shards) of the same manifest may
+    share a folder, runs of different ones may not."""
+    import hashlib
+
+    try:
+        return hashlib.sha256(manifest.path.read_bytes()).hexdigest()[:16]
+    except OSError:
+        return str(manifest.path)
+
+
+def _digest_store(cache_dir) -> Path | None:
+    from zcomp_cli.cache import cache_root
+
+    return cache_root(cache_dir) / "file-hashes.json"
+
+
+def _run_planned(ctx: BatchContext, summary: BatchSummary, to_run, batch_size: int | None, executor) -> None:
+    """Stages 2-4 for the planned jobs (``batch_size`` None: the renderer's own)."""
+    from zcomp_cli.renderers import get_renderer
+
+    executor.check(ctx)
     ctx.renderer = get_renderer(ctx.renderer_spec.name, **ctx.renderer_spec.settings)
+    if batch_size is None:
+        ctx.batch_size = max(1, int(getattr(ctx.renderer, "batch_size", 1)))
     works = [JobWork(job, fp) for job, fp in to_run]
 
     # 2. Poses (placement needs the scene's depth and normals).
     resolve_poses(ctx, works)
 
-    # 3. Object intrinsics.
-    t_obj = time.perf_counter()
-    summary.blender = render_objects(ctx, works)
-    summary.blender["objects_s"] = time.perf_counter() - t_obj
+    # 3. Object intrinsics (here, unless the executor's workers render their own).
+    if not executor.renders_objects:
+        t_obj = time.perf_counter()
+        summary.blender = render_objects(ctx, works)
+        summary.blender["objects_s"] = time.perf_counter() - t_obj
 
     # 4. Jobs.
-    summary.statuses.extend(LocalExecutor().run(ctx, works))
-
-    # 5. Summary.
-    summary.statuses.sort(key=lambda s: s.job.index)
-    summary.seconds = time.perf_counter() - t_batch
-    write_summary(out_root, summary)
-    return summary
+    summary.statuses.extend(executor.run(ctx, works))
+    summary.executor = getattr(executor, "info", {})
 
 
 def resolve_poses(ctx: BatchContext, works: list[JobWork]) -> None:
@@ -187,7 +246,8 @@ def render_objects(ctx: BatchContext, works: list[JobWork]) -> dict:
     def _cb(done, total, ident):
         ctx.report("objects", done, total, str(ident))
 
-    results = render_object_intrinsics(requests, cache_dir=ctx.cache_root, samples=ctx.samples, progress=_cb)
+    results = render_object_intrinsics(requests, cache_dir=ctx.cache_root, samples=ctx.samples, progress=_cb,
+                                       session=ctx.blender_session)
     for w, res in zip(owners, results):
         if res.ok:
             w.bundle_dir = res.bundle_dir

@@ -6,6 +6,9 @@ prepared (steps 1-4 of ``pipeline.job``), the chunk's passes go to the renderer 
 (the compositor) and its outputs written. A job that fails in any step is reported and
 the others go on; if a chunk's shared renderer call fails, its jobs are rendered one by
 one so that the failure stays with the job that caused it.
+
+A renderer that works on another device (``overlap_prepare = True``, the zerocomp GPU
+renderer) gets the next chunk prepared on a CPU thread while the current chunk renders.
 """
 
 from __future__ import annotations
@@ -29,7 +32,20 @@ def _failure(exc: BaseException) -> str:
 
 
 class LocalExecutor:
-    """Runs every job in this process, ``ctx.batch_size`` jobs per renderer call."""
+    """Runs every job in this process, ``ctx.batch_size`` jobs per renderer call.
+
+    The executor interface ``run_batch`` uses: ``check(ctx)`` before any work (refuse
+    what cannot work), ``renders_objects`` (True: the executor renders object
+    intrinsics itself, stage 3 is left to it), ``run(ctx, works) -> [JobStatus]`` and
+    ``info`` (figures for the summary)."""
+
+    renders_objects = False
+
+    def __init__(self):
+        self.info: dict = {"name": "local"}
+
+    def check(self, ctx) -> None:
+        pass
 
     def run(self, ctx, works) -> list[JobStatus]:
         statuses: list[JobStatus] = []
@@ -42,21 +58,40 @@ class LocalExecutor:
                 done += 1
             else:
                 todo.append(w)
-        for start in range(0, len(todo), ctx.batch_size):
-            chunk = todo[start:start + ctx.batch_size]
-            ctx.report("jobs", done, total, chunk[0].job.name)
-            statuses.extend(run_chunk(ctx, chunk))
-            done += len(chunk)
+        chunks = [todo[i:i + ctx.batch_size] for i in range(0, len(todo), ctx.batch_size)]
+        if getattr(ctx.renderer, "overlap_prepare", False) and len(chunks) > 1:
+            from concurrent.futures import ThreadPoolExecutor
+
+            # the prepare thread alone touches the scene store and the bundle caches; this
+            # thread renders, finishes, writes and reports
+            with ThreadPoolExecutor(max_workers=1) as pool:
+                nxt = pool.submit(prepare_chunk, ctx, chunks[0])
+                for k, chunk in enumerate(chunks):
+                    ctx.report("jobs", done, total, chunk[0].job.name)
+                    prep = nxt.result()
+                    if k + 1 < len(chunks):
+                        nxt = pool.submit(prepare_chunk, ctx, chunks[k + 1])
+                    statuses.extend(render_and_finish(ctx, chunk, *prep))
+                    done += len(chunk)
+        else:
+            for chunk in chunks:
+                ctx.report("jobs", done, total, chunk[0].job.name)
+                statuses.extend(run_chunk(ctx, chunk))
+                done += len(chunk)
         ctx.report("jobs", total, total, "")
         return statuses
 
 
 def run_chunk(ctx, chunk) -> list[JobStatus]:
     """Prepare, render (one call), finish and write a chunk of jobs."""
-    from zcomp_cli.pipeline.batch import load_object_bundle
-    from zcomp_cli.pipeline.job import finish_job, prepare_job
+    return render_and_finish(ctx, chunk, *prepare_chunk(ctx, chunk))
 
-    renderer = ctx.renderer
+
+def prepare_chunk(ctx, chunk):
+    """Steps 1-4 of every job of the chunk -> (prepared, statuses, started)."""
+    from zcomp_cli.pipeline.batch import load_object_bundle
+    from zcomp_cli.pipeline.job import prepare_job
+
     statuses: dict[int, JobStatus] = {}
     started: dict[int, float] = {}
     prepared = []  # (work, scene, PreparedJob, load seconds)
@@ -73,6 +108,14 @@ def run_chunk(ctx, chunk) -> list[JobStatus]:
         except Exception as exc:  # noqa: BLE001 - reported per job
             statuses[w.job.index] = JobStatus(w.job, "failed", _failure(exc), time.perf_counter() - t0,
                                               ctx.out_root / w.job.name)
+    return prepared, statuses, started
+
+
+def render_and_finish(ctx, chunk, prepared, statuses, started) -> list[JobStatus]:
+    """Step 5 (one renderer call for the chunk) and step 6 (compositor, outputs)."""
+    from zcomp_cli.pipeline.job import finish_job
+
+    renderer = ctx.renderer
 
     # 5. One renderer call for the chunk; on failure, one call per job.
     outputs: dict[int, object] = {}

@@ -32,7 +32,8 @@ from zcomp_cli.blender import DEFAULT_SAMPLES
 from zcomp_cli.camera import K_from_value
 from zcomp_cli.conventions import DEFAULT_SEED
 from zcomp_cli.errors import ManifestError
-from zcomp_cli.imageio import image_header
+from zcomp_cli.imageio import verify_image
+from zcomp_cli.limits import MAX_NAME_LEN, pixel_budget_problem, shorten, type_name
 from zcomp_cli.pose import Pose
 from zcomp_cli.yamlloc import LocDict, line_of, load_yaml
 
@@ -41,6 +42,29 @@ IMAGE_EXTS = {".png", ".jpg", ".jpeg", ".exr", ".hdr", ".tif", ".tiff"}
 MAP_CHANNELS = {"depth": 1, "normals": 3, "albedo": 3, "roughness": 1, "metallic": 1}
 DEFAULT_RADIUS = 1.0
 NAME_RE = re.compile(r"^[A-Za-z0-9_.\-]+$")
+MIN_SCENE_SIDE = 2  # the estimators' finite differences need two pixels each way
+MAX_SEED = 2**32 - 1  # numpy and torch generators both take [0, 2**32)
+# Files zcomp writes at the top of an output folder: no job may be named like them.
+RESERVED_OUTPUT_NAMES = {"summary.json", "eval.csv", "eval.json"}
+
+
+def name_problem(name) -> str | None:
+    """Why ``name`` cannot be a folder name inside an output root (None if it can).
+
+    Names become ``OUT/<name>/``: only letters, digits, '_', '-' and '.'; not '.' or
+    '..' (or any leading dot: hidden names clash with zcomp's temporary files), not a
+    file zcomp writes at the top of OUT, and at most MAX_NAME_LEN characters."""
+    if not isinstance(name, str) or not name:
+        return f"expected a name, got {type_name(name)} {shorten(name)}"
+    if len(name) > MAX_NAME_LEN:
+        return f"{shorten(name, 40)} is {len(name)} characters long (at most {MAX_NAME_LEN})"
+    if not NAME_RE.match(name):
+        return f"{shorten(name)} may only use letters, digits, '_', '-' and '.' (no path separators)"
+    if name.startswith("."):
+        return f"{name!r} may not start with '.' (names like '.', '..' and hidden names are refused)"
+    if name.lower() in RESERVED_OUTPUT_NAMES:
+        return f"{name!r} is the name of a file zcomp writes in the output folder"
+    return None
 
 
 @dataclass
@@ -83,10 +107,16 @@ class ObjectSpec:
 
 @dataclass
 class Placement:
-    pixel: tuple[float, float]  # [x, y] = [column, row]
+    """``placement.pixel`` is given, and validated, in the scene image's own (native)
+    pixels: ``[x, y] = [column, row]``, continuous coordinates with pixel centres at
+    +0.5. ``pixel`` holds it scaled to the working size (``defaults.resolution``), the
+    frame every map of the job is in; ``pixel_native`` keeps the value as written."""
+
+    pixel: tuple[float, float]  # [x, y] = [column, row], working size
     yaw_deg: float = 0.0
     height: float | None = None
     scale: float = 1.0
+    pixel_native: tuple[float, float] | None = None
 
 
 @dataclass
@@ -145,11 +175,19 @@ def _num(v) -> float | None:
 
 def _file(root: Path, value, container, key, where, probs, exts=None) -> Path | None:
     if not isinstance(value, str) or not value:
-        probs.add(container, key, where, f"expected a file path, got {value!r}")
+        probs.add(container, key, where, f"expected a file path, got {type_name(value)} {shorten(value)}")
+        return None
+    if "\0" in value or len(value) > 4096:
+        probs.add(container, key, where, f"not a usable file path: {shorten(value)}")
         return None
     p = (root / value).resolve() if not Path(value).is_absolute() else Path(value)
-    if not p.exists():
-        probs.add(container, key, where, f"file not found: {p}")
+    try:
+        exists = p.exists()
+    except OSError as exc:  # e.g. a name too long for the file system
+        probs.add(container, key, where, f"cannot use path {shorten(value)}: {exc.strerror}")
+        return None
+    if not exists:
+        probs.add(container, key, where, f"file not found: {shorten(str(p), 200)}")
         return None
     if exts and p.suffix.lower() not in exts and not p.is_dir():
         probs.add(container, key, where, f"unsupported format {p.suffix!r} (supported: {', '.join(sorted(exts))})")
@@ -166,7 +204,7 @@ def parse_renderer(value, container, key, where, probs) -> RendererSpec | None:
             return None
         settings = {k: v for k, v in value.items() if k != "name"}
         return RendererSpec(value["name"], dict(settings))
-    probs.add(container, key, where, f"expected a renderer name or mapping, got {value!r}")
+    probs.add(container, key, where, f"expected a renderer name or mapping, got {shorten(value)}")
     return None
 
 
@@ -181,13 +219,15 @@ def load_manifest(path, *, check_files: bool = True) -> Manifest:
     _check_keys(data, {"version", "defaults", "scenes", "objects", "jobs"}, "manifest", probs,
                 required=("scenes", "objects", "jobs"))
     version = data.get("version", 1)
-    if version != 1:
-        probs.add(data, "version", "version", f"unsupported manifest version {version!r} (this zcomp reads version 1)")
+    if version != 1 or isinstance(version, bool):
+        probs.add(data, "version", "version",
+                  f"unsupported manifest version {shorten(version)} (this zcomp reads version 1)")
 
     defaults = _parse_defaults(data.get("defaults") or LocDict(), data, probs)
     scenes = _parse_scenes(data.get("scenes"), data, root, probs, check_files, defaults)
     objects = _parse_objects(data.get("objects"), data, root, probs, check_files)
     jobs = _parse_jobs(data.get("jobs"), data, root, probs, scenes, objects, defaults, check_files)
+    _check_cameras(data, scenes, objects, jobs, defaults, probs)
     if probs.items:
         raise ManifestError(probs.items, source=str(path))
     return Manifest(path, defaults, scenes, objects, jobs)
@@ -209,34 +249,61 @@ def _parse_defaults(d, parent, probs) -> Defaults:
             out.resolution = None
         elif (isinstance(res, list) and len(res) == 2 and all(isinstance(v, int) and not isinstance(v, bool) for v in res)
               and res[0] > 0 and res[1] > 0):
-            out.resolution = (int(res[0]), int(res[1]))
+            budget = pixel_budget_problem(res[0], res[1])
+            if budget:
+                probs.add(d, "resolution", "defaults.resolution", budget)
+            elif min(res) < MIN_SCENE_SIDE:
+                probs.add(d, "resolution", "defaults.resolution",
+                          f"{res[0]}x{res[1]} is too small: at least {MIN_SCENE_SIDE}x{MIN_SCENE_SIDE} pixels")
+            else:
+                out.resolution = (int(res[0]), int(res[1]))
         else:
-            probs.add(d, "resolution", "defaults.resolution", f"expected [width, height] positive integers or 'native', got {res!r}")
+            probs.add(d, "resolution", "defaults.resolution",
+                      f"expected [width, height] positive integers or 'native', got {shorten(res)}")
     if "shading_radius" in d:
         v = _num(d["shading_radius"])
         if v is None or v < 0:
-            probs.add(d, "shading_radius", "defaults.shading_radius", f"expected a number >= 0, got {d['shading_radius']!r}")
+            probs.add(d, "shading_radius", "defaults.shading_radius",
+                      f"expected a number >= 0, got {shorten(d['shading_radius'])}")
         else:
             out.shading_radius = v
     if "seed" in d:
-        if not isinstance(d["seed"], int) or isinstance(d["seed"], bool):
-            probs.add(d, "seed", "defaults.seed", f"expected an integer, got {d['seed']!r}")
+        seed = _seed(d["seed"])
+        if seed is None:
+            probs.add(d, "seed", "defaults.seed", f"expected an integer in [0, {MAX_SEED}], got {shorten(d['seed'])}")
         else:
-            out.seed = int(d["seed"])
+            out.seed = seed
     if "samples" in d:
-        if not isinstance(d["samples"], int) or d["samples"] < 1:
-            probs.add(d, "samples", "defaults.samples", f"expected an integer >= 1, got {d['samples']!r}")
+        v = d["samples"]
+        if not isinstance(v, int) or isinstance(v, bool) or not 1 <= v <= 100_000:
+            probs.add(d, "samples", "defaults.samples", f"expected an integer in [1, 100000], got {shorten(v)}")
         else:
-            out.samples = int(d["samples"])
+            out.samples = int(v)
     return out
 
 
+def _seed(v) -> int | None:
+    if isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= MAX_SEED:
+        return int(v)
+    return None
+
+
 def _parse_K(value, container, key, where, probs) -> np.ndarray | None:
+    flat = [v for r in value for v in (r if isinstance(r, list) else [r])] if isinstance(value, list) else None
+    if flat is None or not all(_num(v) is not None for v in flat):
+        # YAML booleans and quoted numbers are not numbers here either
+        probs.add(container, key, where, f"expected [[fx,0,cx],[0,fy,cy],[0,0,1]] or [fx, fy, cx, cy] "
+                                         f"finite numbers, got {shorten(value)}")
+        return None
     try:
-        return K_from_value(value)
+        K = K_from_value(value)
     except ValueError as exc:
         probs.add(container, key, where, str(exc))
         return None
+    if K[0, 1] != 0 or K[1, 0] != 0:
+        probs.add(container, key, where, "skewed K (K[0][1] or K[1][0] not 0) is not supported")
+        return None
+    return K
 
 
 def _named_entries(d, parent, section: str, what: str, expected: str, probs):
@@ -247,11 +314,12 @@ def _named_entries(d, parent, section: str, what: str, expected: str, probs):
             probs.add(parent, section, section, f"expected a non-empty mapping of {what} name -> {what}")
         return
     for name, entry in d.items():
-        where = f"{section}.{name}"
-        if not isinstance(name, str) or not NAME_RE.match(name):
-            probs.add(d, name, where, f"{what} names may use letters, digits, '_', '-' and '.'")
+        where = f"{section}.{shorten(name, 40) if not isinstance(name, str) or len(name) > 40 else name}"
+        bad = name_problem(name)
+        if bad:
+            probs.add(d, name, where, f"{what} name {bad}")
         elif not isinstance(entry, dict):
-            probs.add(d, name, where, f"expected a mapping with {expected}")
+            probs.add(d, name, where, f"expected a mapping with {expected}, got {type_name(entry)}")
         else:
             yield name, entry, where
 
@@ -262,13 +330,25 @@ def _parse_scenes(d, parent, root, probs, check_files, defaults) -> dict[str, Sc
         _check_keys(s, {"image", "fov_deg", "K", "light", *MAP_CHANNELS}, where, probs, required=("image",))
         if "fov_deg" in s and "K" in s:
             probs.add(s, "K", where, "give fov_deg or K, not both")
+        for m in MAP_CHANNELS:
+            if m in s and not isinstance(s[m], (str, dict)):
+                probs.add(s, m, f"{where}.{m}",
+                          f"expected a map file or an estimator mapping, got {type_name(s[m])} {shorten(s[m])}")
         image = _file(root, s["image"], s, "image", f"{where}.image", probs, IMAGE_EXTS) if "image" in s else None
         w = h = 0
         if image is not None and check_files:
             try:
-                w, h, c = image_header(image)
+                w, h, c = verify_image(image)
                 if c not in (1, 2, 3, 4):
                     probs.add(s, "image", f"{where}.image", f"unexpected channel count {c}")
+                budget = pixel_budget_problem(w, h)
+                if budget:  # the image is read at its own size before any resampling
+                    probs.add(s, "image", f"{where}.image", f"the image is {budget}")
+                    image = None
+                elif min(w, h) < MIN_SCENE_SIDE:
+                    probs.add(s, "image", f"{where}.image",
+                              f"the image is {w}x{h}; a scene needs at least {MIN_SCENE_SIDE}x{MIN_SCENE_SIDE} pixels")
+                    image = None
             except ValueError as exc:
                 probs.add(s, "image", f"{where}.image", f"cannot read image: {exc}")
                 image = None
@@ -276,7 +356,7 @@ def _parse_scenes(d, parent, root, probs, check_files, defaults) -> dict[str, Sc
         if "fov_deg" in s:
             v = _num(s["fov_deg"])
             if v is None or not (0 < v < 180):
-                probs.add(s, "fov_deg", f"{where}.fov_deg", f"expected degrees in (0, 180), got {s['fov_deg']!r}")
+                probs.add(s, "fov_deg", f"{where}.fov_deg", f"expected degrees in (0, 180), got {shorten(s['fov_deg'])}")
             else:
                 spec.fov_deg = v
         if "K" in s:
@@ -290,12 +370,14 @@ def _parse_scenes(d, parent, root, probs, check_files, defaults) -> dict[str, Sc
             if isinstance(v, dict):
                 spec.estimators[m] = dict(v)
                 continue
+            if not isinstance(v, str):
+                continue
             p = _file(root, v, s, m, f"{where}.{m}", probs, IMAGE_EXTS)
             if p is None:
                 continue
             if check_files and image is not None:
                 try:
-                    mw, mh, mc = image_header(p)
+                    mw, mh, mc = verify_image(p)
                 except ValueError as exc:
                     probs.add(s, m, f"{where}.{m}", f"cannot read map: {exc}")
                     continue
@@ -352,6 +434,21 @@ def _parse_objects(d, parent, root, probs, check_files) -> dict[str, ObjectSpec]
                 probs.add(o, None, where, "an image object needs a 'mask'")
             else:
                 spec.mask = _file(root, o["mask"], o, "mask", f"{where}.mask", probs, IMAGE_EXTS)
+            if check_files:
+                for key in ("image", "mask"):
+                    p = getattr(spec, key)
+                    if p is None:
+                        continue
+                    try:
+                        ow, oh, _ = verify_image(p)
+                    except ValueError as exc:
+                        probs.add(o, key, f"{where}.{key}", f"cannot read image: {exc}")
+                        setattr(spec, key, None)
+                        continue
+                    budget = pixel_budget_problem(ow, oh)
+                    if budget:
+                        probs.add(o, key, f"{where}.{key}", f"the image is {budget}")
+                        setattr(spec, key, None)
         out[name] = spec
     return out
 
@@ -372,10 +469,15 @@ def _parse_jobs(d, parent, root, probs, scenes, objects, defaults, check_files) 
                     where, probs, required=("scene", "object"))
         scene = j.get("scene")
         obj = j.get("object")
-        if "scene" in j and scene not in scenes:
-            probs.add(j, "scene", f"{where}.scene", f"unknown scene {scene!r} (defined: {', '.join(map(str, scenes)) or 'none'})")
-        if "object" in j and obj not in objects:
-            probs.add(j, "object", f"{where}.object", f"unknown object {obj!r} (defined: {', '.join(map(str, objects)) or 'none'})")
+        # A list or mapping here is unhashable: check the type before looking it up.
+        if "scene" in j and (not isinstance(scene, str) or scene not in scenes):
+            probs.add(j, "scene", f"{where}.scene",
+                      f"unknown scene {shorten(scene)} (defined: {shorten(', '.join(map(str, scenes)), 200) or 'none'})")
+            scene = None
+        if "object" in j and (not isinstance(obj, str) or obj not in objects):
+            probs.add(j, "object", f"{where}.object",
+                      f"unknown object {shorten(obj)} (defined: {shorten(', '.join(map(str, objects)), 200) or 'none'})")
+            obj = None
         job = JobSpec(index=i, name="", scene=str(scene), object=str(obj), line=line_of(d, i),
                       shading_radius=defaults.shading_radius, seed=defaults.seed)
         has_pose, has_place = "pose" in j, "placement" in j
@@ -388,26 +490,29 @@ def _parse_jobs(d, parent, root, probs, scenes, objects, defaults, check_files) 
                 for problem in exc.problems:
                     probs.items.append(f"{probs.path.name}:{line_of(j, 'pose')}: {problem}")
         else:
-            job.placement = _parse_placement(j["placement"], j, f"{where}.placement", probs, scenes.get(scene))
+            job.placement = _parse_placement(j["placement"], j, f"{where}.placement", probs, scenes.get(scene),
+                                             defaults.resolution)
         if "output" in j:
-            o = j["output"]
-            if not isinstance(o, str) or not NAME_RE.match(o):
-                probs.add(j, "output", f"{where}.output", "expected a folder name (letters, digits, '_', '-', '.')")
+            bad = name_problem(j["output"])
+            if bad:
+                probs.add(j, "output", f"{where}.output", f"expected a folder name inside --out: {bad}")
             else:
-                job.name = o
+                job.name = j["output"]
         if "reference" in j:
             job.reference = _file(root, j["reference"], j, "reference", f"{where}.reference", probs, IMAGE_EXTS)
         if "shading_radius" in j:
             v = _num(j["shading_radius"])
             if v is None or v < 0:
-                probs.add(j, "shading_radius", f"{where}.shading_radius", "expected a number >= 0")
+                probs.add(j, "shading_radius", f"{where}.shading_radius",
+                          f"expected a number >= 0, got {shorten(j['shading_radius'])}")
             else:
                 job.shading_radius = v
         if "seed" in j:
-            if not isinstance(j["seed"], int) or isinstance(j["seed"], bool):
-                probs.add(j, "seed", f"{where}.seed", "expected an integer")
+            seed = _seed(j["seed"])
+            if seed is None:
+                probs.add(j, "seed", f"{where}.seed", f"expected an integer in [0, {MAX_SEED}], got {shorten(j['seed'])}")
             else:
-                job.seed = int(j["seed"])
+                job.seed = seed
         if not job.name:
             job.name = f"{i:03d}_{job.scene}_{job.object}"
         if job.name in names:
@@ -417,7 +522,7 @@ def _parse_jobs(d, parent, root, probs, scenes, objects, defaults, check_files) 
     return out
 
 
-def _parse_placement(p, parent, where, probs, scene: SceneSpec | None) -> Placement | None:
+def _parse_placement(p, parent, where, probs, scene: SceneSpec | None, resolution=None) -> Placement | None:
     if not isinstance(p, dict):
         probs.add(parent, "placement", where, "expected a mapping {pixel: [x, y], yaw_deg, height}")
         return None
@@ -425,25 +530,55 @@ def _parse_placement(p, parent, where, probs, scene: SceneSpec | None) -> Placem
     px = p.get("pixel")
     if "pixel" in p:
         if not (isinstance(px, list) and len(px) == 2 and all(_num(v) is not None for v in px)):
-            probs.add(p, "pixel", f"{where}.pixel", f"expected [x, y] (column, row), got {px!r}")
+            probs.add(p, "pixel", f"{where}.pixel", f"expected [x, y] (column, row), got {shorten(px)}")
             return None
         if scene is not None and scene.width and not (0 <= px[0] < scene.width and 0 <= px[1] < scene.height):
             probs.add(p, "pixel", f"{where}.pixel",
-                      f"{px} is outside the {scene.width}x{scene.height} image of scene {scene.name!r}")
+                      f"{shorten(px)} is outside the {scene.width}x{scene.height} image of scene {scene.name!r} "
+                      "(pixels of the image file, before any resolution change)")
     yaw = _num(p.get("yaw_deg", 0.0))
     if yaw is None:
-        probs.add(p, "yaw_deg", f"{where}.yaw_deg", "expected a number (degrees)")
+        probs.add(p, "yaw_deg", f"{where}.yaw_deg", f"expected a number (degrees), got {shorten(p.get('yaw_deg'))}")
         yaw = 0.0
     height = p.get("height")
     if height is not None and (_num(height) is None or height <= 0):
-        probs.add(p, "height", f"{where}.height", "expected metres > 0")
+        probs.add(p, "height", f"{where}.height", f"expected metres > 0, got {shorten(height)}")
         height = None
     scale = p.get("scale", 1.0)
     if _num(scale) is None or scale <= 0:
-        probs.add(p, "scale", f"{where}.scale", "expected a number > 0")
+        probs.add(p, "scale", f"{where}.scale", f"expected a number > 0, got {shorten(scale)}")
         scale = 1.0
     if px is None:
         return None
-    return Placement(pixel=(float(px[0]), float(px[1])), yaw_deg=float(yaw),
-                     height=None if height is None else float(height), scale=float(scale))
+    native = (float(px[0]), float(px[1]))
+    work = native
+    if resolution is not None and scene is not None and scene.width and scene.height:
+        work = (native[0] * resolution[0] / scene.width, native[1] * resolution[1] / scene.height)
+    return Placement(pixel=work, yaw_deg=float(yaw), height=None if height is None else float(height),
+                     scale=float(scale), pixel_native=native)
+
+
+def _check_cameras(data, scenes, objects, jobs, defaults, probs) -> None:
+    """Mesh objects are rendered by Blender with square pixels: a scene whose working
+    camera has fx != fy cannot take them. Said here, on the scene's K (the camera is
+    the cause, not the object), before anything renders."""
+    users: dict[str, list[int]] = {}
+    for job in jobs:
+        o = objects.get(job.object)
+        if o is not None and o.kind == "mesh" and job.scene in scenes:
+            users.setdefault(job.scene, []).append(job.index)
+    for name, idx in users.items():
+        sc = scenes[name]
+        if sc.K is None:
+            continue
+        fx, fy = sc.K[0, 0], sc.K[1, 1]
+        if defaults.resolution is not None and sc.width and sc.height:
+            fx *= defaults.resolution[0] / sc.width
+            fy *= defaults.resolution[1] / sc.height
+        if abs(fx - fy) > 1e-6 * max(fx, fy):
+            entry = data["scenes"][name]
+            shown = ", ".join(f"jobs[{i}]" for i in idx[:5]) + (" ..." if len(idx) > 5 else "")
+            probs.add(entry, "K", f"scenes.{name}.K",
+                      f"non-square pixels (fx={fx:g} != fy={fy:g}) at the working size: Blender renders "
+                      f"mesh objects with square pixels ({shown} use a mesh object in this scene)")
 

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from zcomp_cli.camera import DEFAULT_FOV_DEG, Camera, K_from_value
 from zcomp_cli.errors import ManifestError
-from zcomp_cli.pipeline.manifest import _check_keys, _num, _Problems
+from zcomp_cli.pipeline.manifest import _check_keys, _num, _Problems, name_problem
 from zcomp_cli.pose import Pose
 from zcomp_cli.yamlloc import LocDict, line_of, load_yaml
 
@@ -47,9 +47,14 @@ def camera_from_spec(fov_deg, K, resolution, where: str) -> tuple[Camera | None,
     """A Camera from a FOV (default 50°) or K and a ``(W, H)`` resolution; returns
     ``(camera, None)`` or ``(None, message naming where)``."""
     try:
+        from zcomp_cli.limits import pixel_budget_problem
+
         w, h = (int(v) for v in resolution)
         if w <= 0 or h <= 0:
             return None, f"{where}: resolution must be positive, got {w}x{h}"
+        budget = pixel_budget_problem(w, h)
+        if budget:  # refused before Blender allocates anything
+            return None, f"{where}: resolution {budget}"
         if K is not None:
             return Camera(K_from_value(K), w, h), None
         fov = DEFAULT_FOV_DEG if fov_deg is None else float(fov_deg)
@@ -146,8 +151,9 @@ def load_objects_manifest(path) -> list[RenderItem]:
                 for problem in exc.problems:
                     probs.items.append(f"{path.name}:{line_of(r, 'pose')}: {problem}")
         name = str(r.get("name") or f"{obj}_{i:03d}")
-        if "/" in name or "\\" in name or name in (".", "..") or not name.strip():
-            probs.add(r, "name", f"{where}.name", f"{name!r} is not a plain folder name")
+        bad = name_problem(name)
+        if bad:
+            probs.add(r, "name", f"{where}.name", f"not a plain folder name inside --out: {bad}")
         elif name in names:
             probs.add(r, "name", f"{where}.name", f"{name!r} already used by renders[{names[name]}]")
         names.setdefault(name, i)

@@ -18,6 +18,8 @@ from zcomp_cli.maps import SceneMaps
 
 log = logging.getLogger(__name__)
 
+ALBEDO_BLACK = 1e-3  # an albedo map whose maximum is below this is taken for a mistake
+
 
 @dataclass
 class Scene:
@@ -78,6 +80,15 @@ def sanitize_maps(image, depth, normals, albedo, where: str) -> tuple[np.ndarray
     if nonfinite_alb.any():
         notes.append(f"{where}: non-finite albedo values set to 0.5")
     albedo = np.clip(np.nan_to_num(albedo, nan=0.5, posinf=1.0, neginf=0.0), 0.0, 1.0).astype(np.float32)
+    lit = dv & (image.max(axis=-1) > 1e-4)
+    if lit.any() and float(albedo[lit].max()) < ALBEDO_BLACK:
+        # shading = image / albedo then hits its clamp everywhere: the renderer sees a
+        # scene lit hundreds of times too brightly, and the object is drawn that way.
+        msg = (f"{where}: the albedo is ~0 everywhere (max {float(albedo[lit].max()):.2g}) where the image is "
+               "lit: shading = image / albedo is meaningless and the object will be far too bright; "
+               "check the albedo map (linear [0, 1]) or let zcomp estimate it")
+        log.warning(msg)
+        notes.append(msg)
     return image.astype(np.float32), depth, normals, albedo, notes
 
 

@@ -27,6 +27,8 @@ class RendererEntry:
     cls: str
     summary: str
     options: tuple[RendererOption, ...] = ()
+    # settings that change speed, not results: left out of resume fingerprints
+    speed_settings: tuple[str, ...] = ()
 
 
 RENDERERS: dict[str, RendererEntry] = {
@@ -42,7 +44,17 @@ RENDERERS: dict[str, RendererEntry] = {
             RendererOption("base", "base", str,
                            "the Stable Diffusion 2.1 base directory (unet, vae, text_encoder, scheduler)", "DIR"),
             RendererOption("steps", "steps", int, "DDIM steps (default 20)", "N"),
-        )),
+            RendererOption("batch_size", "batch-size", int,
+                           "jobs per GPU batch, N jobs x 2 passes per UNet/ControlNet call "
+                           "(default 4; docs/zerocomp.md, Throughput)", "N"),
+            RendererOption("window", "window", str,
+                           "square window the model sees: auto (default), center (official "
+                           "centre crop) or roi (crop around the job's region)", "MODE"),
+            RendererOption("dtype", "dtype", str,
+                           "auto (bf16 on GPU, fp32 on CPU), bf16, fp16, fp32 or fp16-autocast "
+                           "(the official setting)", "DTYPE"),
+        ),
+        speed_settings=("batch_size", "channels_last", "compile")),
     "naive": RendererEntry(
         "zcomp_cli.renderers.naive", "NaiveRenderer",
         "baseline paste: albedo x mean scene shading, no shadow (benchmark rows)"),

@@ -12,11 +12,11 @@ samples, so the trainer needs no change: a dict of float32 arrays
   (13-channel training).
 
 Normals: both datasets store the vector that the official ZeroComp training fed to the
-network unchanged (``e * 0.5 + 0.5``). zcomp builds that encoding from camera normals with
-:func:`zcomp_cli.conventions.camera_normals_to_openrooms`; the loaders apply its exact
-inverse, so the conditioning the trainer builds from a loaded sample equals the encoding
-stored in the file (and the official training's input), whatever sign convention that
-shared function settles on.
+network unchanged (``e * 0.5 + 0.5``), in the OpenGL camera frame (x right, y up, +z toward
+the viewer: OpenRooms writes (N.U, N.V, N.(-W)), W = lookat - eye), which is zcomp's own
+camera frame (DESIGN.md section 4). The loaders therefore only normalise: ``n = normalize(e)``,
+the inverse of :func:`zcomp_cli.conventions.camera_normals_to_conditioning`, so the
+conditioning the trainer builds from a loaded sample equals the encoding stored in the file.
 
 Every problem (missing file, unreadable file, wrong shape, NaN/Inf) raises
 :class:`~zcomp_cli.errors.InputError` naming the sample and the file.
@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from zcomp_cli.conventions import GAMMA, camera_normals_to_openrooms, normalize
+from zcomp_cli.conventions import GAMMA, normalize
 from zcomp_cli.errors import InputError
 
 __all__ = [
@@ -43,7 +43,7 @@ __all__ = [
 ]
 
 # Official OpenRooms albedo (imbaseColor) PNGs are decoded with a pure 2.2 gamma, not the
-# sRGB curve (ZeroComp and Li et al. both use x ** 2.2).
+# sRGB curve (ZeroComp and Li et al. both use x ** 2.2): conventions.GAMMA.
 # Exposure: the 95th percentile of the valid pixels is mapped to this value (the middle of
 # the official training range 0.85-0.95, and its evaluation value), then the image is
 # clipped to [0, 1] as the official loaders do. The percentile is floored so that a dark
@@ -56,21 +56,13 @@ IV_DEPTH_SCALE = 1e-3
 IV_DEPTH_MAX_MM = 1e5
 # OpenRooms immask: 1 = geometry, 0.5 = area lights, 0 = windows / environment.
 MASK_VALID = 0.9
-# A dataset whose decoded normals mostly face away from the camera is probably stored in
-# another convention than the one assumed: warn once.
+# Visible surfaces face the camera (z > 0 in the OpenGL frame the checkpoints expect): a
+# dataset whose decoded normals mostly face away is stored in another convention (e.g.
+# Blender shader camera space, z forward) and would train the model upside down: warn once.
 BACKFACING_WARN_FRACTION = 0.5
 
 
 # ----------------------------------------------------------------------------- helpers
-
-
-def _normal_signs() -> np.ndarray:
-    """Per-axis sign s with ``camera_normals_to_openrooms(n) == (s * n) * 0.5 + 0.5``
-    (derived from the shared function, so the loaders follow it if it changes)."""
-    s = 2.0 * camera_normals_to_openrooms(np.ones(3, np.float32)) - 1.0
-    if not np.allclose(np.abs(s), 1.0, atol=1e-6):
-        raise RuntimeError("camera_normals_to_openrooms is not a per-axis sign flip")
-    return np.sign(s).astype(np.float32)
 
 
 def decode_official_normals(encoded) -> np.ndarray:
@@ -81,12 +73,13 @@ def decode_official_normals(encoded) -> np.ndarray:
             [-1, 1] (i.e. ``2 * png - 1`` for OpenRooms PNGs, the raw EXR for InteriorVerse).
     Returns:
         (H, W, 3) float32 unit normals in zcomp's camera frame; zero-length vectors stay 0.
-        ``camera_normals_to_openrooms(result) == normalize(encoded) * 0.5 + 0.5``.
+        No axis is flipped: the official frame is zcomp's OpenGL camera frame, so
+        ``camera_normals_to_conditioning(result) == normalize(encoded) * 0.5 + 0.5``.
     """
     e = np.asarray(encoded, np.float32)
     if e.ndim != 3 or e.shape[-1] != 3:
         raise InputError(f"normals must be (H, W, 3), got {e.shape}")
-    return normalize(e * _normal_signs())
+    return normalize(e)
 
 
 def read_openrooms_depth(path) -> np.ndarray:
@@ -184,7 +177,9 @@ def _first_channel(a: np.ndarray) -> np.ndarray:
 
 class _BackfacingCheck:
     """Warns once per dataset when most decoded normals face away from the camera
-    (z < 0 in zcomp's frame), the sign of a normal-convention mismatch."""
+    (z < 0 in zcomp's OpenGL frame). Visible surfaces cannot face away, so this means the
+    files use another frame (e.g. z forward) than the official checkpoints' (DESIGN.md
+    section 4): their normals must be converted before training."""
 
     def __init__(self, layout: str):
         self.layout, self.done = layout, False
@@ -199,8 +194,10 @@ class _BackfacingCheck:
         frac = float((nz[:, 2] < 0).mean())
         if frac > BACKFACING_WARN_FRACTION:
             warnings.warn(f"{self.layout} sample {sample}: {frac:.0%} of the normals face away "
-                          "from the camera after decoding; check the dataset's normal "
-                          "convention (docs/zerocomp.md, 'Training datasets')", stacklevel=3)
+                          "from the camera (z < 0 in the OpenGL camera frame the official "
+                          "checkpoints expect); the files are probably in another frame "
+                          "(z forward?): convert them before training (docs/zerocomp.md, "
+                          "'Training datasets')", stacklevel=3)
 
 
 # ----------------------------------------------------------------------------- OpenRooms

@@ -11,7 +11,7 @@ from typing import Callable
 
 import numpy as np
 
-from zcomp_cli.conventions import GAMMA, SHADING_EPS, SHADING_MAX
+from zcomp_cli.conventions import GAMMA
 from zcomp_cli.errors import NumericalError, UsageError
 from zcomp_cli.training.config import TrainConfig
 
@@ -29,29 +29,42 @@ def _latest_checkpoint(out: Path) -> Path | None:
 
 
 def make_batch(samples, rng, cfg: TrainConfig, channels: int):
-    """-> (target images B x 3 x R x R in [-1, 1] gamma-2.2, conditioning B x C x R x R)."""
-    import cv2
+    """-> (target images B x 3 x R x R in [-1, 1] gamma-2.2, conditioning B x C x R x R).
 
+    Each sample is cut to a random short-side square (the official short-side resize and
+    random crop; never squashed), the same window for the target and the conditioning.
+    Shading follows the official loader of the layout: OpenRooms feeds linear image /
+    linear albedo; the other layouts use the inference encoding (gamma image / albedo)."""
     from zcomp_cli.camera import Camera
     from zcomp_cli.conventions import K_from_fov
     from zcomp_cli.maps import SceneMaps
     from zcomp_cli.renderers.base import RenderRequest
-    from zcomp_cli.renderers.zerocomp.conditioning import build_conditioning
+    from zcomp_cli.renderers.zerocomp.conditioning import (
+        build_conditioning,
+        linear_shading,
+        resize_square,
+        take_window,
+    )
     from zcomp_cli.training.masks import random_shading_mask
 
     R = cfg.resolution
+    encoding = "linear" if cfg.layout == "openrooms" else "inference"
     imgs, conds = [], []
     for s in samples:
         h, w = s["depth"].shape
-        masked, _ = random_shading_mask(h, w, rng)
+        side = min(h, w)
+        x0, y0 = int(rng.integers(0, w - side + 1)), int(rng.integers(0, h - side + 1))
+        box = (x0, y0, x0 + side, y0 + side)
+        masked, _ = random_shading_mask(side, side, rng)
+        known = np.ones((h, w), bool)
+        known[y0:y0 + side, x0:x0 + side] = ~masked
         alb = np.clip(s["albedo"], 0, 1)
         img = np.clip(s["image"], 0, None)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            shading = np.clip(np.nan_to_num(img / alb, nan=SHADING_EPS, posinf=SHADING_MAX), SHADING_EPS, SHADING_MAX)
+        shading = linear_shading(img, alb)
         maps = SceneMaps(s["depth"], s["normals"], alb, s.get("roughness"), s.get("metallic"))
-        req = RenderRequest(maps, shading, ~masked, Camera(K_from_fov(50, w, h), w, h), image=img)
-        conds.append(build_conditioning(req, channels, R))
-        tgt = cv2.resize(np.clip(img, 0, 1) ** (1 / GAMMA), (R, R), interpolation=cv2.INTER_AREA)
+        req = RenderRequest(maps, shading, known, Camera(K_from_fov(50, w, h), w, h), image=img)
+        conds.append(build_conditioning(req, channels, R, box, shading=encoding))
+        tgt = resize_square(take_window(np.clip(img, 0, 1) ** (1 / GAMMA), box), R)
         imgs.append(tgt.transpose(2, 0, 1) * 2 - 1)
     return np.stack(imgs).astype(np.float32), np.stack(conds)
 

@@ -42,13 +42,19 @@ class PhysicalRenderer(Renderer):
             raise UsageError(f"unknown physical renderer setting(s): {', '.join(sorted(unknown))}; "
                              f"known: {', '.join(_DEFAULTS)}")
         self._s = {**_DEFAULTS, **settings}
+        from zcomp_cli.limits import shorten
+
         for k in ("n_light_candidates", "march_steps", "estimate_march_steps", "max_resolution",
                   "cone_samples", "max_fit_pixels"):
-            if int(self._s[k]) < 1:
-                raise UsageError(f"physical setting {k} must be >= 1, got {self._s[k]}")
+            v = self._s[k]
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v <= 1_000_000:
+                raise UsageError(f"physical renderer setting {k}: expected an integer in [1, 1000000], "
+                                 f"got {shorten(v)}")
         sv = self._s["shadow_softness"]
-        if sv is not None and not (0 <= float(sv) <= 60):
-            raise UsageError(f"shadow_softness must be in [0, 60] degrees, got {sv}")
+        if sv is not None and (isinstance(sv, bool) or not isinstance(sv, (int, float))
+                               or not (0 <= float(sv) <= 60)):
+            raise UsageError(f"physical renderer setting shadow_softness: expected degrees in [0, 60], "
+                             f"got {shorten(sv)}")
         self._cache: dict = {}
 
     def settings(self) -> dict:
@@ -63,6 +69,12 @@ class PhysicalRenderer(Renderer):
         if key is not None and key in self._cache:
             return self._cache[key]
         d, n, sh, known = self._inputs(req)
+        if key is not None:
+            # Cached per scene, so it must depend on the scene alone: fit on every valid
+            # background pixel, not on the first job's shading mask -- else a job's
+            # result would depend on which job of its scene a process ran first, and
+            # shards or Ray workers would give other composites than one local run.
+            known = (d > 0) & np.all(np.isfinite(req.shading), axis=-1)
         if light:
             from zcomp_cli.renderers.physical.known_light import light_from_spec
 

@@ -1,6 +1,10 @@
 """Device and dtype policy of the zerocomp renderer, in one place.
 
-GPU: bf16 where supported, else fp16 (SD 2.1 overflows in fp16 less often with bf16).
+GPU: bf16 where supported, else fp16. bf16 is the default because it keeps fp32's
+exponent range: SD 2.1 in fp16 can overflow to Inf/NaN (black images, DESIGN.md section 7)
+and bf16 runs at the same tensor-core rate on Ampere and later. ``fp16-autocast`` is the
+official ZeroComp setting (fp16 weights, ``torch.autocast(float16)``: norms and softmax
+in fp32), for reproducing the official numbers exactly.
 CPU: fp32 (half precision on CPU is slow and poorly supported).
 Every model output that reaches an image goes through ``check_finite``: half precision
 can overflow to Inf/NaN, and a NaN decoded as black must never be written.
@@ -10,7 +14,7 @@ from __future__ import annotations
 
 from zcomp_cli.errors import NumericalError, UsageError
 
-DTYPES = ("auto", "fp32", "fp16", "bf16")
+DTYPES = ("auto", "fp32", "fp16", "bf16", "fp16-autocast")
 
 
 def resolve_device(device: str = "auto") -> str:
@@ -34,7 +38,19 @@ def resolve_dtype(dtype: str, device: str):
         if not device.startswith("cuda"):
             return torch.float32
         return torch.bfloat16 if torch.cuda.is_bf16_supported() else torch.float16
-    return {"fp32": torch.float32, "fp16": torch.float16, "bf16": torch.bfloat16}[dtype]
+    return {"fp32": torch.float32, "fp16": torch.float16, "bf16": torch.bfloat16,
+            "fp16-autocast": torch.float16}[dtype]
+
+
+def autocast_context(dtype_setting: str, device: str):
+    """The ``torch.autocast`` context for ``fp16-autocast`` (official), else a no-op."""
+    import contextlib
+
+    import torch
+
+    if dtype_setting != "fp16-autocast":
+        return contextlib.nullcontext()
+    return torch.autocast(device_type=device.split(":")[0], dtype=torch.float16)
 
 
 def check_finite(x, stage: str):

@@ -9,7 +9,7 @@ Nothing touches the network unless ``allow_network`` (then ``base`` may be a hub
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from zcomp_cli.errors import WeightsError
@@ -29,6 +29,7 @@ class ZeroCompModels:
     vae: object
     text_encoder: object
     scheduler: object
+    cache: dict = field(default_factory=dict)  # e.g. the empty-prompt embedding
 
     @property
     def conditioning_channels(self) -> int:
@@ -73,12 +74,21 @@ def resolve_paths(controlnet, base) -> tuple[Path, Path]:
 
 def scheduler_from_base(base: Path):
     """SD 2.1's DDIM config with the official overrides: trailing spacing, zero terminal
-    SNR, v-prediction."""
+    SNR. The base must already be a v-prediction model (SD 2.1 768-v): an ε-prediction
+    base (e.g. SD 2.1-base, 512) is refused, never silently switched, because its UNet
+    would be sampled with the wrong parameterisation and produce garbage."""
     from diffusers import DDIMScheduler
 
     cfg = DDIMScheduler.load_config(str(base / "scheduler"))
+    pred = cfg.get("prediction_type", "epsilon")
+    if pred != "v_prediction":
+        raise WeightsError(
+            f"{base / 'scheduler' / 'scheduler_config.json'}: prediction_type={pred!r}; the "
+            "ZeroComp ControlNets were trained on a v-prediction SD 2.1 base (the 768-v "
+            "'stable-diffusion-2-1', not 'stable-diffusion-2-1-base'). Point the base at a "
+            "v-prediction SD 2.1 directory.")
     return DDIMScheduler.from_config(cfg, timestep_spacing="trailing", rescale_betas_zero_snr=True,
-                                     prediction_type="v_prediction", clip_sample=False)
+                                     clip_sample=False)
 
 
 def load_models(controlnet, base, *, device: str, dtype, allow_network: bool = False) -> ZeroCompModels:

@@ -1,0 +1,125 @@
+"""Resource limits on untrusted input, checked before anything large is allocated.
+
+Every limit has a default that fits a laptop and an environment variable to raise it
+(documented in ``docs/limits.md``):
+
+=====================  ==========================  ==========================================
+limit                  environment variable        default
+=====================  ==========================  ==========================================
+pixels per image       ``ZCOMP_MAX_PIXELS``         40,000,000 (e.g. 8000 x 5000)
+manifest file size     ``ZCOMP_MAX_MANIFEST_BYTES`` 4 MiB
+YAML values expanded   ``ZCOMP_MAX_YAML_NODES``     2,000,000 (aliases counted at each use)
+=====================  ==========================  ==========================================
+
+A job at P pixels holds a few dozen float32 maps of P pixels at once (image, depth,
+normals, albedo, shading, two renders, masks...), about 0.3 KB per pixel: the default
+pixel budget keeps one job near 12 GB at worst.
+"""
+
+from __future__ import annotations
+
+import os
+
+from zcomp_cli.errors import UsageError
+
+MAX_PIXELS_ENV = "ZCOMP_MAX_PIXELS"
+MAX_MANIFEST_BYTES_ENV = "ZCOMP_MAX_MANIFEST_BYTES"
+MAX_YAML_NODES_ENV = "ZCOMP_MAX_YAML_NODES"
+
+DEFAULT_MAX_PIXELS = 40_000_000
+DEFAULT_MAX_MANIFEST_BYTES = 4 * 1024 * 1024
+DEFAULT_MAX_YAML_NODES = 2_000_000
+
+# Longest job / scene / object name (it becomes a folder name; file systems stop at 255
+# bytes and the default job name joins a scene and an object name).
+MAX_NAME_LEN = 100
+# Longest value quoted back in an error message.
+MAX_SHOWN_CHARS = 80
+
+
+def _env_int(name: str, default: int) -> int:
+    raw = os.environ.get(name)
+    if raw is None or raw.strip() == "":
+        return default
+    try:
+        value = int(float(raw))
+    except ValueError:
+        raise UsageError(f"${name} must be a positive integer, got {raw[:MAX_SHOWN_CHARS]!r}") from None
+    if value < 1:
+        raise UsageError(f"${name} must be a positive integer, got {raw[:MAX_SHOWN_CHARS]!r}")
+    return value
+
+
+def max_pixels() -> int:
+    """Largest image (width x height) zcomp reads, renders or resamples to."""
+    return _env_int(MAX_PIXELS_ENV, DEFAULT_MAX_PIXELS)
+
+
+def max_manifest_bytes() -> int:
+    return _env_int(MAX_MANIFEST_BYTES_ENV, DEFAULT_MAX_MANIFEST_BYTES)
+
+
+def max_yaml_nodes() -> int:
+    return _env_int(MAX_YAML_NODES_ENV, DEFAULT_MAX_YAML_NODES)
+
+
+def pixel_budget_problem(width: int, height: int) -> str | None:
+    """None when ``width x height`` fits the pixel budget, else a message naming the
+    limit and how to raise it (the caller names the field)."""
+    limit = max_pixels()
+    if int(width) * int(height) <= limit:
+        return None
+    return (f"{int(width)}x{int(height)} = {int(width) * int(height):,} pixels exceeds the pixel budget of "
+            f"{limit:,} (set ${MAX_PIXELS_ENV} to raise it)")
+
+
+def shorten(value, limit: int = MAX_SHOWN_CHARS) -> str:
+    """``repr(value)`` cut to ``limit`` characters, for error messages: a manifest value
+    can be megabytes long (or an alias bomb). YAML containers are named as YAML names
+    them (mapping, list), not by their Python class."""
+    text = _repr_bounded(value, limit + 1)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _repr_bounded(value, budget: int) -> str:
+    # Never build the full repr of a huge (or alias-shared) structure: stop at budget.
+    if isinstance(value, dict):
+        parts, used = [], 1
+        for k, v in value.items():
+            if used > budget:
+                parts.append("...")
+                break
+            s = f"{_repr_bounded(k, budget - used)}: {_repr_bounded(v, budget - used)}"
+            parts.append(s)
+            used += len(s) + 2
+        return "{" + ", ".join(parts) + "}"
+    if isinstance(value, (list, tuple)):
+        parts, used = [], 1
+        for v in value:
+            if used > budget:
+                parts.append("...")
+                break
+            s = _repr_bounded(v, budget - used)
+            parts.append(s)
+            used += len(s) + 2
+        return "[" + ", ".join(parts) + "]"
+    if isinstance(value, str) and len(value) > budget:
+        return repr(value[:budget])
+    return repr(value)
+
+
+def type_name(value) -> str:
+    """A YAML-level name of a value's type, for messages ("a list", not "LocList")."""
+    if isinstance(value, bool):
+        return "a boolean"
+    if isinstance(value, dict):
+        return "a mapping"
+    if isinstance(value, (list, tuple)):
+        return "a list"
+    if isinstance(value, str):
+        return "a string"
+    if isinstance(value, (int, float)):
+        return "a number"
+    if value is None:
+        return "null"
+    return type(value).__name__
