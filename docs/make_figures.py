@@ -1,7 +1,7 @@
 """Figures of the README and docs/physical.md (issue 10).
 
     PYTHONPATH=src python docs/make_figures.py demo OUT_DEMO            # docs/demo.png
-    PYTHONPATH=src python docs/make_figures.py cases BENCH IDS          # docs/benchmark_cases.png
+    PYTHONPATH=src python docs/make_figures.py cases BENCH IDS [METHOD] # docs/benchmark_cases.png
     PYTHONPATH=src python docs/make_figures.py coffee OUT_COFFEE        # docs/coffee_known_light.png
 
 ``demo``: OUT_DEMO is ``zcomp composite examples/jobs.yaml --out OUT_DEMO`` (``make demo``);
@@ -51,13 +51,13 @@ def demo(out_dir: Path):
     write_png("docs/demo.png", np.concatenate([top, bottom], 0))
 
 
-def cases(bench: Path, ids: list[str]):
+def cases(bench: Path, ids: list[str], method: str = "physical"):
     b = json.loads((bench / "benchmark.json").read_text())
     by_id = {c["id"]: c for c in b["cases"]}
     rows = []
     for cid in ids:
         c = by_id[cid]
-        job = next(iter(sorted((bench / "results" / "physical").glob(f"*{cid}*"))))
+        job = next(iter(sorted((bench / "results" / method).glob(f"*{cid}*"))))
         rows.append(_row([read_image(bench / c["files"]["image"]), read_image(job / "composite.exr"),
                           read_image(bench / c["files"]["gt"])]))
     half = (len(rows) + 1) // 2
@@ -78,7 +78,7 @@ if __name__ == "__main__":
     if what == "demo":
         demo(Path(sys.argv[2]))
     elif what == "cases":
-        cases(Path(sys.argv[2]), sys.argv[3].split(","))
+        cases(Path(sys.argv[2]), sys.argv[3].split(","), *(sys.argv[4:5]))
     elif what == "coffee":
         coffee(Path(sys.argv[2]))
     else:
