@@ -127,3 +127,18 @@ def test_scene_light_problems_name_field_and_line(scene_dir):
     with pytest.raises(ManifestError) as ei:
         load_manifest(p)
     assert any("scenes.room.light" in x and "azimuth_deg" in x for x in ei.value.problems)
+
+
+def test_scene_light_probe(scene_dir):
+    write_exr(scene_dir / "scenes/probe.exr", np.full((8, 16, 3), 0.5, np.float32))
+    p = scene_dir / "jobs.yaml"
+    p.write_text(GOOD.replace("fov_deg: 50", "fov_deg: 50\n    light: {type: probe, hdr: scenes/probe.exr, "
+                                              "rotation_deg: 30}"))
+    light = load_manifest(p).scenes["room"].light
+    assert light["type"] == "probe" and light["rotation_deg"] == 30
+    assert light["hdr"] == str((scene_dir / "scenes/probe.exr").resolve())
+    p.write_text(GOOD.replace("fov_deg: 50", "fov_deg: 50\n    light: {type: probe, hdr: scenes/nope.exr}"))
+    with pytest.raises(ManifestError) as ei:
+        load_manifest(p)
+    assert any("scenes.room.light.hdr" in x and "file not found" in x and "jobs.yaml:7" in x
+               for x in ei.value.problems), ei.value.problems

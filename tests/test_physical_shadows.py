@@ -131,3 +131,45 @@ def test_light_from_angles_matches_camera_direction():
     assert d[0] > 0.8 and abs(d @ up - 0.5) < 1e-9  # image right, 30 deg up
     d = direction_from_angles(90.0, 0.0, up)
     assert d[2] < -0.9  # away from the camera
+
+
+def test_probe_splits_sun_and_sky():
+    from zcomp_cli.renderers.physical.known_light import probe_lights
+
+    h, w = 64, 128
+    hdr = np.full((h, w, 3), 0.2, np.float32)
+    # a bright spot at longitude 90 deg (camera +x), latitude 45 deg
+    v = int((0.5 - 45 / 180) * h)
+    u = int((0.5 + 90 / 360) * w)
+    hdr[v - 1:v + 1, u - 1:u + 1] = 500.0
+    l, e_sun, sky, radius = probe_lights(hdr)
+    assert _angle(l, np.array([np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0])) < 5.0
+    assert e_sun.min() > 1.0 and radius > 0
+    # the sky is uniform: irradiance ~ pi * 0.2 whatever the normal, tiny linear part
+    assert np.allclose(sky[0], np.pi * 0.2, rtol=0.15) and np.abs(sky[1:]).max() < 0.1
+    # turned by 90 deg about +y: the sun moves from +x to +z... or -z
+    l2, *_ = probe_lights(hdr, rotation_deg=90.0)
+    assert abs(l2[0]) < 0.2 and abs(abs(l2[2]) - np.cos(np.pi / 4)) < 0.1
+
+
+def test_probe_light_in_the_renderer(tmp_path):
+    import dataclasses
+
+    from zcomp_cli.imageio import write_exr
+
+    s = floor_scene(112, 84, with_box=True, light_dir=SUN, ambient=0.3, box_center=(-0.4, -3.2))
+    h, w = 64, 128
+    hdr = np.full((h, w, 3), 0.1, np.float32)
+    l = s.light_dir_cam
+    lat, lon = np.arcsin(l[1]), np.arctan2(l[0], -l[2])
+    v, u = int((0.5 - lat / np.pi) * h), int((0.5 + lon / (2 * np.pi)) * w)
+    hdr[v - 1:v + 1, u - 1:u + 1] = 300.0
+    write_exr(tmp_path / "probe.exr", hdr)
+    bg, comp, sel, mask = _insert(s, [0.4, 0.3, -2.6])
+    light = {"type": "probe", "hdr": str(tmp_path / "probe.exr"), "rotation_deg": 0.0}
+    out = PhysicalRenderer().render([dataclasses.replace(r, light=light) for r in (bg, comp)], seed=1)
+    info = out.info["light"]
+    assert info["source"] == "manifest" and "probe" in info["direction_source"]
+    assert _angle(np.asarray(info["direction"]), l) < 5.0
+    ratio = out.images[1].mean(-1) / np.maximum(out.images[0].mean(-1), 1e-6)
+    assert (ratio[mask & ~sel] < 0.7).sum() > 10  # the probe's sun casts the shadow

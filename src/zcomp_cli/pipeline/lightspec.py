@@ -11,6 +11,12 @@
           angular_radius_deg: 2         # half the light's angular size (penumbra); default 1
           strength: 3.0                 # direct / ambient irradiance on a surface facing the light; default 2
 
+        light:                          # or an HDR light probe
+          type: probe
+          hdr: studio.exr               # equirectangular, linear (EXR/HDR); +Y up, the
+          rotation_deg: 90              # centre column looks along the camera's -z; turned
+                                        # about the vertical by rotation_deg
+
 The overall level is fitted to the photograph's known shading; the strength fixes how
 dark the shadows are (shadow / lit = 1 / (1 + strength * cos)). Validation problems are
 reported with the field and the manifest line.
@@ -21,6 +27,8 @@ from __future__ import annotations
 import math
 
 LIGHT_KEYS = {"type", "direction", "azimuth_deg", "elevation_deg", "angular_radius_deg", "strength"}
+PROBE_KEYS = {"type", "hdr", "rotation_deg"}
+PROBE_EXTS = {".exr", ".hdr"}
 DEFAULT_ANGULAR_RADIUS_DEG = 1.0
 DEFAULT_STRENGTH = 2.0
 
@@ -35,7 +43,33 @@ def _num(v):
     return f if math.isfinite(f) else None
 
 
-def parse_light(value, where: str, add) -> dict | None:
+def _parse_probe(value, where, add, resolve) -> dict | None:
+    ok = True
+    for k in value:
+        if k not in PROBE_KEYS:
+            add(value, k, f"{where}.{k}", f"unknown key {k!r} for a probe (known: {', '.join(sorted(PROBE_KEYS))})")
+            ok = False
+    out = {"type": "probe", "hdr": None, "rotation_deg": 0.0}
+    if "hdr" not in value:
+        add(value, None, where, "a probe needs 'hdr' (an equirectangular EXR/HDR file)")
+        ok = False
+    elif resolve is not None:
+        p = resolve(value, "hdr", f"{where}.hdr")
+        ok = ok and p is not None
+        out["hdr"] = None if p is None else str(p)
+    else:
+        out["hdr"] = str(value["hdr"])
+    if "rotation_deg" in value:
+        v = _num(value["rotation_deg"])
+        if v is None or not (-360.0 <= v <= 360.0):
+            add(value, "rotation_deg", f"{where}.rotation_deg", f"expected degrees in [-360, 360], got {value['rotation_deg']!r}")
+            ok = False
+        else:
+            out["rotation_deg"] = v
+    return out if ok else None
+
+
+def parse_light(value, where: str, add, resolve=None) -> dict | None:
     """Validate a scene's ``light`` mapping.
 
     Args:
@@ -43,6 +77,8 @@ def parse_light(value, where: str, add) -> dict | None:
         where: its location for messages (``scenes.kitchen.light``).
         add: ``add(container, key, where, message)`` records a problem (the manifest's
             located-problem collector: it adds the file and line).
+        resolve: ``resolve(container, key, where) -> Path | None`` checks a file field
+            (the probe's ``hdr``) relative to the manifest.
     Returns:
         ``{"type": "directional", "direction": [x, y, z] | None, "azimuth_deg",
         "elevation_deg", "angular_radius_deg", "strength"}`` or None when invalid.
@@ -51,6 +87,8 @@ def parse_light(value, where: str, add) -> dict | None:
         add(None, None, where, f"expected a mapping (direction or azimuth_deg/elevation_deg, "
                                f"angular_radius_deg, strength), got {type(value).__name__}")
         return None
+    if value.get("type") == "probe":
+        return _parse_probe(value, where, add, resolve)
     ok = True
     for k in value:
         if k not in LIGHT_KEYS:
@@ -58,7 +96,7 @@ def parse_light(value, where: str, add) -> dict | None:
             ok = False
     kind = value.get("type", "directional")
     if kind != "directional":
-        add(value, "type", f"{where}.type", f"unsupported light type {kind!r} (supported: directional)")
+        add(value, "type", f"{where}.type", f"unsupported light type {kind!r} (supported: directional, probe)")
         ok = False
     out = {"type": "directional", "direction": None, "azimuth_deg": None, "elevation_deg": None,
            "angular_radius_deg": DEFAULT_ANGULAR_RADIUS_DEG, "strength": DEFAULT_STRENGTH}

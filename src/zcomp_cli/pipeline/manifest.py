@@ -362,7 +362,7 @@ def _parse_scenes(d, parent, root, probs, check_files, defaults) -> dict[str, Sc
         if "K" in s:
             spec.K = _parse_K(s["K"], s, "K", f"{where}.K", probs)
         if "light" in s:
-            spec.light = _parse_scene_light(s, where, probs)
+            spec.light = _parse_scene_light(s, where, probs, root)
         for m, ch in MAP_CHANNELS.items():
             if m not in s:
                 continue
@@ -401,13 +401,16 @@ def _parse_scenes(d, parent, root, probs, check_files, defaults) -> dict[str, Sc
     return out
 
 
-def _parse_scene_light(s, where, probs) -> dict | None:
-    from zcomp_cli.pipeline.lightspec import parse_light
+def _parse_scene_light(s, where, probs, root) -> dict | None:
+    from zcomp_cli.pipeline.lightspec import PROBE_EXTS, parse_light
 
     def add(container, key, w, msg):  # problems without a container sit on 'light'
         probs.add(s if container is None else container, "light" if container is None else key, w, msg)
 
-    return parse_light(s["light"], f"{where}.light", add)
+    def resolve(container, key, w):  # a light probe file, relative to the manifest
+        return _file(root, container[key], container, key, w, probs, PROBE_EXTS)
+
+    return parse_light(s["light"], f"{where}.light", add, resolve)
 
 
 def _parse_objects(d, parent, root, probs, check_files) -> dict[str, ObjectSpec]:

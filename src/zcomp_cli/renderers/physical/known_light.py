@@ -10,6 +10,8 @@ is direct / ambient irradiance on a surface facing the light, so the shadow leve
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from zcomp_cli.camera import Camera
@@ -46,6 +48,50 @@ def direction_from_angles(azimuth_deg: float, elevation_deg: float, up: np.ndarr
     return d / np.linalg.norm(d)
 
 
+# The probe's brightest pixels covering this solid angle are its "sun"; the rest is sky.
+SUN_SOLID_ANGLE_SR = 0.02  # ~ a disc of 4.6 deg radius
+
+
+def probe_lights(hdr: np.ndarray, rotation_deg: float = 0.0, up=(0.0, 1.0, 0.0)):
+    """Split an equirectangular probe (H, W, 3 linear; +Y up, centre column toward the
+    camera's -z, turned by ``rotation_deg`` about +Y) into a sun and a sky.
+
+    Returns:
+        (sun direction (3,), sun irradiance on a surface facing it (3,), sky irradiance
+        order-1 coefficients (4, 3): E(n) ~ c0 + c . n, sun angular radius in degrees).
+    """
+    import cv2
+
+    img = np.nan_to_num(np.asarray(hdr, np.float64), nan=0.0, posinf=0.0)
+    img = np.maximum(img, 0.0)
+    img = cv2.resize(img.astype(np.float32), (128, 64), interpolation=cv2.INTER_AREA).astype(np.float64)
+    h, w = img.shape[:2]
+    v, u = np.mgrid[0:h, 0:w]
+    lat = (0.5 - (v + 0.5) / h) * np.pi
+    lon = ((u + 0.5) / w - 0.5) * 2 * np.pi + np.deg2rad(rotation_deg)
+    dirs = np.stack([np.sin(lon) * np.cos(lat), np.sin(lat), -np.cos(lon) * np.cos(lat)], -1).reshape(-1, 3)
+    d_omega = ((2 * np.pi / w) * (np.pi / h) * np.cos(lat)).reshape(-1)
+    L = img.reshape(-1, 3)
+    power = (L @ np.array([0.299, 0.587, 0.114])) * d_omega
+    order = np.argsort(-(L @ np.array([0.299, 0.587, 0.114])))
+    area = np.cumsum(d_omega[order])
+    sun = np.zeros(len(L), bool)
+    sun[order[: max(1, int(np.searchsorted(area, SUN_SOLID_ANGLE_SR)) + 1)]] = True
+    sdir = (dirs[sun] * power[sun, None]).sum(0)
+    sdir = sdir / max(np.linalg.norm(sdir), 1e-12)
+    e_sun = (L[sun] * d_omega[sun, None]).sum(0)
+    # sky irradiance for a set of normals, fitted by c0 + c . n
+    from zcomp_cli.renderers.physical.lighting import fibonacci_sphere
+
+    ns = fibonacci_sphere(64)
+    sky = ~sun
+    E = np.maximum(ns @ dirs[sky].T, 0.0) @ (L[sky] * d_omega[sky, None])  # (64, 3)
+    X = np.concatenate([np.ones((len(ns), 1)), ns], 1)
+    coef, *_ = np.linalg.lstsq(X, E, rcond=None)
+    radius = float(np.degrees(np.sqrt(d_omega[sun].sum() / np.pi)))
+    return sdir, e_sun, coef, radius
+
+
 def light_from_spec(spec: dict, depth, normals, shading, known, camera: Camera, *,
                     max_resolution: int = 160, march_steps: int = 16) -> LightEstimate:
     """LightEstimate of a manifest light; the ambient level is the lit level of the
@@ -61,6 +107,8 @@ def light_from_spec(spec: dict, depth, normals, shading, known, camera: Camera, 
     S = sh.reshape(-1, 3)[idx].astype(np.float64)
     P = cam.unproject(d).reshape(-1, 3)[idx].astype(np.float64)
     up = dominant_normal(N)
+    if spec.get("type") == "probe":
+        return _probe_estimate(spec, N, S, P, up, d, cam, march_steps)
     if spec.get("direction") is not None:
         l = np.asarray(spec["direction"], np.float64)
         l /= np.linalg.norm(l)
@@ -84,6 +132,31 @@ def light_from_spec(spec: dict, depth, normals, shading, known, camera: Camera, 
                         float("nan"), float("nan"), 0.0, None, 0.0, "manifest strength", "manifest",
                         0.0, f"manifest: {how}")
     return est
+
+
+def _probe_estimate(spec, N, S, P, up, d, cam, march_steps) -> LightEstimate:
+    """A probe's sun + sky, scaled so the lit support matches the photograph."""
+    from zcomp_cli.imageio import read_image
+    from zcomp_cli.renderers.physical.shading import sh_basis
+
+    hdr = read_image(spec["hdr"])
+    l, e_sun, sky, radius = probe_lights(hdr, float(spec.get("rotation_deg", 0.0)))
+    cos = float(max(l @ up, 0.0))
+    on = N @ up > np.cos(np.deg2rad(15))
+    lit = on.copy()
+    if len(P) and cos > 0:
+        lit &= (march_visibility(P, N, l, d, cam, steps=march_steps) > 0.5)
+    pick = lit if lit.sum() >= 15 else (on if on.sum() >= 15 else np.ones(len(S), bool))
+    level = np.median(S[pick], 0) if len(S) else np.full(3, 0.5)
+    model_up = (sh_basis(up[None]) @ sky)[0] + e_sun * cos
+    scale = level / np.maximum(model_up, 1e-9)
+    sky_s = sky * scale[None]
+    amb_up = float(np.maximum(sh_basis(up[None]) @ sky_s, 0).mean())
+    share = amb_up / max(amb_up + float((e_sun * scale).mean()) * cos, 1e-12)
+    name = Path(spec["hdr"]).name
+    return LightEstimate(l, e_sun * scale, sky_s, float(share), radius, float("nan"), float("nan"), 0.0,
+                         None, 0.0, "manifest probe", "manifest",
+                         0.0, f"manifest: probe {name}, rotation {float(spec.get('rotation_deg', 0.0)):g} deg")
 
 
 __all__ = ["light_from_spec", "direction_from_angles", "dominant_normal", "REC601"]
