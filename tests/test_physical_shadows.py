@@ -173,3 +173,29 @@ def test_probe_light_in_the_renderer(tmp_path):
     assert _angle(np.asarray(info["direction"]), l) < 5.0
     ratio = out.images[1].mean(-1) / np.maximum(out.images[0].mean(-1), 1e-6)
     assert (ratio[mask & ~sel] < 0.7).sum() > 10  # the probe's sun casts the shadow
+
+
+def test_mesh_shadow_from_posed_mesh(tmp_path):
+    import trimesh
+
+    from zcomp_cli.renderers.physical.meshshadow import load_posed_mesh, mesh_shadow
+
+    trimesh.creation.box(extents=(0.2, 1.0, 0.2)).export(tmp_path / "pole.glb")
+    M = np.eye(4)
+    M[:3, 3] = (0.0, -0.5, -3.0)  # a 1 m pole standing on y = -1, 3 m in front
+    mesh = load_posed_mesh({"mesh": str(tmp_path / "pole.glb"), "object_to_camera": M.tolist()})
+    assert mesh is not None and mesh.vertices[:, 1].min() == pytest.approx(-1.0)
+    l = np.array([1.0, 1.0, 0.0]) / np.sqrt(2)  # from the right, 45 deg up
+    pts = np.array([[-0.5, -1.0, -3.0],   # left of the pole, inside its shadow
+                    [0.5, -1.0, -3.0],    # right of it: lit
+                    [-0.5, -1.0, -4.0]])  # left but behind: lit
+    up = np.tile([0.0, 1.0, 0.0], (3, 1))
+    vis, t = mesh_shadow(mesh, pts, up, l)
+    assert vis.tolist() == [0.0, 1.0, 1.0]
+    # along l the ray meets the pole after 0.4 * sqrt(2) m and leaves it after 0.6 * sqrt(2):
+    # the shadow map keeps the far side (the highest surface toward the light)
+    assert 0.4 * np.sqrt(2) - 0.05 <= t[0] <= 0.6 * np.sqrt(2) + 0.05
+    # the pole does not shadow its own lit face
+    face = np.array([[0.1, -0.5, -3.0]])
+    assert mesh_shadow(mesh, face, np.array([[1.0, 0, 0]]), l)[0][0] == 1.0
+    assert load_posed_mesh({}) is None

@@ -132,7 +132,17 @@ def prepare_job(
 
     common = dict(shading=shading, known=known, camera=cam, roi=roi, image=scene.image, scene_key=scene.key,
                   light=getattr(scene, "light", None))
-    requests = [RenderRequest(maps=bg, **common), RenderRequest(maps=comp, **common)]
+    # the posed mesh (when the bundle references one) casts the object's shadow and
+    # self-shadows it from its real 3D shape; image objects and mesh-less bundles keep
+    # the 2.5D depth alone
+    occluder = None
+    try:
+        from zcomp_cli.renderers.physical.meshshadow import load_posed_mesh
+
+        occluder = load_posed_mesh(bundle.meta or {}, {"a": alignment.a, "b": alignment.b})
+    except Exception as exc:  # an unreadable mesh must not fail the job: 2.5D shadows
+        notes.append(f"object mesh not used for shadows: {type(exc).__name__}: {exc}")
+    requests = [RenderRequest(maps=bg, **common), RenderRequest(maps=comp, **common, occluder=occluder)]
     x0, y0, x1, y1 = roi
     report = {
         "alignment": alignment.to_dict(),

@@ -36,6 +36,8 @@ class RenderRequest:
             so a renderer may cache per-scene work such as lighting estimation.
         light: the scene's known lighting from the manifest (``pipeline/lightspec.py``),
             or None: a renderer that models light uses it instead of estimating one.
+        occluder: the object's posed mesh (``renderers.physical.meshshadow.PosedMesh``)
+            on the composite request when the bundle references one, else None.
     """
 
     maps: SceneMaps
@@ -46,6 +48,7 @@ class RenderRequest:
     image: np.ndarray | None = None
     scene_key: str | None = None
     light: dict | None = None
+    occluder: object | None = None
 
 
 @dataclass

@@ -146,14 +146,16 @@ class PhysicalRenderer(Renderer):
         out_sh[unknown & ~todo] = amb0
         if todo.any():
             alb_mean = alb[(d > 0)].mean(0) if (d > 0).any() else np.zeros(3)
-            out_sh[todo] = self._synthesise(d, n, todo, req.camera, est, alb_mean)
+            out_sh[todo] = self._synthesise(d, n, todo, req.camera, est, alb_mean,
+                                            getattr(req, "occluder", None))
         img = (alb * out_sh).astype(np.float32)
         if not np.all(np.isfinite(img)):
             bad = int((~np.isfinite(img)).sum())
             raise NumericalError(f"physical renderer produced {bad} non-finite values")
         return img
 
-    def _synthesise(self, d, n, todo, camera, est: LightEstimate, albedo_mean=(0.0, 0.0, 0.0)) -> np.ndarray:
+    def _synthesise(self, d, n, todo, camera, est: LightEstimate, albedo_mean=(0.0, 0.0, 0.0),
+                    occluder=None) -> np.ndarray:
         """Shading of the ``todo`` pixels: ambient(n) * AO + I * max(0, n.l) * V_soft, where
         V_soft is one filtered shadow (``softshadow``); with an unconstrained direction
         the light is spread over the sky: (ambient(n) + I * max(0, n.l)) * AO."""
@@ -224,6 +226,12 @@ class PhysicalRenderer(Renderer):
                                     steps=int(self._s["march_steps"]),
                                     jitter=pixel_jitter(gy[lit], gx[lit]), return_distance=True,
                                     nearest=True)
+            if occluder is not None:
+                # the real mesh as well: its shadow where the 2.5D shell lets rays through
+                from zcomp_cli.renderers.physical.meshshadow import mesh_shadow
+
+                vm, tm = mesh_shadow(occluder, P[lit], N[lit], est.direction)
+                v, t = np.minimum(v, vm), np.minimum(t, tm)
             vis[lit], t_hit[lit] = v, t
         vis = np.where(ok & ~lit, 1.0, vis)  # facing away: n.l = 0 does the shading
         ok_full = geo_all[wy0:wy1, wx0:wx1]
