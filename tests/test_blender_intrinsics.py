@@ -645,3 +645,19 @@ def test_blender_session_keeps_one_process_and_replaces_a_dead_one(meshes, tmp_p
         assert c[0].ok and session.starts == 2
     assert session.proc is None
     assert session.log_path.exists()  # a process died: the log is kept for whoever looks
+
+
+def test_a_dead_blender_fails_only_the_item_it_was_on():
+    from zcomp_cli.blender.runner import BatchResult, _fail_after_death
+
+    seen = []
+    items = [{"id": "a"}, {"id": "b"}, {"id": "c"}]
+    res = BatchResult()
+    left = _fail_after_death(res, items, "b", "LOG", seen.append)
+    assert [it["id"] for it in left] == ["a", "c"]
+    assert "crashed while processing" in res.results["b"]["error"] and "LOG" in res.results["b"]["error"]
+    # died before starting anything: Blender itself does not start, every item fails
+    res = BatchResult()
+    assert _fail_after_death(res, items, None, "LOG", seen.append) == []
+    assert all("failed to start" in res.results[i]["error"] for i in "abc")
+    assert len(seen) == 4

@@ -56,6 +56,26 @@ class BatchResult:
     restarts: int = 0
 
 
+def _fail_after_death(result, pending, started, log_path, on_event) -> list:
+    """A Blender process ended early. If it was working on ``started``, that item crashed
+    it: fail it alone and return the rest. If it died before starting any item, Blender
+    itself does not start: fail every pending item. Returns the items still to run."""
+    def fail(item_id: str, why: str) -> None:
+        ev = {"event": "error", "id": item_id, "error": f"{why} (log: {log_path})"}
+        result.results[item_id] = ev
+        if on_event:
+            on_event(ev)
+
+    if started is not None and started not in result.results:
+        fail(started, "Blender crashed while processing this item")
+        return [it for it in pending if str(it["id"]) != started]
+    if started is None:
+        for it in pending:
+            fail(str(it["id"]), "Blender failed to start")
+        return []
+    return pending
+
+
 def run_blender_batch(
     script: str,
     items: list[dict],
@@ -99,22 +119,7 @@ def run_blender_batch(
             if not pending:
                 break
             # The process ended early: the item it was working on crashed it.
-            if started is not None and started not in result.results:
-                ev = {"event": "error", "id": started,
-                      "error": f"Blender crashed while processing this item (log: {result.log_path})"}
-                result.results[started] = ev
-                if on_event:
-                    on_event(ev)
-                pending = [it for it in pending if str(it["id"]) != started]
-            elif started is None:
-                # Died before starting any item: Blender itself does not start.
-                for it in pending:
-                    ev = {"event": "error", "id": str(it["id"]),
-                          "error": f"Blender failed to start (log: {result.log_path})"}
-                    result.results[str(it["id"])] = ev
-                    if on_event:
-                        on_event(ev)
-                pending = []
+            pending = _fail_after_death(result, pending, started, result.log_path, on_event)
             result.restarts += 1
             if result.restarts > max_restarts and pending:
                 for it in pending:
@@ -271,21 +276,7 @@ class BlenderSession:
             self._reap()
             if started is None and not fresh:
                 continue  # it had died while idle: a fresh one takes the batch
-            if started is not None and started not in result.results:
-                ev = {"event": "error", "id": started,
-                      "error": f"Blender crashed while processing this item (log: {self.log_path})"}
-                result.results[started] = ev
-                if on_event:
-                    on_event(ev)
-                pending = [it for it in pending if str(it["id"]) != started]
-            elif started is None:
-                for it in pending:
-                    ev = {"event": "error", "id": str(it["id"]),
-                          "error": f"Blender failed to start (log: {self.log_path})"}
-                    result.results[str(it["id"])] = ev
-                    if on_event:
-                        on_event(ev)
-                pending = []
+            pending = _fail_after_death(result, pending, started, self.log_path, on_event)
             result.restarts += 1
         if any(ev.get("event") != "done" for ev in result.results.values()):
             self._troubled = True

@@ -176,9 +176,7 @@ class PhysicalRenderer(Renderer):
             nv = n[gy, gx].astype(np.float64)
             ok = geo_all[gy, gx]
             nv = np.where(ok[..., None], nv / np.maximum(np.linalg.norm(nv, axis=-1, keepdims=True), 1e-12), 0.0)
-            rays = np.stack([(gx + 0.5 - camera.cx) / camera.fx, -(gy + 0.5 - camera.cy) / camera.fy,
-                             -np.ones(gx.shape)], -1)
-            return gy, gx, rays * dz[..., None], nv, ok
+            return gy, gx, camera.ray(gx + 0.5, gy + 0.5) * dz[..., None], nv, ok
 
         # ambient occlusion on a stride-2 grid around the todo pixels, then filtered
         # (stride 4 on large frames: ambient occlusion is smooth)
