@@ -353,3 +353,22 @@ def test_two_shards_at_once_into_one_out(project):
     st = CliRunner().invoke(cli, ["status", str(out), "--json"])
     d = json.loads(st.output)
     assert d["done"] == 3 and d["complete"], d
+
+
+def test_out_probe_of_a_new_folder_touches_nothing(tmp_path):
+    """The --out probe must not create (then remove) the folder itself: two shards
+    starting together into one new --out raced on that and one failed with "File exists"
+    (seen in benchmarks/bench_scaleout.py)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from zcomp_cli.cli.options import check_writable_dir
+
+    out = tmp_path / "new" / "out"
+    assert check_writable_dir(out) is None
+    assert not (tmp_path / "new").exists() and list(tmp_path.iterdir()) == []
+    (tmp_path / "new").mkdir()
+    with ThreadPoolExecutor(8) as pool:  # many probes at once, while the folder appears
+        results = list(pool.map(lambda i: check_writable_dir(out) if i % 2 else out.mkdir(exist_ok=True),
+                                range(64)))
+    assert all(r is None for r in results)
+    assert [p.name for p in (tmp_path / "new").iterdir()] == ["out"] and list(out.iterdir()) == []

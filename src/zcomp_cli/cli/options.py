@@ -29,11 +29,10 @@ def check_writable_dir(path, what: str = "--out") -> str | None:
         os.close(fd)
         os.unlink(tmp)
         if not p.exists():
-            # A folder can be created in some file systems where files cannot (/proc).
-            p.mkdir(parents=True)
-            created = [p, *[a for a in p.parents if a != probe_dir and probe_dir in a.parents]]
-            for d in created:
-                d.rmdir()
+            # The folder itself is made by the command. Probe with a private folder of
+            # our own: creating and removing ``p`` here would race with a second run
+            # (a shard) starting into the same new --out.
+            os.rmdir(tempfile.mkdtemp(prefix=".zcomp-probe.", dir=probe_dir))
     except OSError as exc:
         return f"{what}: cannot write in {p}: {exc.strerror or exc}"
     return None
