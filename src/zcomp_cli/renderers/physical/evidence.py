@@ -31,8 +31,13 @@ EVIDENCE_TAU = 0.2
 DARK_LEVEL = 0.15
 # Local-level blur radius as a fraction of the long side.
 BASELINE_RADIUS_FRAC = 0.1
-# Pixels this close (fraction of the long side) to a crease give no evidence.
+# Pixels this close (fraction of the long side) to a crease give no evidence as they
+# are: their darkness is first reduced by what ambient occlusion explains
+# (``ao_corrected_band``).
 CREASE_FRAC = 0.03
+# Pixels this close (in pixels) to a crease give none at all: mixed pixels across the
+# orientation change or depth jump.
+CREASE_CORE_PX = 1.5
 
 
 def orientation_labels(normals: np.ndarray, valid: np.ndarray, up: np.ndarray) -> np.ndarray:
@@ -47,14 +52,17 @@ def orientation_labels(normals: np.ndarray, valid: np.ndarray, up: np.ndarray) -
 
 
 def darkness_map(lum: np.ndarray, normals: np.ndarray, valid: np.ndarray, up: np.ndarray,
-                 depth: np.ndarray | None = None):
+                 depth: np.ndarray | None = None, *, return_band: bool = False):
     """Relative darkness of each pixel against the same orientation around it.
 
     Returns:
         e: (H, W) ``1 - Y / local level`` in [-0.5, 1], 0 where invalid;
         usable: (H, W) bool, valid pixels away from creases (orientation changes and
             depth jumps, ``CREASE_FRAC`` of the long side): the darkening of concave
-            corners (ambient occlusion, where a wall meets the floor) is no cast shadow.
+            corners (ambient occlusion, where a wall meets the floor) is no cast shadow;
+        band: (H, W) bool, only with ``return_band``: the valid pixels of that crease
+            band beyond its mixed-pixel core (``CREASE_CORE_PX``), for
+            ``ao_corrected_band``.
     """
     import cv2
 
@@ -79,7 +87,47 @@ def darkness_map(lum: np.ndarray, normals: np.ndarray, valid: np.ndarray, up: np
         edge[1:] |= jy
     dist = cv2.distanceTransform((~edge).astype(np.uint8), cv2.DIST_L2, 3)
     usable = valid & (dist > CREASE_FRAC * max(H, W))
+    if return_band:
+        return np.clip(e, -0.5, 1.0), usable, valid & ~usable & (dist > CREASE_CORE_PX)
     return np.clip(e, -0.5, 1.0), usable
+
+
+def ao_corrected_band(e: np.ndarray, band: np.ndarray, points: np.ndarray, normals: np.ndarray,
+                      depth: np.ndarray, camera: Camera) -> np.ndarray:
+    """Darkness of the crease band's pixels beyond what ambient occlusion explains.
+
+    Near a crease (a box standing on the floor, a wall meeting it) the surface is darker
+    whatever the light's direction: the occluded part of the sky. A cast shadow that
+    starts at its occluder's base (the common case) lies in that band too, and is far
+    darker on the light's far side than the occlusion. Ambient occlusion ``a`` darkens a
+    surface by ``k (1 - a)``, ``k`` the ambient's share of the light (read from the band
+    itself: the median darkness per unit of occlusion), so ``e - k (1 - a)`` is darkness
+    no ambient occlusion explains: it depends on the light's direction.
+
+    Args:
+        e: (H, W) relative darkness (``darkness_map``). band: (H, W) bool.
+        points, normals: (H, W, 3) camera frame (normals unit where ``band``).
+        depth: (H, W) z-depth (0 invalid). camera: of these maps.
+    Returns:
+        (H, W) corrected darkness on ``band`` (unchanged ``e`` elsewhere).
+    """
+    from zcomp_cli.renderers.physical.softshadow import ambient_occlusion
+
+    ys, xs = np.nonzero(band)
+    if len(ys) == 0:
+        return e
+    ao = np.zeros(e.shape)
+    ao[ys, xs] = ambient_occlusion(points[ys, xs].astype(np.float64), normals[ys, xs].astype(np.float64),
+                                   ys, xs, depth, camera)
+    # the per-pixel rotation makes it noisy by design: filter it within the band
+    occ = 1.0 - np.clip(normalized_blur(ao, band, 1.5), 0.0, 1.0)
+    # AO darkens by ``share * occ`` (share: the ambient's part of the light, unknown
+    # here). Most of the band lies outside any cast shadow, so the median darkness per
+    # unit of occlusion over the band measures it; the cast shadows are its outliers.
+    sel = band & (occ > 0.05)
+    k = float(np.median(e[sel] / occ[sel])) if sel.sum() >= 10 else 1.0
+    k = max(k, 0.0)
+    return np.where(band, e - k * occ, e)
 
 
 def evidence_sample(e: np.ndarray, valid: np.ndarray, max_dark: int = 1500, max_other: int = 1500):

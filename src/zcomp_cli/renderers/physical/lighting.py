@@ -16,7 +16,8 @@ import numpy as np
 
 from zcomp_cli.camera import Camera
 from zcomp_cli.conventions import DEFAULT_SEED, REC601
-from zcomp_cli.renderers.physical.evidence import darkness_map, evidence_sample, evidence_scores
+from zcomp_cli.renderers.physical.evidence import (ao_corrected_band, darkness_map, evidence_sample,
+                                                   evidence_scores)
 from zcomp_cli.renderers.physical.shading import cone_directions, direct_term, sh_basis
 from zcomp_cli.renderers.physical.visibility import march_visibility
 
@@ -32,6 +33,16 @@ MIN_EVIDENCE_PX = 8.0
 # Normal spread (second eigenvalue's sqrt) from which shading vs orientation alone is
 # trusted for the direction of a cast shadow.
 MIN_NORMAL_SPREAD = 0.3
+# Too little cast-shadow evidence to pick the direction alone, but enough to confirm the
+# shading's: the two cues are independent (cast shadows of the visible geometry vs
+# shading against orientation), so when the best direction of the cast-shadow evidence
+# (crease band included, ``ao_corrected_band``) lies within AGREE_DEG of the shading's,
+# the direction is trusted for a cast shadow. Seed 123: no case confirmed; the nearest
+# wrong agreements were 18 deg (1.99 px, light 81 deg off) and 25 deg (a wall's foot,
+# 144 px, 63 deg off: a straight shadow fits a family of directions), hence 10 deg.
+# (Taking the best evidence within AGREE_DEG instead of the argmax confirmed that wall.)
+MIN_AGREE_EVIDENCE_PX = 1.0
+AGREE_DEG = 10.0
 # Least ambient share kept when no cast shadow measured it (calibrated on seed 123).
 MIN_FIT_AMBIENT_SHARE = 0.6
 # Least elevation of a direction taken from shading alone (no cast shadow).
@@ -308,12 +319,13 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     #    nothing to any candidate.
     lum = sh @ np.array([0.299, 0.587, 0.114])
     nvalid = np.where(valid[..., None], n / np.maximum(nn, 1e-12)[..., None], 0.0)
-    e_map, usable = darkness_map(lum, nvalid, valid, up, d)
+    e_map, usable, band = darkness_map(lum, nvalid, valid, up, d, return_band=True)
     ei, ew = evidence_sample(e_map, usable)
     Pe, Ne, Ee = pts_all.reshape(-1, 3)[ei], nvalid.reshape(-1, 3)[ei], e_map.ravel()[ei]
     ev = evidence_scores(Pe, Ne, Ee, ew, cands, d, cam, steps=march_steps)
     evidence_px = float(ev.max()) if len(ev) else 0.0
     from_shadows = evidence_px >= MIN_EVIDENCE_PX
+    agree_deg, band_px = float("nan"), 0.0
     if from_shadows:
         best = cands[int(np.argmax(ev))]
         fine = cone_directions(best, 1.5 * step_deg, 40, seed=0)
@@ -336,11 +348,28 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
         fine = np.concatenate([best[None], fine[fine @ up > 0.02]])
         fs = score_dirs(fine)
         best = fine[np.argmin(fs)]
+        # Confirmation: the evidence again, with the crease band counted for the
+        # darkness that ambient occlusion does not explain (a shadow that starts at its
+        # occluder's base: a box on the floor). The band alone does not pick the
+        # direction (a wall's straight shadow along its foot fits a whole family of
+        # directions); it confirms the shading's when both agree.
+        e_band = ao_corrected_band(e_map, band, pts_all, nvalid, d, cam)
+        bi, bw = evidence_sample(e_band, usable | band)
+        evb = evidence_scores(pts_all.reshape(-1, 3)[bi], nvalid.reshape(-1, 3)[bi], e_band.ravel()[bi],
+                              bw, cands, d, cam, steps=march_steps)
+        if len(evb):
+            band_px = float(evb.max())
+            agree_deg = float(np.degrees(np.arccos(np.clip(best @ cands[int(np.argmax(evb))], -1.0, 1.0))))
         if not np.isfinite(contrast) or contrast < flat_threshold:
             return prior(f"light direction unconstrained: no cast shadow of visible geometry "
                          f"(evidence {evidence_px:.3g} px < {MIN_EVIDENCE_PX}) and a flat score landscape "
                          f"(contrast {contrast:.3g} < {flat_threshold}), normal spread {spread:.3g}")
 
+    confirmed = not from_shadows and band_px >= MIN_AGREE_EVIDENCE_PX and agree_deg <= AGREE_DEG
+    if confirmed:
+        # the shadow's darkness is read on the crease band too, as measured (a cast
+        # shadow at its occluder's base is darkened by the occlusion as well)
+        Pe, Ne, Ee = pts_all.reshape(-1, 3)[bi], nvalid.reshape(-1, 3)[bi], e_map.ravel()[bi]
     if not from_shadows and best @ up < np.sin(np.deg2rad(MIN_FIT_ELEVATION_DEG)):
         # A grazing direction from shading alone fits the support with a huge intensity
         # that then floods the object's vertical faces (white objects on the fresh
@@ -382,7 +411,8 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     shadow_px, lit_px = on_up & (frac < 0.2), on_up & (frac > 0.8)
     cos_up = float(max(best @ up, 0.05))
     share_src = "fit"
-    if from_shadows:
+    share_read = False
+    if from_shadows or confirmed:
         # shadow / lit level of the same surface, read on the predicted cast shadow
         v_e = march_visibility(Pe, Ne, best, d, cam, steps=march_steps) < 0.5
         on_dom = (Ne @ up > np.cos(np.deg2rad(15))) & v_e & ((Ne @ best) > 0.05)
@@ -396,7 +426,9 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
                              for c in range(3)], 1)
             sh_c[0] += amb_f - (sh_basis(up[None]) @ sh_c)[0]
             share_src = "cast shadows of visible geometry vs the same surface around them"
-    elif shadow_px.sum() >= MIN_SHADOW_PIXELS and lit_px.sum() >= MIN_SHADOW_PIXELS:
+            share_read = True
+    if (not from_shadows and not share_read and shadow_px.sum() >= MIN_SHADOW_PIXELS
+            and lit_px.sum() >= MIN_SHADOW_PIXELS):
         lit_c = np.median(S[lit_px], 0)
         shd_c = np.median(S[shadow_px], 0)
         shares = np.clip(shd_c / np.maximum(lit_c, 1e-9), 0.02, 1.0)
@@ -412,7 +444,7 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     amb_up = float(np.maximum(sh_basis(up[None]) @ sh_c, 0).mean())
     dir_up = float(inten.mean() * max(best @ up, 0.0))
     share = amb_up / max(amb_up + dir_up, 1e-12)
-    if not from_shadows and share < MIN_FIT_AMBIENT_SHARE:
+    if not (from_shadows or share_read) and share < MIN_FIT_AMBIENT_SHARE:
         # Without a cast shadow the regression may put all the light in the directional
         # term (share 0): faces turned from a wrong direction then go black. Keep at
         # least MIN_FIT_AMBIENT_SHARE of the support's shading in the ambient.
@@ -428,12 +460,17 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     # Shading against orientation pins the direction only where several orientations
     # are seen (a room's walls and floor); on the calibration benchmark (floors, one
     # wall: spread <= 0.2) its directions were 30-100 deg off.
-    trusted = from_shadows or (spread >= MIN_NORMAL_SPREAD and contrast >= 0.1)
+    trusted = from_shadows or confirmed or (spread >= MIN_NORMAL_SPREAD and contrast >= 0.1)
     fallback = None if trusted else (
-        f"no cast shadow of visible geometry (evidence {evidence_px:.3g} px < {MIN_EVIDENCE_PX}): "
+        f"no cast shadow of visible geometry (evidence {evidence_px:.3g} px < {MIN_EVIDENCE_PX}; "
+        f"with the crease band {band_px:.3g} px, its best direction {agree_deg:.3g} deg from the "
+        f"shading's, more than {AGREE_DEG:g}): "
         "direction from shading vs orientation, shadow rendered as a contact shadow")
     return LightEstimate(best, inten, sh_c, float(share), float(radius), float(s_r),
                          contrast, spread, fallback, float(uncertainty), share_src,
                          evidence_px=evidence_px,
                          direction_source=("cast shadows of visible geometry" if from_shadows
-                                           else "shading vs surface orientation"))
+                                           else "shading vs surface orientation, confirmed by cast "
+                                           f"shadows ({band_px:.3g} px with the crease band, their best direction "
+                                           f"{agree_deg:.3g} deg away)"
+                                           if confirmed else "shading vs surface orientation"))
