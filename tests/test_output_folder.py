@@ -372,3 +372,17 @@ def test_out_probe_of_a_new_folder_touches_nothing(tmp_path):
                                 range(64)))
     assert all(r is None for r in results)
     assert [p.name for p in (tmp_path / "new").iterdir()] == ["out"] and list(out.iterdir()) == []
+
+
+def test_exr_bytes_do_not_depend_on_the_write_time(tmp_path):
+    import time
+
+    import numpy as np
+
+    from zcomp_cli.imageio import write_exr
+
+    img = np.linspace(0, 1, 4 * 5 * 3, dtype=np.float32).reshape(4, 5, 3)
+    write_exr(tmp_path / "a.exr", img)
+    time.sleep(1.05)  # the header's DateTime has a one-second resolution
+    write_exr(tmp_path / "b.exr", img)
+    assert (tmp_path / "a.exr").read_bytes() == (tmp_path / "b.exr").read_bytes()

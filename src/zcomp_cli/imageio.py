@@ -304,6 +304,9 @@ def write_exr(path, data, *, channel_names: list[str] | None = None, half: bool 
         )
     spec.channelnames = tuple(channel_names)
     spec.attribute("compression", "zip")
+    # No write time in the header (OpenEXR's capDate): the same image gives the same
+    # bytes, so a re-run, a shard or a Ray worker reproduces outputs byte for byte.
+    spec.attribute("DateTime", "")
     with atomic_path(path) as tmp:
         _write_checked(oiio, tmp, spec, np.ascontiguousarray(arr), path, "EXR")
 
