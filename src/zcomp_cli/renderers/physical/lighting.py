@@ -130,6 +130,18 @@ def _weights_and_loss(r, scale, dark_weight, axis=0):
     loss = side * np.where(a <= c, 0.5 * a * a, c * (a - 0.5 * c))
     return w, loss
 
+def _ambient_given_light(basis, S, inten, dt, ridge, up, amb_f) -> np.ndarray:
+    """The ambient's SH coefficients (4 x 3) refitted with the directional light fixed
+    (``inten`` per channel times the direct term ``dt``), so other orientations stay
+    consistent; then its constant shifted so the ambient on the support (``up``) is the
+    measured shadow level ``amb_f``."""
+    ridge4 = np.array([0.0, ridge, ridge, ridge])
+    sh_c = np.stack([_robust_fit(basis, S[:, c] - inten[c] * dt, ridge4, dark_weight=1.0)[0]
+                     for c in range(3)], 1)
+    sh_c[0] += amb_f - (sh_basis(up[None]) @ sh_c)[0]
+    return sh_c
+
+
 
 def _robust_fit(X, y, ridge, iters=4, dark_weight=None):
     """Asymmetric Huber-IRLS ridge least squares; ridge: (P,) penalties.
@@ -421,10 +433,7 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
             lit_c = np.median(S[lit_px], 0) if lit_px.sum() >= MIN_SHADOW_PIXELS else np.median(S[on_up], 0)
             amb_f = ratio * lit_c
             inten = np.maximum((lit_c - amb_f) / cos_up, 0.0)
-            ridge4 = np.array([0.0, ridge, ridge, ridge])
-            sh_c = np.stack([_robust_fit(basis, S[:, c] - inten[c] * dt, ridge4, dark_weight=1.0)[0]
-                             for c in range(3)], 1)
-            sh_c[0] += amb_f - (sh_basis(up[None]) @ sh_c)[0]
+            sh_c = _ambient_given_light(basis, S, inten, dt, ridge, up, amb_f)
             share_src = "cast shadows of visible geometry vs the same surface around them"
             share_read = True
     if (not from_shadows and not share_read and shadow_px.sum() >= MIN_SHADOW_PIXELS
@@ -434,12 +443,7 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
         shares = np.clip(shd_c / np.maximum(lit_c, 1e-9), 0.02, 1.0)
         amb_f = shares * lit_c
         inten = np.maximum((lit_c - amb_f) / cos_up, 0.0)
-        # the ambient refitted with the light fixed, so other orientations stay
-        # consistent; then its constant shifted to the measured shadow level
-        ridge4 = np.array([0.0, ridge, ridge, ridge])
-        sh_c = np.stack([_robust_fit(basis, S[:, c] - inten[c] * dt, ridge4, dark_weight=1.0)[0]
-                         for c in range(3)], 1)
-        sh_c[0] += amb_f - (sh_basis(up[None]) @ sh_c)[0]
+        sh_c = _ambient_given_light(basis, S, inten, dt, ridge, up, amb_f)
         share_src = "shadowed vs lit pixels of the dominant surface"
     amb_up = float(np.maximum(sh_basis(up[None]) @ sh_c, 0).mean())
     dir_up = float(inten.mean() * max(best @ up, 0.0))
