@@ -31,6 +31,11 @@ def _failure(exc: BaseException) -> str:
     return f"internal error: {type(exc).__name__}: {exc}"
 
 
+def _failed(ctx, w, exc: BaseException, started: float) -> JobStatus:
+    """The status of job ``w`` that failed with ``exc``, timed from ``started``."""
+    return JobStatus(w.job, "failed", _failure(exc), time.perf_counter() - started, ctx.out_root / w.job.name)
+
+
 class LocalExecutor:
     """Runs every job in this process, ``ctx.batch_size`` jobs per renderer call.
 
@@ -94,7 +99,7 @@ def prepare_chunk(ctx, chunk):
 
     statuses: dict[int, JobStatus] = {}
     started: dict[int, float] = {}
-    prepared = []  # (work, scene, PreparedJob, load seconds)
+    prepared = []  # (work, scene, PreparedJob)
     for w in chunk:
         t0 = started[w.job.index] = time.perf_counter()
         try:
@@ -106,8 +111,7 @@ def prepare_chunk(ctx, chunk):
             prep.timings = {"scene_load_s": t_load, **prep.timings}
             prepared.append((w, scene, prep))
         except Exception as exc:  # noqa: BLE001 - reported per job
-            statuses[w.job.index] = JobStatus(w.job, "failed", _failure(exc), time.perf_counter() - t0,
-                                              ctx.out_root / w.job.name)
+            statuses[w.job.index] = _failed(ctx, w, exc, t0)
     return prepared, statuses, started
 
 
@@ -128,11 +132,9 @@ def render_and_finish(ctx, chunk, prepared, statuses, started) -> list[JobStatus
                 p.timings["render_s"] = share
                 outputs[w.job.index] = out
         except Exception as exc:  # noqa: BLE001
-            if len(prepared) == 1:
+            if len(prepared) == 1:  # nothing to isolate: the one job failed
                 w = prepared[0][0]
-                statuses[w.job.index] = JobStatus(w.job, "failed", _failure(exc),
-                                                  time.perf_counter() - started[w.job.index],
-                                                  ctx.out_root / w.job.name)
+                statuses[w.job.index] = _failed(ctx, w, exc, started[w.job.index])
             else:
                 for w, _, p in prepared:
                     t1 = time.perf_counter()
@@ -140,9 +142,7 @@ def render_and_finish(ctx, chunk, prepared, statuses, started) -> list[JobStatus
                         outputs[w.job.index] = renderer.render(p.requests, seed=p.seed)
                         p.timings["render_s"] = time.perf_counter() - t1
                     except Exception as exc1:  # noqa: BLE001
-                        statuses[w.job.index] = JobStatus(w.job, "failed", _failure(exc1),
-                                                          time.perf_counter() - started[w.job.index],
-                                                          ctx.out_root / w.job.name)
+                        statuses[w.job.index] = _failed(ctx, w, exc1, started[w.job.index])
 
     # 6. Compositor and outputs, job by job.
     for w, scene, prep in prepared:
@@ -156,6 +156,5 @@ def render_and_finish(ctx, chunk, prepared, statuses, started) -> list[JobStatus
             statuses[w.job.index] = JobStatus(w.job, "done", None, time.perf_counter() - started[w.job.index],
                                               out_dir)
         except Exception as exc:  # noqa: BLE001
-            statuses[w.job.index] = JobStatus(w.job, "failed", _failure(exc),
-                                              time.perf_counter() - started[w.job.index], out_dir)
+            statuses[w.job.index] = _failed(ctx, w, exc, started[w.job.index])
     return [statuses[w.job.index] for w in chunk]
