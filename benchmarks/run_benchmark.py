@@ -11,12 +11,15 @@
    FLIP), the shadow metrics (IoU and darkness error of the darkened region against the
    ground truth's), PSNR near the object (the object's box grown by its height), the
    light-direction error (median over cases lit by a sun or lamp whose ground-truth
-   shadow is in frame: the generator knows the true light) and the median seconds per
-   job; writes OUT/table.csv, OUT/table.md and OUT/cases.csv (per case).
+   shadow is in frame: the generator knows the true light; ``light_dir_err_deg`` against
+   the nearest lamp, ``dominant_light_err_deg`` against the light brightest on the floor,
+   the HDR map's own sun included) and the median seconds per job; writes OUT/table.csv, OUT/table.md and OUT/cases.csv (per case).
 
 Another checkout of zcomp can be compared as an extra method, e.g. the code before a
 change: ``--extra physical-before=/tmp/old/src`` runs its ``physical`` renderer with
-that source tree first on PYTHONPATH.
+that source tree first on PYTHONPATH. ``--true-direction`` adds physical-true-dir: each
+lamp-lit scene given its dominant light's true direction (``strength: auto``), what the
+renderer reaches with the direction right.
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ import sys
 from pathlib import Path
 
 COLUMNS = ["psnr", "rmse", "si-rmse", "ssim", "mae", "lpips", "flip", "shadow-iou", "shadow-darkness"]
-EXTRA = ["psnr_near", "light_dir_err_deg", "median_s_per_job"]
+EXTRA = ["psnr_near", "light_dir_err_deg", "dominant_light_err_deg", "median_s_per_job"]
 
 
 def zcomp(*args: str, src: str | None = None) -> subprocess.CompletedProcess:
@@ -55,6 +58,32 @@ def true_light_dirs(case: dict) -> list:
         d = -(R @ np.asarray(lp["direction"], float))
         out.append(d / np.linalg.norm(d))
     return out
+
+
+def true_lights(case: dict) -> list[dict]:
+    """Every directional light of a case, brightest on the floor first: the lamps and
+    the HDR map's own sun (``benchsuite.scenes.hdr_lights``), each ``{"kind",
+    "direction" (camera frame, toward it), "floor_irradiance"}``. Area lamps count
+    ``strength / (pi d^2)`` at the floor target."""
+    import math
+
+    import numpy as np
+
+    from zcomp_cli.benchsuite.scenes import BenchScene, hdr_lights
+
+    scene = BenchScene.from_dict(case["scene"])
+    up = scene.up
+    out = []
+    for lp, d in zip(case["scene"].get("lamps", []), true_light_dirs(case)):
+        e = float(lp["strength"]) if lp["kind"] == "SUN" else float(lp["strength"]) / (math.pi * float(lp["distance"]) ** 2)
+        out.append({"kind": lp["kind"], "direction": d, "floor_irradiance": e * max(float(d @ up), 0.0)})
+    try:
+        h = hdr_lights(scene)
+        out.append({"kind": "HDR-sun", "direction": np.asarray(h["sun_direction"]),
+                    "floor_irradiance": h["sun_floor_irradiance"]})
+    except Exception:  # no bpy (its bundled maps) here: lamps only
+        pass
+    return sorted(out, key=lambda x: -x["floor_irradiance"])
 
 
 def per_case(bench_dir: Path, res_dir: Path) -> list[dict]:
@@ -93,10 +122,32 @@ def per_case(bench_dir: Path, res_dir: Path) -> list[dict]:
         if light.get("direction") is not None and true:
             est = np.asarray(light["direction"], float)
             est /= np.linalg.norm(est)
-            row["light_dir_err_deg"] = float(min(np.degrees(np.arccos(np.clip(est @ t, -1, 1))) for t in true))
+            ang = lambda t: float(np.degrees(np.arccos(np.clip(est @ t, -1, 1))))
+            row["light_dir_err_deg"] = min(ang(t) for t in true)
+            # against the brightest directional light on the floor, the HDR map's sun included
+            dom = true_lights(c)[0]
+            row["dominant_light"] = dom["kind"]
+            row["dominant_err_deg"] = ang(dom["direction"])
             row["fallback"] = light.get("fallback")
         rows.append(row)
     return rows
+
+
+def write_true_direction_jobs(bench_dir: Path) -> Path:
+    """OUT/jobs_true_dir.yaml: jobs.yaml with each lamp-lit scene's ``light:`` set to
+    the true direction of its dominant light (``true_lights``), the strength measured
+    (``auto``)."""
+    import yaml
+
+    bench = json.loads((bench_dir / "benchmark.json").read_text())
+    doc = yaml.safe_load((bench_dir / "jobs.yaml").read_text())
+    for c in bench["cases"]:
+        if c["scene"].get("lamps") and c["id"] in doc["scenes"]:
+            d = true_lights(c)[0]["direction"]
+            doc["scenes"][c["id"]]["light"] = {"direction": [float(v) for v in d], "strength": "auto"}
+    path = bench_dir / "jobs_true_dir.yaml"
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return path
 
 
 def median_job_seconds(out_dir: Path) -> float:
@@ -127,6 +178,9 @@ def main(argv=None) -> int:
     ap.add_argument("--extra", action="append", default=[], metavar="NAME=SRC",
                     help="also run the physical renderer of another source tree (repeatable)")
     ap.add_argument("--skip-composite", action="store_true", help="reuse results already in OUT/results")
+    ap.add_argument("--true-direction", action="store_true",
+                    help="also run physical-true-dir: each lamp-lit scene given its true light direction "
+                         "(manifest light, strength auto): what the estimate would reach with the direction right")
     args = ap.parse_args(argv)
 
     out = Path(args.out)
@@ -144,11 +198,14 @@ def main(argv=None) -> int:
     for e in args.extra:
         name, _, src = e.partition("=")
         runs.append((name, "physical", src))
+    if args.true_direction:
+        runs.append(("physical-true-dir", "physical", None))
     rows, case_rows = [], []
     for name, method, src in runs:
         res_dir = out / "results" / name
         if not args.skip_composite:
-            r = zcomp("composite", str(jobs), "--out", str(res_dir), "--renderer", method, "--overwrite", src=src)
+            jf = write_true_direction_jobs(out) if name == "physical-true-dir" else jobs
+            r = zcomp("composite", str(jf), "--out", str(res_dir), "--renderer", method, "--overwrite", src=src)
             if r.returncode not in (0, 1):
                 print(r.stdout, r.stderr, file=sys.stderr)
                 return r.returncode
@@ -166,9 +223,12 @@ def main(argv=None) -> int:
         near = [c["psnr_near"] for c in cases if math.isfinite(c["psnr_near"])]
         errs = [c["light_dir_err_deg"] for c in cases
                 if c["lamp"] and c["shadow_in_frame"] and math.isfinite(c["light_dir_err_deg"])]
+        dom = [c["dominant_err_deg"] for c in cases
+               if c["lamp"] and c["shadow_in_frame"] and math.isfinite(c.get("dominant_err_deg", math.nan))]
         rows.append({"method": name, **{c: means.get(c) for c in COLUMNS},
                      "psnr_near": statistics.mean(near) if near else None,
                      "light_dir_err_deg": statistics.median(errs) if errs else None,
+                     "dominant_light_err_deg": statistics.median(dom) if dom else None,
                      "median_s_per_job": median_job_seconds(res_dir)})
 
     def fmt(v):
@@ -185,7 +245,8 @@ def main(argv=None) -> int:
         w.writeheader()
         w.writerows(rows)
     with open(out / "cases.csv", "w", newline="") as f:
-        keys = ["method", "case", "lamp", "shadow_in_frame", "psnr_near", "light_dir_err_deg", "fallback"]
+        keys = ["method", "case", "lamp", "shadow_in_frame", "psnr_near", "light_dir_err_deg", "dominant_light",
+                "dominant_err_deg", "fallback"]
         w = csv.DictWriter(f, fieldnames=keys, extrasaction="ignore")
         w.writeheader()
         w.writerows(case_rows)

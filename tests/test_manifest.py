@@ -142,3 +142,14 @@ def test_scene_light_probe(scene_dir):
         load_manifest(p)
     assert any("scenes.room.light.hdr" in x and "file not found" in x and "jobs.yaml:7" in x
                for x in ei.value.problems), ei.value.problems
+
+
+def test_scene_light_strength_auto(scene_dir):
+    p = scene_dir / "jobs.yaml"
+    p.write_text(GOOD.replace("fov_deg: 50", "fov_deg: 50\n    light: {direction: [0, 1, 0], strength: auto}"))
+    light = load_manifest(p).scenes["room"].light
+    assert light["strength"] == "auto" and light["angular_radius_deg"] is None
+    p.write_text(GOOD.replace("fov_deg: 50", "fov_deg: 50\n    light: {direction: [0, 1, 0], strength: bright}"))
+    with pytest.raises(ManifestError) as ei:
+        load_manifest(p)
+    assert any("scenes.room.light.strength" in x and "'auto'" in x for x in ei.value.problems), ei.value.problems

@@ -110,7 +110,11 @@ def test_render_outputs(inserted):
         assert img.shape == (84, 112, 3) and img.dtype == np.float32
         assert np.all(np.isfinite(img))
     known = ~inserted["mask"]
+    if out.shading_mask is not None:  # grown along the object's shadow: a superset
+        assert out.shading_mask.shape == known.shape and not (out.shading_mask < ~known).any()
+        known &= ~out.shading_mask
     # known region reproduced exactly (albedo * known shading)
+    assert known.any()
     assert np.array_equal(out.images[0][known], (s.albedo * s.shading).astype(np.float32)[known])
     assert {"estimate", "synthesis"} <= set(out.timings)
     assert "direction" in out.info["light"] and out.info["fallback"] is None
@@ -229,3 +233,39 @@ def test_visibility_primitives():
     assert sample_depth(d, np.array([2.0]), np.array([5.0]))[0] == 0
     assert len(march_visibility(np.zeros((0, 3)), np.zeros((0, 3)), np.array([0, 1.0, 0]),
                                 d, floor_scene(10, 10).camera)) == 0
+
+
+def test_long_shadow_grows_the_shading_mask():
+    """Under a low sun the object's shadow runs past a tight shading mask: the renderer
+    re-shades along it (``RenderOutput.shading_mask``) instead of cutting it, the grown
+    pixels lie on the light's far side, and the composite darkens them."""
+    from zcomp_cli.compositing.compositor import composite
+
+    light = (1.0, 0.45, 0.0)  # from the right, ~24 deg above the floor: a shadow ~2x the height
+    s = floor_scene(112, 84, light_dir=light, ambient=0.3)
+    c = s.world_to_camera([0.0, 0.3, -2.8])
+    b = sphere_object_bundle(s.camera, c, 0.3, (0.7, 0.7, 0.7), floor_normal=s.up_cam)
+    d, n, a, sel = insert_bundle(s.depth, s.normals, s.albedo, b)
+    ys, xs = np.nonzero(sel)
+    mask = np.zeros(sel.shape, bool)
+    mask[ys.min() - 2:ys.max() + 4, xs.min() - 3:xs.max() + 4] = True  # tight: the shadow leaves it
+    known = ~mask
+    spec = {"type": "directional", "direction": list(s.light_dir_cam), "azimuth_deg": None,
+            "elevation_deg": None, "angular_radius_deg": 1.0, "strength": 2.0}
+    reqs = [RenderRequest(SceneMaps(s.depth, s.normals, s.albedo), s.shading, known, s.camera, light=spec),
+            RenderRequest(SceneMaps(d, n, a), s.shading, known, s.camera, light=spec)]
+    out = PhysicalRenderer().render(reqs, seed=1)
+    assert out.shading_mask is not None
+    grown = out.shading_mask & ~mask
+    assert grown.sum() > 20
+    gy, gx = np.nonzero(grown)
+    assert np.median(gx) < xs.min()  # on the far side of the light (to the left of the object)
+    res = composite(s.image, out.images[0], out.images[1], out.shading_mask, sel.astype(np.float32))
+    ratio = (res.image.mean(-1) / np.maximum(s.image.mean(-1), 1e-6))[grown]
+    # the shadow continues past the requested mask (the rest of the grown band is the
+    # margin for its penumbra and the compositor's blur)
+    assert (ratio < 0.7).mean() > 0.3 and np.percentile(ratio, 10) < 0.65
+    # without a cast shadow to extend (the contact-shadow fallback), nothing grows
+    bare = PhysicalRenderer().render([RenderRequest(SceneMaps(s.depth, s.normals, s.albedo), s.shading, known,
+                                                    s.camera)] * 2, seed=1)
+    assert bare.shading_mask is None or not (bare.shading_mask & ~mask).any()

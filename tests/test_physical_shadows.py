@@ -218,3 +218,23 @@ def test_mesh_shadow_from_posed_mesh(tmp_path):
     face = np.array([[0.1, -0.5, -3.0]])
     assert mesh_shadow(mesh, face, np.array([[1.0, 0, 0]]), l)[0][0] == 1.0
     assert load_posed_mesh({}) is None
+
+
+def test_known_direction_with_auto_strength_measures_the_share():
+    """``strength: auto``: the direction is the manifest's, the shadow's darkness is read
+    from the photo (the box's cast shadow), as when the direction is estimated."""
+    s = floor_scene(112, 84, with_box=True, light_dir=SUN, ambient=0.3, box_center=(-0.4, -3.2))
+    bg, comp, sel, mask = _insert(s, [0.4, 0.3, -2.6])
+    light = {"type": "directional", "direction": list(s.light_dir_cam), "azimuth_deg": None,
+             "elevation_deg": None, "angular_radius_deg": None, "strength": "auto"}
+    import dataclasses
+
+    out = PhysicalRenderer().render([dataclasses.replace(r, light=light) for r in (bg, comp)], seed=1)
+    info = out.info["light"]
+    assert info["source"] == "manifest" and out.info["fallback"] is None
+    assert np.allclose(info["direction"], s.light_dir_cam)
+    assert info["share_source"].startswith("measured")
+    # the true share on the floor: ambient / (ambient + I cos)
+    cos = float(max(s.light_dir_cam @ s.up_cam, 0.0))
+    true_share = s.ambient / (s.ambient + s.light_intensity * cos)
+    assert abs(info["ambient_share"] - true_share) < 0.1

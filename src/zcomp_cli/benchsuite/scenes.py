@@ -23,6 +23,7 @@ rotation (``camera_to_env``), as Euler XYZ angles of a Mapping node.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -387,3 +388,65 @@ def floor_depth(scene: BenchScene) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         t = d / denom
     return np.where((denom < -1e-9) & np.isfinite(t) & (t > 0), t, 0.0).astype(np.float32)
+
+
+def bundled_hdr_path(name: str) -> Path:
+    """Path of one of Blender's bundled HDR maps, found without importing bpy."""
+    import importlib.util
+
+    spec = importlib.util.find_spec("bpy")
+    if spec is None or not spec.submodule_search_locations:
+        raise InputError("the bpy package is not installed: its bundled HDR maps are needed")
+    root = Path(list(spec.submodule_search_locations)[0])
+    hits = sorted(root.glob(f"*/datafiles/studiolights/world/{name}.exr"))
+    if not hits:
+        raise InputError(f"no bundled HDR map {name!r} under {root}")
+    return hits[0]
+
+
+# Solid angle (sr) of the brightest texels counted as an HDR map's sun.
+HDR_SUN_SOLID_ANGLE_SR = 0.02
+HDR_SUN_PATCH_DEG = 15.0
+
+
+def hdr_lights(scene: BenchScene, hdr_image: np.ndarray | None = None) -> dict:
+    """The HDR map's own sun and sky as the scene lights them (camera frame).
+
+    Several bundled maps hold a sun as bright as the lamps (studio, interior, city,
+    sunrise): its shadows are in the ground truth too. Its brightest
+    ``HDR_SUN_SOLID_ANGLE_SR`` of texels around the brightest one are the sun. Blender's equirectangular
+    lookup: ``u = 0.5 - atan2(y, x) / 2 pi``, ``v = 0.5 + asin(z) / pi`` (Z up).
+
+    Returns:
+        {"sun_direction": (3,) toward the sun, camera frame; "sun_floor_irradiance":
+        its irradiance on the floor (luma, times the map's strength); "sky_floor_irradiance":
+        the rest of the map's on the floor}.
+    """
+    import cv2
+
+    from zcomp_cli.conventions import REC601
+    from zcomp_cli.imageio import read_image
+
+    img = read_image(bundled_hdr_path(scene.hdr)) if hdr_image is None else hdr_image
+    img = cv2.resize(np.asarray(img, np.float32), (256, 128), interpolation=cv2.INTER_AREA).astype(np.float64)
+    h, w = img.shape[:2]
+    i, j = np.mgrid[0:h, 0:w]
+    lat = (0.5 - (i + 0.5) / h) * np.pi
+    az = -((j + 0.5) / w - 0.5) * 2 * np.pi
+    dirs = np.stack([np.cos(lat) * np.cos(az), np.cos(lat) * np.sin(az), np.sin(lat)], -1).reshape(-1, 3)
+    dirs = dirs @ scene.env_to_camera().T
+    d_omega = ((2 * np.pi / w) * (np.pi / h) * np.cos(lat)).reshape(-1)
+    L = np.maximum(np.nan_to_num(img.reshape(-1, 3)), 0.0) @ REC601.astype(np.float64) * float(scene.hdr_strength)
+    order = np.argsort(-L)
+    k = int(np.searchsorted(np.cumsum(d_omega[order]), HDR_SUN_SOLID_ANGLE_SR)) + 1
+    sun = np.zeros(len(L), bool)
+    sun[order[:k]] = True
+    # one patch: the brightest texels within HDR_SUN_PATCH_DEG of the brightest (a studio
+    # map's several softboxes are several lights, not one sun between them)
+    sun &= dirs @ dirs[order[0]] > np.cos(np.deg2rad(HDR_SUN_PATCH_DEG))
+    p = L * d_omega
+    sdir = (dirs[sun] * p[sun, None]).sum(0)
+    sdir = sdir / max(float(np.linalg.norm(sdir)), 1e-12)
+    cos = np.maximum(dirs @ scene.up, 0.0)
+    return {"sun_direction": sdir, "sun_floor_irradiance": float((p * cos)[sun].sum()),
+            "sky_floor_irradiance": float((p * cos)[~sun].sum())}

@@ -184,6 +184,12 @@ def finish_job(prep: PreparedJob, out: RenderOutput, renderer_name: str, rendere
     region = np.zeros((H, W), bool)
     region[y0:y1, x0:x1] = True
     s = prep.shading_mask
+    if out.shading_mask is not None:
+        grown = np.asarray(out.shading_mask, bool)
+        if grown.shape != (H, W):
+            raise NumericalError(f"renderer returned a shading mask of shape {grown.shape}, expected {(H, W)}")
+        # the renderer re-shaded more (an object's long shadow): the ratio applies there too
+        s = s | grown
     res = composite(prep.scene.image, f_bg, f_comp, s, prep.object_mask, balance_region=region & ~s)
     if not np.all(np.isfinite(res.image)):
         raise NumericalError("the composite has non-finite values")
@@ -191,6 +197,7 @@ def finish_job(prep: PreparedJob, out: RenderOutput, renderer_name: str, rendere
 
     report = {
         **prep.report,
+        **({"shading_mask_grown_px": int((s & ~prep.shading_mask).sum())} if out.shading_mask is not None else {}),
         "colour_balance": res.balance.tolist(),
         "renderer": {"settings": renderer_settings, "info": out.info, "timings": out.timings},
         "timings": timings,
@@ -198,7 +205,7 @@ def finish_job(prep: PreparedJob, out: RenderOutput, renderer_name: str, rendere
     }
     dbg = {}
     if debug:
-        dbg = {**prep.debug_maps, "f_bg": f_bg, "f_comp": f_comp, "ratio": res.ratio,
+        dbg = {**prep.debug_maps, "shading_mask": s.astype(np.float32), "f_bg": f_bg, "f_comp": f_comp, "ratio": res.ratio,
                "ratio_blurred": res.ratio_blurred, "weight": res.weight}
     return JobOutput(res.image, report, dbg)
 

@@ -9,7 +9,9 @@
           # azimuth_deg: 135            # in the support plane: 0 = image right, 90 = away from the camera
           # elevation_deg: 40           # above the support plane
           angular_radius_deg: 2         # half the light's angular size (penumbra); default 1
-          strength: 3.0                 # direct / ambient irradiance on a surface facing the light; default 2
+          strength: 3.0                 # direct / ambient irradiance on a surface facing the light; default 2;
+                                        # "auto": measured from the photo's shadows (and
+                                        # the angular radius too, unless given)
 
         light:                          # or an HDR light probe
           type: probe
@@ -123,11 +125,15 @@ def parse_light(value, where: str, add, resolve=None) -> dict | None:
                 ok = False
             else:
                 out[k] = v
+    if value.get("strength") == "auto":
+        out["strength"] = "auto"
+        out["angular_radius_deg"] = None  # measured too, unless given
     for k, lo, hi in (("angular_radius_deg", 0.0, 45.0), ("strength", 0.0, 1e3)):
-        if k in value:
+        if k in value and value[k] != "auto":
             v = _num(value[k])
             if v is None or not (lo <= v <= hi):
-                add(value, k, f"{where}.{k}", f"expected a number in [{lo:g}, {hi:g}], got {value[k]!r}")
+                add(value, k, f"{where}.{k}", f"expected a number in [{lo:g}, {hi:g}]"
+                    + (" or 'auto'" if k == "strength" else "") + f", got {value[k]!r}")
                 ok = False
             else:
                 out[k] = v

@@ -55,11 +55,18 @@ class RenderRequest:
 class RenderOutput:
     """Renderer result: one H x W x 3 linear RGB float32 image per request, plus
     ``info`` (settings, estimates and fallbacks for the job report) and ``timings``
-    (seconds per stage)."""
+    (seconds per stage).
+
+    ``shading_mask``: optional (H, W) bool, the pixels the renderer re-shaded in every
+    image, a superset of the requests' unknown pixels. A renderer that knows where the
+    object's shadow falls (the physical one, from its light) grows the mask along it,
+    so a long shadow is not cut at the shading mask's edge; the compositor then applies
+    the shadow ratio over this mask. None = the requested mask."""
 
     images: list[np.ndarray]
     info: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
+    shading_mask: np.ndarray | None = None
 
 
 class Renderer(ABC):
@@ -72,7 +79,9 @@ class Renderer(ABC):
     @abstractmethod
     def render(self, requests: Sequence[RenderRequest], *, seed: int = DEFAULT_SEED) -> RenderOutput:
         """Render the requests of ONE job (typically [background, composite]) in one call.
-        Each output image depends only on its own request and the seed."""
+        Each output image depends only on its own request and the seed, except that the
+        region re-shaded may be grown to the union of what the requests need (then
+        reported as ``RenderOutput.shading_mask``)."""
 
     def render_jobs(self, jobs: Sequence[Sequence[RenderRequest]], seeds: Sequence[int]) -> list[RenderOutput]:
         """Render several jobs' requests; ``jobs[i]`` is rendered with ``seeds[i]``.

@@ -116,6 +116,18 @@ def light_from_spec(spec: dict, depth, normals, shading, known, camera: Camera, 
     else:
         l = direction_from_angles(spec["azimuth_deg"], spec["elevation_deg"], up)
         how = f"azimuth {spec['azimuth_deg']:g} deg, elevation {spec['elevation_deg']:g} deg"
+    if spec.get("strength") == "auto":
+        # direction known, the rest measured from the photo as for an estimated one
+        from zcomp_cli.renderers.physical.lighting import estimate_lighting
+
+        r = spec.get("angular_radius_deg")
+        est = estimate_lighting(depth, normals, shading, known, camera, max_resolution=max_resolution,
+                                march_steps=march_steps, direction=l,
+                                softness_deg=None if r is None else float(r))
+        est.source = "manifest"
+        est.direction_source = f"manifest: {how}"
+        est.share_source = f"measured ({est.share_source})"
+        return est
     strength = float(spec.get("strength", 2.0))
     cos = float(max(l @ up, 0.05))
     on = N @ up > np.cos(np.deg2rad(15))

@@ -242,7 +242,7 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
                       march_steps: int = 24, max_fit_pixels: int = 4000,
                       ridge: float = 0.05, cone_samples: int = 8,
                       softness_deg: float | None = None, flat_threshold: float = 0.02,
-                      seed: int = DEFAULT_SEED) -> LightEstimate:
+                      seed: int = DEFAULT_SEED, direction=None) -> LightEstimate:
     """Estimate one directional light + SH ambient from the known shading.
 
     Args:
@@ -252,6 +252,9 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
         softness_deg: force the cone half-angle instead of fitting it.
         flat_threshold: relative score contrast below which the direction is declared
             unconstrained and the prior is used.
+        direction: (3,) camera-frame direction toward the light when it is known (a
+            manifest light without a strength): the search is skipped, the rest (ambient
+            share, strength, softness) is measured as for an estimated direction.
     Returns:
         LightEstimate (never raises on degenerate evidence: it falls back to the prior
         "light from above, tilted 30 deg toward the camera, ambient share 0.4, 15 deg").
@@ -334,11 +337,21 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     e_map, usable, band = darkness_map(lum, nvalid, valid, up, d, return_band=True)
     ei, ew = evidence_sample(e_map, usable)
     Pe, Ne, Ee = pts_all.reshape(-1, 3)[ei], nvalid.reshape(-1, 3)[ei], e_map.ravel()[ei]
-    ev = evidence_scores(Pe, Ne, Ee, ew, cands, d, cam, steps=march_steps)
+    # (a given direction needs no search: the darkness map still serves the share)
+    ev = (evidence_scores(Pe, Ne, Ee, ew, cands, d, cam, steps=march_steps) if direction is None
+          else np.zeros(0))
     evidence_px = float(ev.max()) if len(ev) else 0.0
     from_shadows = evidence_px >= MIN_EVIDENCE_PX
     agree_deg, band_px = float("nan"), 0.0
-    if from_shadows:
+    given = direction is not None
+    if given:
+        best = np.asarray(direction, np.float64)
+        best = best / max(float(np.linalg.norm(best)), 1e-12)
+        from_shadows, spread_deg, contrast = False, 0.0, float("nan")
+        # the crease band's pixels count for the share: a shadow at its occluder's base
+        e_band = ao_corrected_band(e_map, band, pts_all, nvalid, d, cam)
+        bi, bw = evidence_sample(e_band, usable | band)
+    elif from_shadows:
         best = cands[int(np.argmax(ev))]
         fine = cone_directions(best, 1.5 * step_deg, 40, seed=0)
         fine = np.concatenate([best[None], fine[fine @ up > 0.02]])
@@ -377,12 +390,12 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
                          f"(evidence {evidence_px:.3g} px < {MIN_EVIDENCE_PX}) and a flat score landscape "
                          f"(contrast {contrast:.3g} < {flat_threshold}), normal spread {spread:.3g}")
 
-    confirmed = not from_shadows and band_px >= MIN_AGREE_EVIDENCE_PX and agree_deg <= AGREE_DEG
+    confirmed = given or (not from_shadows and band_px >= MIN_AGREE_EVIDENCE_PX and agree_deg <= AGREE_DEG)
     if confirmed:
         # the shadow's darkness is read on the crease band too, as measured (a cast
         # shadow at its occluder's base is darkened by the occlusion as well)
         Pe, Ne, Ee = pts_all.reshape(-1, 3)[bi], nvalid.reshape(-1, 3)[bi], e_map.ravel()[bi]
-    if not from_shadows and best @ up < np.sin(np.deg2rad(MIN_FIT_ELEVATION_DEG)):
+    if not from_shadows and not given and best @ up < np.sin(np.deg2rad(MIN_FIT_ELEVATION_DEG)):
         # A grazing direction from shading alone fits the support with a huge intensity
         # that then floods the object's vertical faces (white objects on the fresh
         # benchmark): lift it to MIN_FIT_ELEVATION_DEG above the support.
@@ -473,7 +486,8 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     return LightEstimate(best, inten, sh_c, float(share), float(radius), float(s_r),
                          contrast, spread, fallback, float(uncertainty), share_src,
                          evidence_px=evidence_px,
-                         direction_source=("cast shadows of visible geometry" if from_shadows
+                         direction_source=("given (manifest)" if given else
+                                           "cast shadows of visible geometry" if from_shadows
                                            else "shading vs surface orientation, confirmed by cast "
                                            f"shadows ({band_px:.3g} px with the crease band, their best direction "
                                            f"{agree_deg:.3g} deg away)"

@@ -37,7 +37,8 @@ def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndar
                      depth: np.ndarray, camera: Camera, *, steps: int = 24,
                      max_distance_rel: float = 0.8, bias_rel: float = 0.01,
                      thickness_rel: float = 0.15, jitter: np.ndarray | None = None,
-                     return_distance: bool = False, nearest: bool = False):
+                     return_distance: bool = False, nearest: bool = False,
+                     occluder_mask: np.ndarray | None = None):
     """Binary visibility of points toward directional light(s).
 
     Args:
@@ -52,6 +53,8 @@ def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndar
         jitter: optional (N,) offsets in [0, 1) of the samples along each ray (in steps):
             per-pixel decorrelation turns the step pattern into noise a filter removes,
             instead of banding.
+        occluder_mask: optional (H, W) bool: only texels where it is True occlude (the
+            shadow of one part of the frame, such as an inserted object).
         max_distance_rel, bias_rel, thickness_rel: ray length, occluder bias and
             occluder thickness as fractions of the point's own depth (scale-free).
     Returns:
@@ -92,6 +95,8 @@ def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndar
         gap = qz - ds
         bias = bias_rel * qz
         hit = inside & (ds > 0) & (gap > bias) & (gap < thickness_rel * np.maximum(qz, 1e-6))
+        if occluder_mask is not None:
+            hit &= occluder_mask[np.clip(ys.astype(np.int64), 0, H - 1), np.clip(xs.astype(np.int64), 0, W - 1)]
         if return_distance:
             t_hit = np.where(hit & ~occluded, t, t_hit)
         occluded |= hit
