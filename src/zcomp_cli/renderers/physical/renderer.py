@@ -158,17 +158,13 @@ class PhysicalRenderer(Renderer):
         if not occ.any():
             return out
         st = 2 if H * W > FULL_RES_PIXELS else 1
-        gy, gx = np.mgrid[0:H:st, 0:W:st]
-        nv = n[gy, gx].astype(np.float64)
-        nn = np.linalg.norm(nv, axis=-1)
+        geo = (d > 0) & (np.abs(np.linalg.norm(n, axis=-1) - 1) < 0.2)
+        gy, gx, Pg, Ng, ok = _grid_points(d, n, geo, req.camera, (0, 0, H, W), st)
         l = np.asarray(est.direction, np.float64)
-        cand = known[gy, gx] & (d[gy, gx] > 0) & (np.abs(nn - 1) < 0.2)
-        cand &= (nv @ l) > 0.02 * np.maximum(nn, 1e-12)
+        cand = known[gy, gx] & ok & ((Ng @ l) > 0.02)
         if not cand.any():
             return out
-        ys, xs = gy[cand], gx[cand]
-        N = nv[cand] / nn[cand][:, None]
-        P = req.camera.ray(xs + 0.5, ys + 0.5) * d[ys, xs][:, None]
+        ys, xs, P, N = gy[cand], gx[cand], Pg[cand], Ng[cand]
         v, t = march_visibility(P, N, l, d, req.camera, steps=int(self._s["march_steps"]), nearest=True,
                                 return_distance=True, occluder_mask=occ)
         if req.occluder is not None:
@@ -233,12 +229,7 @@ class PhysicalRenderer(Renderer):
             return wy0, wx0, min(H, ys.max() + 1 + margin), min(W, xs.max() + 1 + margin)
 
         def points(wy0, wx0, wy1, wx1, step=1):
-            gy, gx = np.mgrid[wy0:wy1:step, wx0:wx1:step]
-            dz = d[gy, gx]
-            nv = n[gy, gx].astype(np.float64)
-            ok = geo_all[gy, gx]
-            nv = np.where(ok[..., None], nv / np.maximum(np.linalg.norm(nv, axis=-1, keepdims=True), 1e-12), 0.0)
-            return gy, gx, camera.ray(gx + 0.5, gy + 0.5) * dz[..., None], nv, ok
+            return _grid_points(d, n, geo_all, camera, (wy0, wx0, wy1, wx1), step)
 
         # ambient occlusion on a stride-2 grid around the todo pixels, then filtered
         # (stride 4 on large frames: ambient occlusion is smooth)
@@ -308,6 +299,17 @@ class PhysicalRenderer(Renderer):
                              ok, camera.fx, tan_a)
         v_t = vs[ys - wy0, xs - wx0]
         return amb * ao_t[:, None] + (ndl * v_t)[:, None] * inten
+
+
+def _grid_points(d, n, valid, camera, box, step=1):
+    """Pixels of ``box = (y0, x0, y1, x1)`` on a ``step`` grid: (gy, gx, camera-frame points,
+    unit normals (0 where not ``valid``), valid)."""
+    wy0, wx0, wy1, wx1 = box
+    gy, gx = np.mgrid[wy0:wy1:step, wx0:wx1:step]
+    nv = n[gy, gx].astype(np.float64)
+    ok = valid[gy, gx]
+    nv = np.where(ok[..., None], nv / np.maximum(np.linalg.norm(nv, axis=-1, keepdims=True), 1e-12), 0.0)
+    return gy, gx, camera.ray(gx + 0.5, gy + 0.5) * d[gy, gx][..., None], nv, ok
 
 
 def _grown_request(req: RenderRequest, reach: np.ndarray) -> RenderRequest:
