@@ -13,13 +13,16 @@
    light-direction error (median over cases lit by a sun or lamp whose ground-truth
    shadow is in frame: the generator knows the true light; ``light_dir_err_deg`` against
    the nearest lamp, ``dominant_light_err_deg`` against the light brightest on the floor,
-   the HDR map's own sun included) and the median seconds per job; writes OUT/table.csv, OUT/table.md and OUT/cases.csv (per case).
+   the HDR map's own sun included; ``cast_shadow_err_deg`` over the cases where the
+   renderer drew a cast shadow rather than a contact shadow, against the nearer of the two,
+   with their count) and the median seconds per job; writes OUT/table.csv, OUT/table.md and OUT/cases.csv (per case).
 
 Another checkout of zcomp can be compared as an extra method, e.g. the code before a
 change: ``--extra physical-before=/tmp/old/src`` runs its ``physical`` renderer with
 that source tree first on PYTHONPATH. ``--true-direction`` adds physical-true-dir: each
-lamp-lit scene given its dominant light's true direction (``strength: auto``), what the
-renderer reaches with the direction right.
+lamp-lit scene given the true directions of its dominant light and of a second one
+bright enough (``write_true_direction_jobs``; ``strength: auto``), what the renderer
+reaches with the directions right.
 """
 
 from __future__ import annotations
@@ -34,7 +37,7 @@ import sys
 from pathlib import Path
 
 COLUMNS = ["psnr", "rmse", "si-rmse", "ssim", "mae", "lpips", "flip", "shadow-iou", "shadow-darkness"]
-EXTRA = ["psnr_near", "light_dir_err_deg", "dominant_light_err_deg", "median_s_per_job"]
+EXTRA = ["psnr_near", "light_dir_err_deg", "dominant_light_err_deg", "cast_shadow_err_deg", "median_s_per_job"]
 
 
 def zcomp(*args: str, src: str | None = None) -> subprocess.CompletedProcess:
@@ -133,18 +136,26 @@ def per_case(bench_dir: Path, res_dir: Path) -> list[dict]:
     return rows
 
 
+# A case's second light joins the oracle's lights when it brings at least this part of
+# the dominant light's irradiance on the floor.
+SECOND_TRUE_LIGHT_FRAC = 0.25
+
+
 def write_true_direction_jobs(bench_dir: Path) -> Path:
     """OUT/jobs_true_dir.yaml: jobs.yaml with each lamp-lit scene's ``light:`` set to
-    the true direction of its dominant light (``true_lights``), the strength measured
-    (``auto``)."""
+    the true directions of its dominant light and, when it brings at least
+    SECOND_TRUE_LIGHT_FRAC of that on the floor, the next one (``true_lights``: a lamp
+    or the HDR map's sun), the strengths measured (``auto``)."""
     import yaml
 
     bench = json.loads((bench_dir / "benchmark.json").read_text())
     doc = yaml.safe_load((bench_dir / "jobs.yaml").read_text())
     for c in bench["cases"]:
         if c["scene"].get("lamps") and c["id"] in doc["scenes"]:
-            d = true_lights(c)[0]["direction"]
-            doc["scenes"][c["id"]]["light"] = {"direction": [float(v) for v in d], "strength": "auto"}
+            tl = true_lights(c)
+            top = [t for t in tl[:2] if t["floor_irradiance"] >= SECOND_TRUE_LIGHT_FRAC * tl[0]["floor_irradiance"]]
+            lights = [{"direction": [float(v) for v in t["direction"]], "strength": "auto"} for t in top or tl[:1]]
+            doc["scenes"][c["id"]]["light"] = lights[0] if len(lights) == 1 else lights
     path = bench_dir / "jobs_true_dir.yaml"
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
     return path
@@ -225,10 +236,16 @@ def main(argv=None) -> int:
                 if c["lamp"] and c["shadow_in_frame"] and math.isfinite(c["light_dir_err_deg"])]
         dom = [c["dominant_err_deg"] for c in cases
                if c["lamp"] and c["shadow_in_frame"] and math.isfinite(c.get("dominant_err_deg", math.nan))]
+        # the cases where the renderer drew a cast shadow (no contact-shadow fallback):
+        # error against the nearest true light (the HDR map's sun included), and how many
+        cast = [min(c["light_dir_err_deg"], c["dominant_err_deg"]) for c in cases
+                if c["lamp"] and c["shadow_in_frame"] and c.get("fallback") is None
+                and math.isfinite(c.get("dominant_err_deg", math.nan))]
         rows.append({"method": name, **{c: means.get(c) for c in COLUMNS},
                      "psnr_near": statistics.mean(near) if near else None,
                      "light_dir_err_deg": statistics.median(errs) if errs else None,
                      "dominant_light_err_deg": statistics.median(dom) if dom else None,
+                     "cast_shadow_err_deg": (f"{statistics.median(cast):.1f} ({len(cast)})" if cast else None),
                      "median_s_per_job": median_job_seconds(res_dir)})
 
     def fmt(v):

@@ -153,3 +153,28 @@ def test_scene_light_strength_auto(scene_dir):
     with pytest.raises(ManifestError) as ei:
         load_manifest(p)
     assert any("scenes.room.light.strength" in x and "'auto'" in x for x in ei.value.problems), ei.value.problems
+
+
+def test_scene_light_list(scene_dir):
+    p = scene_dir / "jobs.yaml"
+    p.write_text(GOOD.replace("fov_deg: 50", "fov_deg: 50\n    light:\n"
+                              "      - {azimuth_deg: 30, elevation_deg: 45, strength: 3}\n"
+                              "      - {direction: [-1, 1, 0], strength: 1, angular_radius_deg: 4}"))
+    light = load_manifest(p).scenes["room"].light
+    assert light["type"] == "lights" and len(light["lights"]) == 2
+    assert light["lights"][1]["angular_radius_deg"] == 4 and light["lights"][0]["strength"] == 3
+    # one item is that light
+    p.write_text(GOOD.replace("fov_deg: 50", "fov_deg: 50\n    light: [{direction: [0, 1, 0]}]"))
+    assert load_manifest(p).scenes["room"].light["type"] == "directional"
+    bad = {
+        "[{direction: [0, 1, 0], strength: auto}, {direction: [1, 1, 0], strength: 2}]":
+            ("scenes.room.light", "all numbers or all 'auto'"),
+        "[{direction: [0, 1, 0]}, {type: probe, hdr: x.exr}]": ("scenes.room.light[1].type", "directional lights only"),
+        "[{direction: [0, 1, 0]}, {direction: [0, 0, 0]}]": ("scenes.room.light[1].direction", "not all 0"),
+        "[]": ("scenes.room.light", "1 to 3"),
+    }
+    for text, (field, words) in bad.items():
+        p.write_text(GOOD.replace("fov_deg: 50", f"fov_deg: 50\n    light: {text}"))
+        with pytest.raises(ManifestError) as ei:
+            load_manifest(p)
+        assert any(field in x and words in x for x in ei.value.problems), (text, ei.value.problems)

@@ -238,3 +238,95 @@ def test_known_direction_with_auto_strength_measures_the_share():
     cos = float(max(s.light_dir_cam @ s.up_cam, 0.0))
     true_share = s.ambient / (s.ambient + s.light_intensity * cos)
     assert abs(info["ambient_share"] - true_share) < 0.1
+
+
+LAMP2 = (-0.8, 1.0, 0.3)  # world, toward a second, fainter light on the other side
+
+
+def _two_light_scene():
+    return floor_scene(112, 84, with_box=True, light_dir=SUN, ambient=0.3, box_center=(-0.4, -3.2),
+                       extra_lights=[(LAMP2, 0.7)])
+
+
+def _true_ratios(s):
+    """Shadow / lit level on the floor where only light 1, only light 2 is blocked."""
+    up = s.up_cam
+    c1 = max(up @ s.light_dir_cam, 0.0)
+    c2 = max(up @ np.asarray(s.meta["extra_lights_cam"][0]), 0.0)
+    lit = s.ambient + s.light_intensity * c1 + 0.7 * c2
+    return (s.ambient + 0.7 * c2) / lit, (s.ambient + s.light_intensity * c1) / lit
+
+
+def test_second_light_from_a_second_shadow():
+    # one box, two lights: two shadows; the second light is the one that explains
+    # the darkness the first one leaves
+    s = _two_light_scene()
+    e = estimate_lighting(s.depth, s.normals, s.shading, s.depth > 0, s.camera, **FAST)
+    assert e.fallback is None and len(e.extra_lights) == 1
+    x = e.extra_lights[0]
+    assert _angle(e.direction, s.light_dir_cam) < 10.0  # 8.3 deg
+    assert _angle(x.direction, s.meta["extra_lights_cam"][0]) < 15.0  # 11.5 deg
+    r1, r2 = _true_ratios(s)
+    assert abs(x.shadow_ratio - r2) < 0.1  # 0.74 vs 0.68
+    info = e.to_info()
+    assert [lt["kind"] for lt in info["lights"]] == ["directional", "directional", "ambient (sky, order-1 SH)"]
+    # a single light does not split in two (the off-frame occluder's shadow lines up
+    # with the box for a light from the other side, but is darker than a second light
+    # could make it)
+    one = floor_scene(112, 84, with_box=True, light_dir=SUN, ambient=0.3, box_center=(-0.4, -3.2),
+                      occluders=[((2.0, -1.4), (0.6, 2.0, 0.6))])
+    e1 = estimate_lighting(one.depth, one.normals, one.shading, one.depth > 0, one.camera, **FAST)
+    assert e1.extra_lights == ()
+
+
+def _sides(ratio, sel, mask):
+    """Mean composite/background ratio on the floor left and right of the object."""
+    ys, xs = np.nonzero(sel)
+    floor = mask & ~sel
+    cx = (xs.min() + xs.max()) // 2
+    left, right = floor.copy(), floor.copy()
+    left[:, cx:] = False
+    right[:, :cx] = False
+    return float(ratio[left].mean()), float(ratio[right].mean())
+
+
+def test_two_known_lights_cast_two_shadows():
+    """A manifest list of two lights: each casts the object's shadow, on its far side."""
+    import dataclasses
+
+    s = floor_scene(112, 84, ambient=0.3)  # a bare floor: nothing to estimate from
+    bg, comp, sel, mask = _insert(s, [0.0, 0.3, -2.6])
+    right = {"type": "directional", "azimuth_deg": 0.0, "elevation_deg": 35.0,
+             "direction": None, "angular_radius_deg": 1.0, "strength": 3.0}
+    left = {**right, "azimuth_deg": 180.0}
+    ratio = lambda o: o.images[1].mean(-1) / np.maximum(o.images[0].mean(-1), 1e-6)  # noqa: E731
+    outs = {}
+    for name, light in {"right": right, "left": left,
+                        "both": {"type": "lights", "lights": [right, left]}}.items():
+        o = PhysicalRenderer().render([dataclasses.replace(r, light=light) for r in (bg, comp)], seed=1)
+        assert o.info["fallback"] is None
+        outs[name] = _sides(ratio(o), sel, mask)
+    # a light on the right throws the shadow to the left, and the other way round
+    assert outs["right"][0] < outs["right"][1] - 0.05 and outs["left"][1] < outs["left"][0] - 0.05
+    # both: a shadow on each side, each fainter than its light's alone (the other
+    # light reaches into it)
+    assert outs["both"][0] < 0.97 and outs["both"][1] < 0.97
+    assert outs["both"][0] > outs["right"][0] and outs["both"][1] > outs["left"][1]
+
+
+def test_two_known_directions_with_auto_strength_measure_each_shadow():
+    s = _two_light_scene()
+    bg, comp, sel, mask = _insert(s, [0.4, 0.3, -2.6])
+    mk = lambda d: {"type": "directional", "direction": list(d), "azimuth_deg": None,  # noqa: E731
+                    "elevation_deg": None, "angular_radius_deg": None, "strength": "auto"}
+    light = {"type": "lights", "lights": [mk(s.light_dir_cam), mk(s.meta["extra_lights_cam"][0])]}
+    import dataclasses
+
+    out = PhysicalRenderer().render([dataclasses.replace(r, light=light) for r in (bg, comp)], seed=1)
+    lights = out.info["light"]["lights"]
+    assert len(lights) == 3 and all(lt["direction_from"].startswith("manifest") for lt in lights[:2])
+    r1, r2 = _true_ratios(s)
+    assert abs(lights[1]["shadow_ratio"] - r2) < 0.1
+    # the ambient is what neither light brings: ambient / lit level on the floor
+    true_amb = r1 + r2 - 1.0
+    assert abs(out.info["light"]["ambient_share"] - true_amb) < 0.1

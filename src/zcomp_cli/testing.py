@@ -90,7 +90,7 @@ def floor_scene(width: int = 128, height: int = 96, *, fov_deg: float = 50.0,
                 ambient: float = 0.3, albedo=(0.6, 0.6, 0.6), with_box: bool = False,
                 box_center=(0.0, -3.0), box_size=(0.6, 0.8, 0.6),
                 box_albedo=(0.5, 0.4, 0.3), with_wall: bool = False,
-                wall_distance: float = 6.0, occluders=()) -> SyntheticScene:
+                wall_distance: float = 6.0, occluders=(), extra_lights=()) -> SyntheticScene:
     """Ray cast a ground plane (+ optional axis-aligned box and back wall).
 
     Args:
@@ -107,6 +107,9 @@ def floor_scene(width: int = 128, height: int = 96, *, fov_deg: float = 50.0,
         occluders: more boxes ``((x, z), (sx, sy, sz))`` standing on the floor, seen and
             casting shadows like the box; put one outside the frustum to get a shadow
             whose occluder the depth map does not show.
+        extra_lights: more directional lights ``(world direction toward it, intensity)``,
+            each with its own exact shadows (``meta["extra_lights_cam"]``: their
+            camera-frame directions).
     Returns:
         SyntheticScene; sky pixels have depth 0, normals 0, albedo 0, shading 0.
     """
@@ -150,15 +153,23 @@ def floor_scene(width: int = 128, height: int = 96, *, fov_deg: float = 50.0,
         box = boxes[0]
     hit = np.isfinite(t_best)
     P = o + d * np.where(hit, t_best, 0.0)[:, None]
-    l = np.asarray(light_dir, dtype=np.float64)
-    l = l / np.linalg.norm(l)
-    vis = np.ones(n_pix)
-    for bb in boxes:
-        ps = P + n_best * 1e-4
-        t_sh, _ = _ray_box(ps, np.broadcast_to(l, ps.shape).copy(), *bb)
-        vis = np.where(np.isfinite(t_sh), 0.0, vis)
-    ndotl = np.maximum(0.0, n_best @ l)
+    def lit(l):
+        l = np.asarray(l, dtype=np.float64)
+        l = l / np.linalg.norm(l)
+        vis = np.ones(n_pix)
+        for bb in boxes:
+            ps = P + n_best * 1e-4
+            t_sh, _ = _ray_box(ps, np.broadcast_to(l, ps.shape).copy(), *bb)
+            vis = np.where(np.isfinite(t_sh), 0.0, vis)
+        return l, vis, np.maximum(0.0, n_best @ l)
+
+    l, vis, ndotl = lit(light_dir)
     shade = ambient + light_intensity * ndotl * vis
+    extra_cam = []
+    for le, ie in extra_lights:
+        le, vis_e, ndl_e = lit(le)
+        shade = shade + float(ie) * ndl_e * vis_e
+        extra_cam.append((R.T @ le).tolist())
     shade = np.where(hit, shade, 0.0)
     p_cam = (P - origin) @ R
     depth = np.where(hit, -p_cam[:, 2], 0.0)
@@ -174,7 +185,8 @@ def floor_scene(width: int = 128, height: int = 96, *, fov_deg: float = 50.0,
         visibility=f(np.where(hit, vis, 1.0), 1).reshape(H, W),
         light_dir_cam=R.T @ l, ambient=float(ambient), light_intensity=float(light_intensity),
         cam_to_world=R, camera_origin=origin,
-        meta={"box": None if box is None else [box[0].tolist(), box[1].tolist()]},
+        meta={"box": None if box is None else [box[0].tolist(), box[1].tolist()],
+              "extra_lights_cam": extra_cam},
     )
 
 

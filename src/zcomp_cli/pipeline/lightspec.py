@@ -13,6 +13,10 @@
                                         # "auto": measured from the photo's shadows (and
                                         # the angular radius too, unless given)
 
+        light:                          # or several directional lights (two lamps), each
+          - {azimuth_deg: 30, elevation_deg: 45, strength: 3}   # with its own shadow;
+          - {azimuth_deg: 150, elevation_deg: 60, strength: 1}  # strengths all numbers or all "auto"
+
         light:                          # or an HDR light probe
           type: probe
           hdr: studio.exr               # equirectangular, linear (EXR/HDR); +Y up, the
@@ -33,6 +37,7 @@ PROBE_KEYS = {"type", "hdr", "rotation_deg"}
 PROBE_EXTS = {".exr", ".hdr"}
 DEFAULT_ANGULAR_RADIUS_DEG = 1.0
 DEFAULT_STRENGTH = 2.0
+MAX_LIGHTS = 3
 
 
 def _num(v):
@@ -71,6 +76,29 @@ def _parse_probe(value, where, add, resolve) -> dict | None:
     return out if ok else None
 
 
+def _parse_list(value, where, add, resolve) -> dict | None:
+    if not 1 <= len(value) <= MAX_LIGHTS:
+        add(None, None, where, f"expected 1 to {MAX_LIGHTS} directional lights, got {len(value)}")
+        return None
+    items = []
+    for i, v in enumerate(value):
+        if isinstance(v, dict) and v.get("type") == "probe":
+            add(v, "type", f"{where}[{i}].type", "a list of lights holds directional lights only "
+                                                 "(a probe is the scene's whole light)")
+            items.append(None)
+        else:
+            items.append(parse_light(v, f"{where}[{i}]", add, resolve) if not isinstance(v, list) else None)
+            if isinstance(v, list):
+                add(None, None, f"{where}[{i}]", "expected a mapping, got a list")
+    if any(x is None for x in items):
+        return None
+    autos = [x["strength"] == "auto" for x in items]
+    if any(autos) and not all(autos):
+        add(None, None, where, "strengths must be all numbers or all 'auto' (measured from the photo)")
+        return None
+    return items[0] if len(items) == 1 else {"type": "lights", "lights": items}
+
+
 def parse_light(value, where: str, add, resolve=None) -> dict | None:
     """Validate a scene's ``light`` mapping.
 
@@ -83,8 +111,12 @@ def parse_light(value, where: str, add, resolve=None) -> dict | None:
             (the probe's ``hdr``) relative to the manifest.
     Returns:
         ``{"type": "directional", "direction": [x, y, z] | None, "azimuth_deg",
-        "elevation_deg", "angular_radius_deg", "strength"}`` or None when invalid.
+        "elevation_deg", "angular_radius_deg", "strength"}``, ``{"type": "probe", ...}``,
+        ``{"type": "lights", "lights": [directional, ...]}`` for a list of two or more,
+        or None when invalid.
     """
+    if isinstance(value, list):
+        return _parse_list(value, where, add, resolve)
     if not isinstance(value, dict):
         add(None, None, where, f"expected a mapping (direction or azimuth_deg/elevation_deg, "
                                f"angular_radius_deg, strength), got {type(value).__name__}")

@@ -150,11 +150,12 @@ def evidence_sample(e: np.ndarray, valid: np.ndarray, max_dark: int = 1500, max_
 
 
 def evidence_scores(points, normals, e, weights, dirs, depth, camera: Camera, *, steps: int = 16,
-                    chunk: int = 32) -> np.ndarray:
-    """score(l) for each of ``dirs`` (C, 3) over sampled pixels: (C,) float64."""
+                    chunk: int = 32, tau: float = EVIDENCE_TAU) -> np.ndarray:
+    """score(l) for each of ``dirs`` (C, 3) over sampled pixels: (C,) float64; ``tau``
+    the darkness a predicted-shadow pixel must exceed to add."""
     P = np.asarray(points, np.float64)
     N = np.asarray(normals, np.float64)
-    gain = weights * (e - EVIDENCE_TAU)
+    gain = weights * (e - tau)
     out = []
     for c0 in range(0, len(dirs), chunk):
         D = np.asarray(dirs[c0:c0 + chunk])

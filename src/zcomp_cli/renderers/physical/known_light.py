@@ -10,13 +10,14 @@ is direct / ambient irradiance on a surface facing the light, so the shadow leve
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 
 from zcomp_cli.camera import Camera
 from zcomp_cli.conventions import REC601
-from zcomp_cli.renderers.physical.lighting import LightEstimate, _downsample, fibonacci_sphere
+from zcomp_cli.renderers.physical.lighting import ExtraLight, LightEstimate, _downsample, fibonacci_sphere
 from zcomp_cli.renderers.physical.visibility import march_visibility
 
 
@@ -109,41 +110,54 @@ def light_from_spec(spec: dict, depth, normals, shading, known, camera: Camera, 
     up = dominant_normal(N)
     if spec.get("type") == "probe":
         return _probe_estimate(spec, N, S, P, up, d, cam, march_steps)
-    if spec.get("direction") is not None:
-        l = np.asarray(spec["direction"], np.float64)
-        l /= np.linalg.norm(l)
-        how = "direction (camera frame)"
-    else:
-        l = direction_from_angles(spec["azimuth_deg"], spec["elevation_deg"], up)
-        how = f"azimuth {spec['azimuth_deg']:g} deg, elevation {spec['elevation_deg']:g} deg"
-    if spec.get("strength") == "auto":
-        # direction known, the rest measured from the photo as for an estimated one
+    specs = spec["lights"] if spec.get("type") == "lights" else [spec]
+    dirs, hows = zip(*(_spec_direction(x, up) for x in specs))
+    radii = [x.get("angular_radius_deg") for x in specs]
+    if specs[0].get("strength") == "auto":
+        # directions known, the rest measured from the photo as for estimated ones
         from zcomp_cli.renderers.physical.lighting import estimate_lighting
 
-        r = spec.get("angular_radius_deg")
         est = estimate_lighting(depth, normals, shading, known, camera, max_resolution=max_resolution,
-                                march_steps=march_steps, direction=l,
-                                softness_deg=None if r is None else float(r))
+                                march_steps=march_steps, direction=np.stack(dirs),
+                                softness_deg=None if radii[0] is None else float(radii[0]))
         est.source = "manifest"
-        est.direction_source = f"manifest: {how}"
+        est.direction_source = f"manifest: {hows[0]}"
         est.share_source = f"measured ({est.share_source})"
+        est.extra_lights = tuple(
+            dataclasses.replace(x, direction_source=f"manifest: {how}",
+                                softness_deg=x.softness_deg if r is None else float(r))
+            for x, how, r in zip(est.extra_lights, hows[1:], radii[1:]))
         return est
-    strength = float(spec.get("strength", 2.0))
-    cos = float(max(l @ up, 0.05))
+    strengths = [float(x.get("strength", 2.0)) for x in specs]
+    coss = [float(max(l @ up, 0.05)) for l in dirs]
     on = N @ up > np.cos(np.deg2rad(15))
     lit = on.copy()
-    if len(P):
-        lit &= (march_visibility(P, N, l, d, cam, steps=march_steps) > 0.5) & (N @ l > 0)
+    for l in dirs:  # the support where every light reaches
+        if len(P):
+            lit &= (march_visibility(P, N, l, d, cam, steps=march_steps) > 0.5) & (N @ l > 0)
     pick = lit if lit.sum() >= 15 else (on if on.sum() >= 15 else np.ones(len(S), bool))
     level = np.median(S[pick], 0) if len(S) else np.full(3, 0.5)
-    amb = level / (1.0 + strength * cos)
+    total = 1.0 + sum(s_ * c for s_, c in zip(strengths, coss))
+    amb = level / total
     sh_c = np.zeros((4, 3))
     sh_c[0] = amb
-    share = 1.0 / (1.0 + strength * cos)
-    est = LightEstimate(l, strength * amb, sh_c, float(share), float(spec.get("angular_radius_deg", 1.0)),
-                        float("nan"), float("nan"), 0.0, None, 0.0, "manifest strength", "manifest",
-                        0.0, f"manifest: {how}")
-    return est
+    radius = lambda r: 1.0 if r is None else float(r)
+    extras = tuple(ExtraLight(l, s_ * amb, radius(r), float((total - s_ * c) / total), f"manifest: {how}",
+                              "manifest strength")
+                   for l, s_, c, r, how in zip(dirs[1:], strengths[1:], coss[1:], radii[1:], hows[1:]))
+    return LightEstimate(dirs[0], strengths[0] * amb, sh_c, float(1.0 / total), radius(radii[0]),
+                         float("nan"), float("nan"), 0.0, None, 0.0, "manifest strength", "manifest",
+                         0.0, f"manifest: {hows[0]}", extra_lights=extras)
+
+
+def _spec_direction(spec: dict, up: np.ndarray):
+    """(camera-frame unit direction toward the light, how it was given) of a
+    directional light spec."""
+    if spec.get("direction") is not None:
+        l = np.asarray(spec["direction"], np.float64)
+        return l / np.linalg.norm(l), "direction (camera frame)"
+    l = direction_from_angles(spec["azimuth_deg"], spec["elevation_deg"], up)
+    return l, f"azimuth {spec['azimuth_deg']:g} deg, elevation {spec['elevation_deg']:g} deg"
 
 
 def _probe_estimate(spec, N, S, P, up, d, cam, march_steps) -> LightEstimate:

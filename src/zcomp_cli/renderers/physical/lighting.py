@@ -47,6 +47,32 @@ AGREE_DEG = 10.0
 MIN_FIT_AMBIENT_SHARE = 0.6
 # Least elevation of a direction taken from shading alone (no cast shadow).
 MIN_FIT_ELEVATION_DEG = 30.0
+# A second light (two lamps; a lamp and a sunlit window) is taken when the cast-shadow
+# evidence the first light leaves unexplained picks a direction this far from it (its
+# shadow is another shadow, not the first one's penumbra or a refinement of it).
+SECOND_LIGHT_SEP_DEG = 25.0
+# A second light is fainter: its shadow keeps more of the lit level (the first light
+# still reaches it), so its pixels count from the shadow metric's 10 % darkening.
+SECOND_LIGHT_TAU = 0.1
+# The ambient keeps at least this share of the lit support when the lights' measured
+# shadows add up to more direct light than the support receives.
+MIN_SPLIT_AMBIENT_SHARE = 0.05
+
+
+@dataclass
+class ExtraLight:
+    """A further directional light beside ``LightEstimate.direction``: direction (3,)
+    camera frame, toward it; intensity (3,) RGB; softness_deg its angular radius;
+    shadow_ratio the level of its shadow over the lit level on the support (what stays
+    where only this light is blocked); direction_source and share_source say where they
+    came from."""
+
+    direction: np.ndarray
+    intensity: np.ndarray
+    softness_deg: float
+    shadow_ratio: float
+    direction_source: str
+    share_source: str
 
 
 @dataclass
@@ -71,6 +97,7 @@ class LightEstimate:
     source: str = "estimated"
     evidence_px: float = 0.0
     direction_source: str = "prior"
+    extra_lights: tuple = ()  # ExtraLight, each drawn with its own shadow
 
     @property
     def cone_deg(self) -> float:
@@ -84,6 +111,7 @@ class LightEstimate:
     def to_info(self) -> dict:
         d = asdict(self)
         d["cone_deg"] = self.cone_deg
+        d.pop("extra_lights")
         d = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in d.items()}
         # the light model as separate lights: a directional one and the sky (ambient)
         d["lights"] = [
@@ -91,6 +119,11 @@ class LightEstimate:
              "direction_from": self.direction_source, "intensity_rgb": d["intensity"],
              "angular_radius_deg": self.cone_deg,
              "shadow": "contact shadow only" if self.fallback else "cast shadow"},
+            *({"kind": "directional", "source": self.source, "direction_camera": np.asarray(x.direction).tolist(),
+               "direction_from": x.direction_source, "intensity_rgb": np.asarray(x.intensity).tolist(),
+               "angular_radius_deg": float(min(x.softness_deg, MAX_SOFTNESS_DEG)), "shadow": "cast shadow",
+               "shadow_ratio": float(x.shadow_ratio), "shadow_ratio_from": x.share_source}
+              for x in self.extra_lights),
             {"kind": "ambient (sky, order-1 SH)", "sh_rgb": d["ambient_sh"],
              "share_on_support": self.ambient_share, "share_from": self.share_source},
         ]
@@ -237,13 +270,92 @@ def _downsample(depth, normals, shading, known, camera, max_res):
     return d, n, sh, k, camera.resized(w, h)
 
 
+def _second_light(best, cands, Pe, Ne, Ee, ew, d, cam, up, march_steps, step_deg):
+    """The direction of a second light, or None: the candidate at least
+    SECOND_LIGHT_SEP_DEG from ``best`` that explains the most cast-shadow evidence
+    left where ``best`` predicts no shadow, when that is at least MIN_EVIDENCE_PX."""
+    if len(Pe) == 0:
+        return None
+    explained = (march_visibility(Pe, Ne, best, d, cam, steps=march_steps) < 0.5) & ((Ne @ best) > 0.05)
+    far = cands[cands @ best < np.cos(np.deg2rad(SECOND_LIGHT_SEP_DEG))]
+    w = ew * ~explained
+    if len(far) == 0 or not w.any():
+        return None
+    ev = evidence_scores(Pe, Ne, Ee, w, far, d, cam, steps=march_steps, tau=SECOND_LIGHT_TAU)
+    if ev.max() < MIN_EVIDENCE_PX:
+        return None
+    b = far[int(np.argmax(ev))]
+    fine = cone_directions(b, 1.5 * step_deg, 40, seed=0)
+    fine = np.concatenate([b[None], fine[(fine @ up > 0.02) & (fine @ best < np.cos(np.deg2rad(SECOND_LIGHT_SEP_DEG)))]])
+    return fine[int(np.argmax(evidence_scores(Pe, Ne, Ee, w, fine, d, cam, steps=march_steps,
+                                              tau=SECOND_LIGHT_TAU)))]
+
+
+def _split_lights(best, radius, dt, extra_dirs, share, P, Nrm, S, basis, Pe, Ne, Ee, d, cam, up,
+                  march_steps, ridge, extra_source, strict=False):
+    """Split the support's lit level between several lights and the ambient.
+
+    Where only light i is blocked the support keeps ``r_i`` of its lit level ``L``, so
+    light i brings ``(1 - r_i) L`` and the ambient what is left. Each ``r_i`` is read
+    on the evidence pixels in that light's shadow alone; without them the first light
+    keeps its single-light ``share`` and the others MIN_FIT_AMBIENT_SHARE (faint).
+    ``strict`` (an estimated second light): None unless every further light's shadow
+    was measured and the shadows are consistent, ``sum (1 - r_i) <= 1 -
+    MIN_SPLIT_AMBIENT_SHARE``. A "second light" whose shadows are darker than the
+    first light leaves room for is the first light's shadow of something unseen (an
+    occluder outside the frame) that a visible occluder happens to line up with.
+    Returns (first light's intensity (3,), ambient SH (4, 3), ambient share on the
+    support, tuple of ExtraLight), or None."""
+    dirs = [best, *[np.asarray(x, np.float64) for x in extra_dirs]]
+    cos15 = np.cos(np.deg2rad(15))
+    on_dom = Ne @ up > cos15
+    blocked = [(march_visibility(Pe, Ne, l, d, cam, steps=march_steps) < 0.5) & ((Ne @ l) > 0.05)
+               if len(Pe) else np.zeros(0, bool) for l in dirs]
+    ratios, sources = [], []
+    for i in range(len(dirs)):
+        alone = on_dom & blocked[i]
+        for j in range(len(dirs)):
+            if j != i:
+                alone &= ~blocked[j]
+        if alone.sum() >= MIN_SHADOW_PIXELS:
+            ratios.append(float(np.clip(np.median(1.0 - Ee[alone]), 0.02, 1.0)))
+            sources.append("its cast shadows vs the same surface around them")
+        elif strict and i > 0:
+            return None
+        else:
+            ratios.append(float(share) if i == 0 else MIN_FIT_AMBIENT_SHARE)
+            sources.append("the single-light fit" if i == 0 else f"none measured: {MIN_FIT_AMBIENT_SHARE}")
+    dts = [dt] + [direct_term(P, Nrm, l[None], d, cam, march_visibility, steps=march_steps) for l in dirs[1:]]
+    on_up = Nrm @ up > cos15
+    lit = on_up.copy()
+    for l, t in zip(dirs, dts):
+        ndl = np.maximum(Nrm @ l, 0.0)
+        lit &= np.where(ndl > 1e-3, t / np.maximum(ndl, 1e-3), 1.0) > 0.8
+    pick = lit if lit.sum() >= MIN_SHADOW_PIXELS else (on_up if on_up.sum() >= MIN_SHADOW_PIXELS
+                                                       else np.ones(len(S), bool))
+    L = np.median(S[pick], 0)
+    direct = np.array([(1.0 - r) for r in ratios])  # fractions of L
+    if direct.sum() > 1.0 - MIN_SPLIT_AMBIENT_SHARE:
+        if strict:
+            return None
+        direct *= (1.0 - MIN_SPLIT_AMBIENT_SHARE) / direct.sum()
+    amb = (1.0 - direct.sum()) * L
+    intens = [direct[i] * L / float(max(l @ up, 0.05)) for i, l in enumerate(dirs)]
+    rest = S - sum(intens[i][None, :] * dts[i][:, None] for i in range(1, len(dirs)))
+    sh_c = _ambient_given_light(basis, rest, intens[0], dts[0], ridge, up, amb)
+    extras = tuple(ExtraLight(l, intens[i + 1], float(radius), ratios[i + 1], extra_source, sources[i + 1])
+                   for i, l in enumerate(dirs[1:]))
+    return intens[0], sh_c, float(1.0 - direct.sum()), extras
+
+
 def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
                       n_candidates: int = 256, max_resolution: int = 160,
                       march_steps: int = 24, max_fit_pixels: int = 4000,
                       ridge: float = 0.05, cone_samples: int = 8,
                       softness_deg: float | None = None, flat_threshold: float = 0.02,
                       seed: int = DEFAULT_SEED, direction=None) -> LightEstimate:
-    """Estimate one directional light + SH ambient from the known shading.
+    """Estimate a directional light (a second one where the cast shadows ask for it,
+    ``extra_lights``) + SH ambient from the known shading.
 
     Args:
         depth: (H, W) z-depth (0 invalid). normals: (H, W, 3) camera frame.
@@ -252,9 +364,10 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
         softness_deg: force the cone half-angle instead of fitting it.
         flat_threshold: relative score contrast below which the direction is declared
             unconstrained and the prior is used.
-        direction: (3,) camera-frame direction toward the light when it is known (a
-            manifest light without a strength): the search is skipped, the rest (ambient
-            share, strength, softness) is measured as for an estimated direction.
+        direction: (3,) or (K, 3) camera-frame directions toward the lights when they
+            are known (a manifest light with ``strength: auto``): the search is skipped,
+            the rest (ambient share, strengths, softness) is measured as for estimated
+            directions; rows after the first become ``extra_lights``.
     Returns:
         LightEstimate (never raises on degenerate evidence: it falls back to the prior
         "light from above, tilted 30 deg toward the camera, ambient share 0.4, 15 deg").
@@ -344,9 +457,11 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     from_shadows = evidence_px >= MIN_EVIDENCE_PX
     agree_deg, band_px = float("nan"), 0.0
     given = direction is not None
+    extra_dirs: list = []
     if given:
-        best = np.asarray(direction, np.float64)
-        best = best / max(float(np.linalg.norm(best)), 1e-12)
+        D = np.asarray(direction, np.float64).reshape(-1, 3)
+        D = D / np.maximum(np.linalg.norm(D, axis=1, keepdims=True), 1e-12)
+        best, extra_dirs = D[0], list(D[1:])
         from_shadows, spread_deg, contrast = False, 0.0, float("nan")
         # the crease band's pixels count for the share: a shadow at its occluder's base
         e_band = ao_corrected_band(e_map, band, pts_all, nvalid, d, cam)
@@ -360,6 +475,9 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
         # plausible directions: those explaining nearly as much
         spread_deg = direction_uncertainty_deg(cands, -ev / max(evidence_px, 1e-9) + 2.0, best)
         contrast = float(evidence_px / max(valid.sum(), 1))
+        second = _second_light(best, cands, Pe, Ne, Ee, ew, d, cam, up, march_steps, step_deg)
+        if second is not None:
+            extra_dirs.append(second)
     else:
         # 2. No cast shadow to read: the shading against orientation still says
         #    something about the light (for the object's shading), not enough for a
@@ -474,6 +592,15 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
         inten = (1 - MIN_FIT_AMBIENT_SHARE) * tot / cos_b
         share = MIN_FIT_AMBIENT_SHARE
         share_src += f" (raised to the minimum {MIN_FIT_AMBIENT_SHARE})"
+    extras: tuple = ()
+    if extra_dirs:
+        # several lights: each one's strength from the darkness of its own shadow
+        split = _split_lights(
+            best, radius, dt, extra_dirs, share, P, Nrm, S, basis, Pe, Ne, Ee, d, cam, up, march_steps,
+            ridge, "given (manifest)" if given else "cast shadows of visible geometry, left unexplained by the first light",
+            strict=not given)
+        if split is not None:
+            inten, sh_c, share, extras = split
     # Shading against orientation pins the direction only where several orientations
     # are seen (a room's walls and floor); on the calibration benchmark (floors, one
     # wall: spread <= 0.2) its directions were 30-100 deg off.
@@ -491,4 +618,5 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
                                            else "shading vs surface orientation, confirmed by cast "
                                            f"shadows ({band_px:.3g} px with the crease band, their best direction "
                                            f"{agree_deg:.3g} deg away)"
-                                           if confirmed else "shading vs surface orientation"))
+                                           if confirmed else "shading vs surface orientation"),
+                         extra_lights=extras)

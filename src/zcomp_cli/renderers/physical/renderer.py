@@ -141,7 +141,7 @@ class PhysicalRenderer(Renderer):
             images.append(self._render_one(req, est))
         timings["synthesis"] = time.perf_counter() - t1
         shadow = ("contact shadow only (ambient occlusion): no cast shadow pins the light direction"
-                  if est.fallback else "one soft shadow, penumbra from the occluder distance")
+                  if est.fallback else "one soft shadow per light, penumbra from the occluder distance")
         info = {"light": est.to_info(), "fallback": est.fallback, "shadow": shadow,
                 "settings": self.settings()}
         return RenderOutput(images=images, info=info, timings=timings, shading_mask=grown)
@@ -160,30 +160,31 @@ class PhysicalRenderer(Renderer):
         st = 2 if H * W > FULL_RES_PIXELS else 1
         geo = (d > 0) & (np.abs(np.linalg.norm(n, axis=-1) - 1) < 0.2)
         gy, gx, Pg, Ng, ok = _grid_points(d, n, geo, req.camera, (0, 0, H, W), st)
-        l = np.asarray(est.direction, np.float64)
-        cand = known[gy, gx] & ok & ((Ng @ l) > 0.02)
-        if not cand.any():
-            return out
-        ys, xs, P, N = gy[cand], gx[cand], Pg[cand], Ng[cand]
-        v, t = march_visibility(P, N, l, d, req.camera, steps=int(self._s["march_steps"]), nearest=True,
-                                return_distance=True, occluder_mask=occ)
-        if req.occluder is not None:
-            from zcomp_cli.renderers.physical.meshshadow import mesh_shadow
-
-            vm, tm = mesh_shadow(req.occluder, P, N, l)
-            v, t = np.minimum(v, vm), np.minimum(t, tm)
-        hit = v < 0.5
-        if not hit.any():
-            return out
         import cv2
 
-        # the widest penumbra among them (t tan a f / z), then the compositor's blur
-        tan_a = np.tan(np.deg2rad(min(est.cone_deg, 89.0)))
-        pen = float(np.max(t[hit] * tan_a * req.camera.fx / np.maximum(d[ys[hit], xs[hit]], 1e-6)))
-        r = int(np.ceil(min(pen, MAX_PENUMBRA_PX) + st + 2))
-        out[ys[hit], xs[hit]] = True
-        k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-        out = cv2.dilate(out.astype(np.uint8), k) > 0
+        for l, _, cone in _lights(est):
+            cand = known[gy, gx] & ok & ((Ng @ l) > 0.02)
+            if not cand.any():
+                continue
+            ys, xs, P, N = gy[cand], gx[cand], Pg[cand], Ng[cand]
+            v, t = march_visibility(P, N, l, d, req.camera, steps=int(self._s["march_steps"]), nearest=True,
+                                    return_distance=True, occluder_mask=occ)
+            if req.occluder is not None:
+                from zcomp_cli.renderers.physical.meshshadow import mesh_shadow
+
+                vm, tm = mesh_shadow(req.occluder, P, N, l)
+                v, t = np.minimum(v, vm), np.minimum(t, tm)
+            hit = v < 0.5
+            if not hit.any():
+                continue
+            # the widest penumbra among them (t tan a f / z), then the compositor's blur
+            tan_a = np.tan(np.deg2rad(min(cone, 89.0)))
+            pen = float(np.max(t[hit] * tan_a * req.camera.fx / np.maximum(d[ys[hit], xs[hit]], 1e-6)))
+            r = int(np.ceil(min(pen, MAX_PENUMBRA_PX) + st + 2))
+            one = np.zeros((H, W), np.uint8)
+            one[ys[hit], xs[hit]] = 1
+            k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+            out |= cv2.dilate(one, k) > 0
         return out & known & (d > 0)
 
     def _render_one(self, req: RenderRequest, est: LightEstimate) -> np.ndarray:
@@ -263,17 +264,27 @@ class PhysicalRenderer(Renderer):
         inten = np.asarray(est.intensity)[None, :]
         if est.fallback:
             return (amb + ndl[:, None] * inten) * ao_t[:, None]
-        # the direct light's shadow: one march, then the penumbra filter. Above
-        # FULL_RES_PIXELS the march runs on a stride-2 grid (the filter smooths it
-        # anyway): a quarter of the rays, the synthesis budget at 512x512.
+        # each light's shadow: one march, then the penumbra filter
+        out = amb * ao_t[:, None]
+        for l, inten, cone in _lights(est):
+            v_t = self._soft_visibility(d, n, geo_all, camera, l, cone, window(WINDOW_MARGIN_PX, even=(
+                H * W > FULL_RES_PIXELS)), ys, xs, occluder)
+            out = out + (np.maximum(0.0, nv @ l) * v_t)[:, None] * np.asarray(inten)[None, :]
+        return out
+
+    def _soft_visibility(self, d, n, geo_all, camera, l, cone_deg, box, ys, xs, occluder) -> np.ndarray:
+        """Filtered visibility of the light ``l`` at pixels (ys, xs), marched over the
+        window ``box``. Above FULL_RES_PIXELS the march runs on a stride-2 grid (the
+        filter smooths it anyway): a quarter of the rays, the synthesis budget at 512x512."""
+        H, W = d.shape
         st = 2 if H * W > FULL_RES_PIXELS else 1
-        wy0, wx0, wy1, wx1 = window(WINDOW_MARGIN_PX, even=st == 2)
-        gy, gx, P, N, ok = points(wy0, wx0, wy1, wx1, st)
-        lit = ok & ((N @ est.direction) > 0)
+        wy0, wx0, wy1, wx1 = box
+        gy, gx, P, N, ok = _grid_points(d, n, geo_all, camera, box, st)
+        lit = ok & ((N @ l) > 0)
         vis = np.zeros(gy.shape)
         t_hit = np.full(gy.shape, np.inf)
         if lit.any():
-            v, t = march_visibility(P[lit], N[lit], est.direction, d, camera,
+            v, t = march_visibility(P[lit], N[lit], l, d, camera,
                                     steps=int(self._s["march_steps"]),
                                     jitter=pixel_jitter(gy[lit], gx[lit]), return_distance=True,
                                     nearest=True)
@@ -281,7 +292,7 @@ class PhysicalRenderer(Renderer):
                 # the real mesh as well: its shadow where the 2.5D shell lets rays through
                 from zcomp_cli.renderers.physical.meshshadow import mesh_shadow
 
-                vm, tm = mesh_shadow(occluder, P[lit], N[lit], est.direction)
+                vm, tm = mesh_shadow(occluder, P[lit], N[lit], l)
                 v, t = np.minimum(v, vm), np.minimum(t, tm)
             vis[lit], t_hit[lit] = v, t
         vis = np.where(ok & ~lit, 1.0, vis)  # facing away: n.l = 0 does the shading
@@ -294,11 +305,20 @@ class PhysicalRenderer(Renderer):
             vis = classwise_blur(up2(vis), cls_w, ok_full & same, 1.0, fill=ok_full)
             t_hit = up2(t_hit)
             ok = ok_full
-        tan_a = np.tan(np.deg2rad(min(est.cone_deg, 89.0)))
+        tan_a = np.tan(np.deg2rad(min(cone_deg, 89.0)))
         vs = penumbra_filter(vis, t_hit, d[wy0:wy1, wx0:wx1], _depth_classes(d[wy0:wy1, wx0:wx1]),
                              ok, camera.fx, tan_a)
-        v_t = vs[ys - wy0, xs - wx0]
-        return amb * ao_t[:, None] + (ndl * v_t)[:, None] * inten
+        return vs[ys - wy0, xs - wx0]
+
+
+def _lights(est: LightEstimate):
+    """(direction, intensity (3,), angular radius in degrees) of each of the estimate's
+    directional lights, the first one first."""
+    from zcomp_cli.renderers.physical.lighting import MAX_SOFTNESS_DEG
+
+    return [(np.asarray(est.direction, np.float64), est.intensity, est.cone_deg),
+            *((np.asarray(x.direction, np.float64), x.intensity, float(min(x.softness_deg, MAX_SOFTNESS_DEG)))
+              for x in est.extra_lights)]
 
 
 def _grid_points(d, n, valid, camera, box, step=1):

@@ -1,4 +1,4 @@
-"""Shading model: low-order SH ambient + one directional light with a cone (softness)."""
+"""Shading model: low-order SH ambient + directional lights, each with a cone (softness)."""
 
 from __future__ import annotations
 
