@@ -125,30 +125,24 @@ def floor_scene(width: int = 128, height: int = 96, *, fov_deg: float = 50.0,
     t_best = np.full(n_pix, np.inf)
     n_best = np.zeros((n_pix, 3))
     alb = np.zeros((n_pix, 3))
+
+    def keep_nearest(t, normal, albedo_):
+        sel = t < t_best
+        t_best[sel] = t[sel]
+        n_best[sel] = normal if np.ndim(normal) == 1 else normal[sel]
+        alb[sel] = albedo_
+
     with np.errstate(divide="ignore", invalid="ignore"):
-        t_floor = np.where(d[:, 1] < -1e-12, -camera_height / d[:, 1], np.inf)
-    sel = t_floor < t_best
-    t_best[sel] = t_floor[sel]
-    n_best[sel] = (0, 1, 0)
-    alb[sel] = albedo
-    if with_wall:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t_wall = np.where(d[:, 2] < -1e-12, -wall_distance / d[:, 2], np.inf)
-        sel = t_wall < t_best
-        t_best[sel] = t_wall[sel]
-        n_best[sel] = (0, 0, 1)
-        alb[sel] = albedo
+        keep_nearest(np.where(d[:, 1] < -1e-12, -camera_height / d[:, 1], np.inf), (0, 1, 0), albedo)
+        if with_wall:
+            keep_nearest(np.where(d[:, 2] < -1e-12, -wall_distance / d[:, 2], np.inf), (0, 0, 1), albedo)
     box = None
     boxes = []
     specs = ([(box_center, box_size)] if with_box else []) + [tuple(b) for b in occluders]
     for (bx, bz), (sx, sy, sz) in specs:
         bb = (np.array([bx - sx / 2, 0.0, bz - sz / 2]), np.array([bx + sx / 2, sy, bz + sz / 2]))
         boxes.append(bb)
-        t_box, n_box = _ray_box(o, d, *bb)
-        sel = t_box < t_best
-        t_best[sel] = t_box[sel]
-        n_best[sel] = n_box[sel]
-        alb[sel] = box_albedo
+        keep_nearest(*_ray_box(o, d, *bb), box_albedo)
     if with_box:
         box = boxes[0]
     hit = np.isfinite(t_best)

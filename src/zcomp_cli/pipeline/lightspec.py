@@ -82,14 +82,15 @@ def _parse_list(value, where, add, resolve) -> dict | None:
         return None
     items = []
     for i, v in enumerate(value):
-        if isinstance(v, dict) and v.get("type") == "probe":
+        if isinstance(v, list):  # no nesting: parse_light would read it as another list
+            add(None, None, f"{where}[{i}]", "expected a mapping, got a list")
+            items.append(None)
+        elif isinstance(v, dict) and v.get("type") == "probe":
             add(v, "type", f"{where}[{i}].type", "a list of lights holds directional lights only "
                                                  "(a probe is the scene's whole light)")
             items.append(None)
         else:
-            items.append(parse_light(v, f"{where}[{i}]", add, resolve) if not isinstance(v, list) else None)
-            if isinstance(v, list):
-                add(None, None, f"{where}[{i}]", "expected a mapping, got a list")
+            items.append(parse_light(v, f"{where}[{i}]", add, resolve))
     if any(x is None for x in items):
         return None
     autos = [x["strength"] == "auto" for x in items]

@@ -74,6 +74,11 @@ class ExtraLight:
     direction_source: str
     share_source: str
 
+    @property
+    def cone_deg(self) -> float:
+        """Angular radius the shadow is rendered with (as ``LightEstimate.cone_deg``)."""
+        return float(min(self.softness_deg, MAX_SOFTNESS_DEG))
+
 
 @dataclass
 class LightEstimate:
@@ -121,7 +126,7 @@ class LightEstimate:
              "shadow": "contact shadow only" if self.fallback else "cast shadow"},
             *({"kind": "directional", "source": self.source, "direction_camera": np.asarray(x.direction).tolist(),
                "direction_from": x.direction_source, "intensity_rgb": np.asarray(x.intensity).tolist(),
-               "angular_radius_deg": float(min(x.softness_deg, MAX_SOFTNESS_DEG)), "shadow": "cast shadow",
+               "angular_radius_deg": x.cone_deg, "shadow": "cast shadow",
                "shadow_ratio": float(x.shadow_ratio), "shadow_ratio_from": x.share_source}
               for x in self.extra_lights),
             {"kind": "ambient (sky, order-1 SH)", "sh_rgb": d["ambient_sh"],

@@ -259,11 +259,10 @@ class PhysicalRenderer(Renderer):
         nv = nv / np.maximum(np.linalg.norm(nv, axis=1, keepdims=True), 1e-12)
         geo = geo_all[ys, xs]
         nv[~geo] = 0.0
-        ndl = np.maximum(0.0, nv @ est.direction)
         amb = np.maximum(sh_basis(nv) @ est.ambient_sh, 0.0)
-        inten = np.asarray(est.intensity)[None, :]
         if est.fallback:
-            return (amb + ndl[:, None] * inten) * ao_t[:, None]
+            ndl = np.maximum(0.0, nv @ est.direction)
+            return (amb + ndl[:, None] * np.asarray(est.intensity)[None, :]) * ao_t[:, None]
         # each light's shadow: one march, then the penumbra filter
         out = amb * ao_t[:, None]
         for l, inten, cone in _lights(est):
@@ -314,11 +313,7 @@ class PhysicalRenderer(Renderer):
 def _lights(est: LightEstimate):
     """(direction, intensity (3,), angular radius in degrees) of each of the estimate's
     directional lights, the first one first."""
-    from zcomp_cli.renderers.physical.lighting import MAX_SOFTNESS_DEG
-
-    return [(np.asarray(est.direction, np.float64), est.intensity, est.cone_deg),
-            *((np.asarray(x.direction, np.float64), x.intensity, float(min(x.softness_deg, MAX_SOFTNESS_DEG)))
-              for x in est.extra_lights)]
+    return [(np.asarray(x.direction, np.float64), x.intensity, x.cone_deg) for x in (est, *est.extra_lights)]
 
 
 def _grid_points(d, n, valid, camera, box, step=1):
