@@ -11,9 +11,14 @@
    FLIP), the shadow metrics (IoU and darkness error of the darkened region against the
    ground truth's), PSNR near the object (the object's box grown by its height), the
    light-direction error (median over cases lit by a sun or lamp whose ground-truth
-   shadow is in frame: the generator knows the true light; ``light_dir_err_deg`` against
-   the nearest lamp, ``dominant_light_err_deg`` against the light brightest on the floor,
-   the HDR map's own sun included; ``cast_shadow_err_deg`` over the cases where the
+   shadow is in frame: the generator knows the true light; a lamp counts only where it
+   reaches the object's base, not blocked by a wall or box, and an area lamp's direction
+   is from the object's base to the lamp; ``light_dir_err_deg`` against
+   the nearest such lamp, ``dominant_light_err_deg`` against the light brightest on the floor,
+   the HDR map's own sun included; ``shown_light_err_deg`` over the cases whose
+   background shows a light's cast shadows (``cast_shadows_shown``: boxes in frame shadow
+   the floor, more than 10 % darker), against the nearest such light, with their count;
+   ``cast_shadow_err_deg`` over the cases where the
    renderer drew a cast shadow rather than a contact shadow, against the nearer of the two,
    with their count) and the median seconds per job; writes OUT/table.csv, OUT/table.md and OUT/cases.csv (per case).
 
@@ -37,7 +42,8 @@ import sys
 from pathlib import Path
 
 COLUMNS = ["psnr", "rmse", "si-rmse", "ssim", "mae", "lpips", "flip", "shadow-iou", "shadow-darkness"]
-EXTRA = ["psnr_near", "light_dir_err_deg", "dominant_light_err_deg", "cast_shadow_err_deg", "median_s_per_job"]
+EXTRA = ["psnr_near", "light_dir_err_deg", "dominant_light_err_deg", "shown_light_err_deg", "cast_shadow_err_deg",
+         "median_s_per_job"]
 
 
 def zcomp(*args: str, src: str | None = None) -> subprocess.CompletedProcess:
@@ -49,44 +55,49 @@ def zcomp(*args: str, src: str | None = None) -> subprocess.CompletedProcess:
     return subprocess.run(cmd, text=True, capture_output=True, env=env)
 
 
-def true_light_dirs(case: dict) -> list:
-    """Camera-frame unit directions TOWARD each lamp of a benchmark case."""
-    import numpy as np
-
-    pitch = float(case["scene"]["pitch_deg"])
-    a = np.deg2rad(pitch)
-    R = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
-    out = []
-    for lp in case["scene"].get("lamps", []):
-        d = -(R @ np.asarray(lp["direction"], float))
-        out.append(d / np.linalg.norm(d))
-    return out
-
-
 def true_lights(case: dict) -> list[dict]:
-    """Every directional light of a case, brightest on the floor first: the lamps and
-    the HDR map's own sun (``benchsuite.scenes.hdr_lights``), each ``{"kind",
-    "direction" (camera frame, toward it), "floor_irradiance"}``. Area lamps count
-    ``strength / (pi d^2)`` at the floor target."""
-    import math
-
+    """Every directional light of a case as the object's base sees it, brightest on the
+    floor first (``benchsuite.scenes.lights_at``: the lamps and the HDR map's own sun,
+    camera frame, toward the light, ``visible`` False where a wall or box blocks it)."""
     import numpy as np
 
-    from zcomp_cli.benchsuite.scenes import BenchScene, hdr_lights
+    from zcomp_cli.benchsuite.scenes import BenchScene, lights_at
 
     scene = BenchScene.from_dict(case["scene"])
-    up = scene.up
-    out = []
-    for lp, d in zip(case["scene"].get("lamps", []), true_light_dirs(case)):
-        e = float(lp["strength"]) if lp["kind"] == "SUN" else float(lp["strength"]) / (math.pi * float(lp["distance"]) ** 2)
-        out.append({"kind": lp["kind"], "direction": d, "floor_irradiance": e * max(float(d @ up), 0.0)})
+    base = np.asarray(case["pose"]["position"], np.float64)
     try:
-        h = hdr_lights(scene)
-        out.append({"kind": "HDR-sun", "direction": np.asarray(h["sun_direction"]),
-                    "floor_irradiance": h["sun_floor_irradiance"]})
+        return lights_at(scene, base)
     except Exception:  # no bpy (its bundled maps) here: lamps only
-        pass
-    return sorted(out, key=lambda x: -x["floor_irradiance"])
+        return lights_at(scene, base, with_hdr=False)
+
+
+def cast_shadows_shown(case: dict, bench_dir: Path, lights: list[dict], background) -> list[dict]:
+    """The lights of ``lights`` (``true_lights`` items) whose cast shadows the background
+    shows: its boxes shadow at least ``MIN_CAST_SHADOW_PX`` floor pixels from that light
+    and leave as many lit, and the shadowed floor's shading (image over albedo) is more
+    than ``SHADOW_THRESHOLD`` darker than the lit floor's (medians). The evidence a
+    photographer reads the light from."""
+    import numpy as np
+
+    from zcomp_cli.benchsuite.scenes import MIN_CAST_SHADOW_PX, BenchScene, cast_shadow_masks
+    from zcomp_cli.conventions import REC601
+    from zcomp_cli.imageio import read_map
+    from zcomp_cli.metrics.shadow import SHADOW_THRESHOLD
+
+    if not lights:
+        return []
+    f = case["files"]
+    depth = read_map(bench_dir / f["depth"], channels=1).reshape(background.shape[:2])
+    albedo = read_map(bench_dir / f["albedo"], channels=3)
+    shading = (background @ REC601) / np.maximum(albedo @ REC601, 1e-4)
+    scene = BenchScene.from_dict(case["scene"])
+    out = []
+    for t, (shadowed, lit) in zip(lights, cast_shadow_masks(scene, depth, [t["lamp"] for t in lights])):
+        if shadowed.sum() < MIN_CAST_SHADOW_PX or lit.sum() < MIN_CAST_SHADOW_PX:
+            continue
+        if np.median(shading[shadowed]) < (1.0 - SHADOW_THRESHOLD) * np.median(shading[lit]):
+            out.append(t)
+    return out
 
 
 def per_case(bench_dir: Path, res_dir: Path) -> list[dict]:
@@ -102,7 +113,13 @@ def per_case(bench_dir: Path, res_dir: Path) -> list[dict]:
     for c in bench["cases"]:
         job = next(iter(sorted(res_dir.glob(f"*{c['id']}*"))), None)
         row = {"case": c["id"], "psnr_near": float("nan"), "light_dir_err_deg": float("nan"),
-               "shadow_in_frame": False, "lamp": ",".join(lp["kind"] for lp in c["scene"].get("lamps", []))}
+               "shadow_in_frame": False, "lamp": "", "lamp_blocked": ""}
+        lights = true_lights(c)
+        # a lamp counts only where it reaches the object: a sun behind a wall casts none
+        # of the object's shadow (the ground truth's shadow is then the HDR map's)
+        lamps = [t for t in lights if t["kind"] != "HDR-sun"]
+        row["lamp"] = ",".join(t["kind"] for t in lamps if t["visible"])
+        row["lamp_blocked"] = ",".join(t["kind"] for t in lamps if not t["visible"])
         if job is None or not (job / "composite.exr").is_file():
             rows.append(row)
             continue
@@ -121,17 +138,21 @@ def per_case(bench_dir: Path, res_dir: Path) -> list[dict]:
         row["shadow_in_frame"] = bool(darkened_region(gt, bg, om).sum() >= 30)
         rep = json.loads((job / "report.json").read_text())
         light = (((rep.get("renderer") or {}).get("info") or {}).get("light") or {})
-        true = true_light_dirs(c)
-        if light.get("direction") is not None and true:
+        seen = [t for t in lights if t["visible"]]
+        shown = cast_shadows_shown(c, bench_dir, seen, bg)
+        row["cast_shadows_shown"] = ",".join(t["kind"] for t in shown)
+        if light.get("direction") is not None and seen:
             est = np.asarray(light["direction"], float)
             est /= np.linalg.norm(est)
             ang = lambda t: float(np.degrees(np.arccos(np.clip(est @ t, -1, 1))))
-            row["light_dir_err_deg"] = min(ang(t) for t in true)
+            if row["lamp"]:
+                row["light_dir_err_deg"] = min(ang(t["direction"]) for t in seen if t["kind"] != "HDR-sun")
             # against the brightest directional light on the floor, the HDR map's sun included
-            dom = true_lights(c)[0]
-            row["dominant_light"] = dom["kind"]
-            row["dominant_err_deg"] = ang(dom["direction"])
+            row["dominant_light"] = seen[0]["kind"]
+            row["dominant_err_deg"] = ang(seen[0]["direction"])
             row["fallback"] = light.get("fallback")
+            if shown:
+                row["shown_light_err_deg"] = min(ang(t["direction"]) for t in shown)
         rows.append(row)
     return rows
 
@@ -152,9 +173,11 @@ def write_true_direction_jobs(bench_dir: Path) -> Path:
     doc = yaml.safe_load((bench_dir / "jobs.yaml").read_text())
     for c in bench["cases"]:
         if c["scene"].get("lamps") and c["id"] in doc["scenes"]:
-            tl = true_lights(c)
+            tl = [t for t in true_lights(c) if t["visible"]]
+            if not tl:
+                continue
             top = [t for t in tl[:2] if t["floor_irradiance"] >= SECOND_TRUE_LIGHT_FRAC * tl[0]["floor_irradiance"]]
-            lights = [{"direction": [float(v) for v in t["direction"]], "strength": "auto"} for t in top or tl[:1]]
+            lights = [{"direction": [float(v) for v in t["direction"]], "strength": "auto"} for t in top]
             doc["scenes"][c["id"]]["light"] = lights[0] if len(lights) == 1 else lights
     path = bench_dir / "jobs_true_dir.yaml"
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
@@ -241,10 +264,14 @@ def main(argv=None) -> int:
         cast = [min(c["light_dir_err_deg"], c["dominant_err_deg"]) for c in cases
                 if c["lamp"] and c["shadow_in_frame"] and c.get("fallback") is None
                 and math.isfinite(c.get("dominant_err_deg", math.nan))]
+        # the cases whose background shows a light's cast shadows (boxes in frame), against
+        # the nearest such light, and how many: the evidence the issue's target is about
+        shown = [c["shown_light_err_deg"] for c in cases if math.isfinite(c.get("shown_light_err_deg", math.nan))]
         rows.append({"method": name, **{c: means.get(c) for c in COLUMNS},
                      "psnr_near": statistics.mean(near) if near else None,
                      "light_dir_err_deg": statistics.median(errs) if errs else None,
                      "dominant_light_err_deg": statistics.median(dom) if dom else None,
+                     "shown_light_err_deg": (f"{statistics.median(shown):.1f} ({len(shown)})" if shown else None),
                      "cast_shadow_err_deg": (f"{statistics.median(cast):.1f} ({len(cast)})" if cast else None),
                      "median_s_per_job": median_job_seconds(res_dir)})
 
@@ -262,8 +289,8 @@ def main(argv=None) -> int:
         w.writeheader()
         w.writerows(rows)
     with open(out / "cases.csv", "w", newline="") as f:
-        keys = ["method", "case", "lamp", "shadow_in_frame", "psnr_near", "light_dir_err_deg", "dominant_light",
-                "dominant_err_deg", "fallback"]
+        keys = ["method", "case", "lamp", "lamp_blocked", "shadow_in_frame", "psnr_near", "light_dir_err_deg",
+                "dominant_light", "dominant_err_deg", "cast_shadows_shown", "shown_light_err_deg", "fallback"]
         w = csv.DictWriter(f, fieldnames=keys, extrasaction="ignore")
         w.writeheader()
         w.writerows(case_rows)

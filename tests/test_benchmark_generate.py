@@ -16,9 +16,9 @@ from zcomp_cli.benchsuite import generate as gen
 from zcomp_cli.benchsuite.objects import SHAPES, ObjectRecipe, build_object, shape_mesh, write_object_glb
 from zcomp_cli.benchsuite.render import maps_from_passes
 from zcomp_cli.blender.intrinsics import blender_camera_from_K as blender_camera
-from zcomp_cli.benchsuite.scenes import (BenchScene, Box, Lamp, Material, Wall, floor_depth,
-                                        matrix_to_euler_xyz, sample_scene, scene_for_blender,
-                                        scene_geometry)
+from zcomp_cli.benchsuite.scenes import (BenchScene, Box, Lamp, Material, Wall, cast_shadow_masks,
+                                        floor_depth, lamps_for_blender, lights_at, matrix_to_euler_xyz,
+                                        occluded, sample_scene, scene_for_blender, scene_geometry)
 from zcomp_cli.errors import GeometryError, InputError, UsageError
 from zcomp_cli.pose import euler_deg_to_matrix, transform_points
 
@@ -65,6 +65,66 @@ def test_floor_depth_is_the_analytic_plane():
     pts = cam.unproject(fd)[fd > 0]
     n, d = sc.floor_plane
     np.testing.assert_allclose(pts @ n, d, atol=1e-4)
+
+
+# -- the true lights, as the object and the background see them ------------------------------
+
+def _floor_point(sc, x, z):
+    """Camera-frame point of the floor at scene-frame (x, z)."""
+    return sc.scene_to_camera @ np.array([x, -sc.camera_height, z])
+
+
+def test_a_wall_blocks_a_sun_behind_it():
+    # The sun shines from behind the back wall (travelling toward the camera, +z): the
+    # floor in front of the wall gets none of it; with the wall gone, it does.
+    sun = Lamp("SUN", (0.0, -0.5, 1.0), 3.0)
+    p = _floor_point(_scene(), 0.0, -3.0)
+    blocked = lights_at(_scene(lamps=(sun,), boxes=()), p, with_hdr=False)
+    free = lights_at(_scene(lamps=(sun,), boxes=(), walls=()), p, with_hdr=False)
+    assert not blocked[0]["visible"] and blocked[0]["floor_irradiance"] == 0.0
+    assert free[0]["visible"]
+    travel = np.array(sun.direction)
+    expected = -(_scene().scene_to_camera @ travel)
+    np.testing.assert_allclose(free[0]["direction"], expected, atol=1e-12)
+    assert free[0]["floor_irradiance"] == pytest.approx(3.0 * float(expected @ _scene().up))
+
+
+def test_occluded_rays_and_reach():
+    sc = _scene(lamps=(), walls=(Wall("back", 6.0),), boxes=())
+    p = np.stack([_floor_point(sc, 0.0, -3.0)] * 2) + 0.05 * sc.up
+    toward_wall = sc.scene_to_camera @ np.array([0.0, 0.0, -1.0])
+    np.testing.assert_array_equal(occluded(sc, p, toward_wall), [True, True])
+    # the wall stands 3 m away: a ray stopping short of it is free
+    np.testing.assert_array_equal(occluded(sc, p, toward_wall, np.array([2.5, 3.5])), [False, True])
+    np.testing.assert_array_equal(occluded(sc, p, -toward_wall), [False, False])
+    assert not occluded(sc, p, toward_wall, parts=("box",)).any()
+
+
+def test_an_area_lamp_is_seen_from_the_object_not_from_its_aim():
+    # A lamp 4 m from its aim point, straight above it: from an object 2 m to the side
+    # of the aim, the lamp is up and toward the aim, not straight up.
+    lamp = Lamp("AREA", (0.0, -1.0, 0.0), 100.0, distance=4.0, target=(0.0, -1.5, -3.0))
+    sc = _scene(lamps=(lamp,), walls=(), boxes=(), pitch_deg=0.0)
+    li = lights_at(sc, _floor_point(sc, 2.0, -3.0), with_hdr=False)[0]
+    pos = np.array([0.0, 2.5, -3.0])
+    to = pos - (_floor_point(sc, 2.0, -3.0) + 0.05 * sc.up)
+    np.testing.assert_allclose(li["direction"], to / np.linalg.norm(to), atol=1e-9)
+    r = np.linalg.norm(to)
+    cos = float(li["direction"] @ sc.up)
+    assert li["floor_irradiance"] == pytest.approx(100.0 * cos * cos / (math.pi * r * r), rel=1e-9)
+
+
+def test_cast_shadow_masks_of_a_box():
+    # A sun from the left: the box's shadow lies on the floor to its right, beside it.
+    sc = _scene(width=128, height=96, walls=(), lamps=(Lamp("SUN", (1.0, -0.6, 0.0), 3.0),),
+                boxes=(Box(0.0, -4.0, (0.6, 0.6, 0.6)),))
+    depth = floor_depth(sc)
+    (shadowed, lit), = cast_shadow_masks(sc, depth, lamps_for_blender(sc))
+    assert shadowed.sum() > 20 and lit.sum() > 1000 and not (shadowed & lit).any()
+    pts = sc.camera.unproject(depth)[shadowed] @ sc.scene_to_camera  # back to the scene frame
+    # (the analytic floor runs on under the box: leave its footprint out)
+    out = pts[(np.abs(pts[:, 0]) > 0.3) | (np.abs(pts[:, 2] + 4.0) > 0.3)]
+    assert len(out) > 20 and np.all(out[:, 0] > 0.3) and np.all(np.abs(out[:, 2] + 4.0) < 0.35)
 
 
 def test_scene_geometry_normals_face_the_camera():

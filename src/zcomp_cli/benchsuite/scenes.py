@@ -450,3 +450,129 @@ def hdr_lights(scene: BenchScene, hdr_image: np.ndarray | None = None) -> dict:
     cos = np.maximum(dirs @ scene.up, 0.0)
     return {"sun_direction": sdir, "sun_floor_irradiance": float((p * cos)[sun].sum()),
             "sky_floor_irradiance": float((p * cos)[~sun].sum())}
+
+
+def occluded(scene: BenchScene, points, directions, max_t=math.inf, *, parts=("wall", "box")) -> np.ndarray:
+    """Whether rays from ``points`` (N, 3) along unit ``directions`` ((N, 3) or (3,),
+    camera frame) hit a wall or a box of ``scene`` (``parts``: which kinds) within
+    ``max_t`` metres (scalar or (N,)). The floor is left out: the points stand on it.
+    Returns (N,) bool.
+
+    Möller-Trumbore against every triangle (scenes hold a few dozen), in chunks of rays.
+    """
+    o = np.atleast_2d(np.asarray(points, np.float64))
+    d = np.broadcast_to(np.asarray(directions, np.float64), o.shape)
+    tmax = np.broadcast_to(np.asarray(max_t, np.float64), o.shape[:1])
+    out = np.zeros(len(o), bool)
+    geo = [g for g in scene_geometry(scene) if g["name"].split("_")[0] in parts]
+    if not geo:
+        return out
+    tri = np.concatenate([np.asarray(g["vertices"], np.float64)[np.asarray(g["faces"])] for g in geo])
+    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    for s in range(0, len(o), 4096):
+        oc, dc = o[s:s + 4096, None], d[s:s + 4096, None]
+        pv = np.cross(dc, e2)
+        det = np.einsum("nij,nij->ni", np.broadcast_to(e1, pv.shape), pv)
+        ok = np.abs(det) > 1e-12
+        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+        tv = oc - tri[:, 0]
+        u = np.einsum("nij,nij->ni", tv, pv) * inv
+        qv = np.cross(tv, e1)
+        v = np.einsum("nij,nij->ni", qv, np.broadcast_to(dc, qv.shape)) * inv
+        t = np.einsum("nij,nij->ni", qv, np.broadcast_to(e2, qv.shape)) * inv
+        hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 1e-6) & (t < tmax[s:s + 4096, None])
+        out[s:s + 4096] = hit.any(1)
+    return out
+
+
+def lamp_rays(lamp: dict, points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rays from ``points`` (N, 3) to a lamp of ``lamps_for_blender`` (camera frame).
+
+    Returns ``(directions (N, 3) toward the lamp, reach (N,) metres to it (inf for a
+    sun), irradiance (N,) on a surface facing it)``: a sun's ``strength``; an area lamp's
+    ``P cos_e / (pi r^2)`` (a Lambertian square of power P at distance r, ``cos_e`` off
+    its facing direction).
+    """
+    p = np.atleast_2d(np.asarray(points, np.float64))
+    travel = np.asarray(lamp["direction"], np.float64)
+    if lamp["kind"] != "AREA":
+        n = len(p)
+        return np.tile(-travel, (n, 1)), np.full(n, np.inf), np.full(n, float(lamp["strength"]))
+    to = np.asarray(lamp["position"], np.float64) - p
+    r = np.maximum(np.linalg.norm(to, axis=1), 1e-9)
+    d = to / r[:, None]
+    return d, r, float(lamp["strength"]) * np.maximum(-(d @ travel), 0.0) / (math.pi * r * r)
+
+
+# Height (metres) above the floor at which a light's visibility is tested: the object's
+# shadow starts at its base, and a point on the floor itself grazes the floor's triangles.
+LIGHT_PROBE_HEIGHT = 0.05
+
+
+def lights_at(scene: BenchScene, base, *, with_hdr: bool = True) -> list[dict]:
+    """Every directional light of ``scene`` as the floor point ``base`` sees it (camera
+    frame), brightest first: the lamps and (``with_hdr``) the HDR map's own sun.
+
+    An object standing at ``base`` casts a shadow from a light only if the light reaches
+    it: a sun behind a back wall lights nothing in front of the wall, whatever its
+    strength. An area lamp is seen from ``base``, not from its aim point: its shadows
+    point away from where it is.
+
+    Returns:
+        list of ``{"kind": "SUN" | "AREA" | "HDR-sun", "direction": (3,) unit vector
+        toward the light, "floor_irradiance": irradiance it brings to the floor at
+        ``base`` (0 when blocked: ``lamp_rays`` times the cosine on the floor), "visible":
+        bool, "lamp": it as a ``lamps_for_blender`` item (the HDR sun as a sun)}``.
+    """
+    up = scene.up
+    p = np.asarray(base, np.float64)[None] + LIGHT_PROBE_HEIGHT * up
+    out = []
+    for lp in lamps_for_blender(scene):
+        d, reach, e = lamp_rays(lp, p)
+        out.append({"kind": lp["kind"], "direction": d[0], "floor_irradiance": float(e[0]) * max(float(d[0] @ up), 0.0),
+                    "reach": float(reach[0]), "lamp": lp})
+    if with_hdr:
+        h = hdr_lights(scene)
+        sun = np.asarray(h["sun_direction"], np.float64)
+        out.append({"kind": "HDR-sun", "direction": sun, "floor_irradiance": h["sun_floor_irradiance"],
+                    "reach": math.inf, "lamp": {"kind": "SUN", "direction": (-sun).tolist(), "strength": 1.0}})
+    for li in out:
+        li["visible"] = li["floor_irradiance"] > 0 and not occluded(scene, p, li["direction"], li.pop("reach"))[0]
+        if not li["visible"]:
+            li["floor_irradiance"] = 0.0
+    return sorted(out, key=lambda x: -x["floor_irradiance"])
+
+
+# A light's cast shadows count as shown when the background holds at least this many
+# floor pixels its boxes shadow and as many it lights (an edge to read it from).
+MIN_CAST_SHADOW_PX = 100
+
+
+def cast_shadow_masks(scene: BenchScene, depth, lights: list[dict]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per light (``lamps_for_blender`` items: kind, direction of travel, strength, an
+    area lamp's position): which of the background's floor pixels the scene's **boxes**
+    shadow from it, and which it lights, from the background's z-depth (H, W).
+
+    Boxes only: they stand in frame with the edges that cast their shadows. A wall's
+    shadow is cast by its top edge, mostly above the frame, so no depth explains it.
+
+    Returns a list of ``(shadowed, lit)`` (H, W) bool masks.
+    """
+    depth = np.asarray(depth, np.float64)
+    pts = scene.camera.unproject(depth).reshape(-1, 3)
+    n, d = scene.floor_plane
+    floor = (depth.reshape(-1) > 0) & (np.abs(pts @ n - d) < 0.01)
+    p = pts[floor] + LIGHT_PROBE_HEIGHT * n
+    out = []
+    for lp in lights:
+        dirs, reach, e = lamp_rays(lp, p)
+        lit = (e > 0) & (dirs @ n > 0)
+        shadowed = np.zeros(len(p), bool)
+        shadowed[lit] = occluded(scene, p[lit], dirs[lit], reach[lit], parts=("box",))
+        masks = []
+        for m in (shadowed, lit & ~shadowed):
+            full = np.zeros(depth.size, bool)
+            full[floor] = m
+            masks.append(full.reshape(depth.shape))
+        out.append(tuple(masks))
+    return out
