@@ -25,8 +25,8 @@
 Another checkout of zcomp can be compared as an extra method, e.g. the code before a
 change: ``--extra physical-before=/tmp/old/src`` runs its ``physical`` renderer with
 that source tree first on PYTHONPATH. ``--true-direction`` adds physical-true-dir: each
-lamp-lit scene given the true directions of its dominant light and of a second one
-bright enough (``write_true_direction_jobs``; ``strength: auto``), what the renderer
+scene given the true directions of the brightest light reaching its object and of a
+second one bright enough (``write_true_direction_jobs``; ``strength: auto``), what the renderer
 reaches with the directions right.
 """
 
@@ -163,16 +163,17 @@ SECOND_TRUE_LIGHT_FRAC = 0.25
 
 
 def write_true_direction_jobs(bench_dir: Path) -> Path:
-    """OUT/jobs_true_dir.yaml: jobs.yaml with each lamp-lit scene's ``light:`` set to
-    the true directions of its dominant light and, when it brings at least
+    """OUT/jobs_true_dir.yaml: jobs.yaml with each scene's ``light:`` set to the true
+    directions of the brightest light reaching its object and, when it brings at least
     SECOND_TRUE_LIGHT_FRAC of that on the floor, the next one (``true_lights``: a lamp
-    or the HDR map's sun), the strengths measured (``auto``)."""
+    or the HDR map's sun), the strengths measured (``auto``). A scene no light reaches
+    keeps the estimate."""
     import yaml
 
     bench = json.loads((bench_dir / "benchmark.json").read_text())
     doc = yaml.safe_load((bench_dir / "jobs.yaml").read_text())
     for c in bench["cases"]:
-        if c["scene"].get("lamps") and c["id"] in doc["scenes"]:
+        if c["id"] in doc["scenes"]:
             tl = [t for t in true_lights(c) if t["visible"]]
             if not tl:
                 continue

@@ -240,6 +240,21 @@ def test_known_direction_with_auto_strength_measures_the_share():
     assert abs(info["ambient_share"] - true_share) < 0.1
 
 
+def test_known_direction_with_auto_strength_on_a_bare_floor_says_the_share_is_not_measured():
+    """No shadow in the photo to read the darkness from (a bare floor): the share comes
+    from the shading fit alone, and the report says it was not measured."""
+    s = floor_scene(112, 84, with_box=False, light_dir=SUN, ambient=0.3)
+    bg, comp, sel, mask = _insert(s, [0.4, 0.3, -2.6])
+    light = {"type": "directional", "direction": list(s.light_dir_cam), "azimuth_deg": None,
+             "elevation_deg": None, "angular_radius_deg": None, "strength": "auto"}
+    import dataclasses
+
+    out = PhysicalRenderer().render([dataclasses.replace(r, light=light) for r in (bg, comp)], seed=1)
+    info = out.info["light"]
+    assert info["share_source"].startswith("not measured"), info["share_source"]
+    assert 0.0 < info["ambient_share"] <= 1.0
+
+
 LAMP2 = (-0.8, 1.0, 0.3)  # world, toward a second, fainter light on the other side
 
 

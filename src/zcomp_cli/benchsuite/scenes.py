@@ -522,7 +522,8 @@ def lights_at(scene: BenchScene, base, *, with_hdr: bool = True) -> list[dict]:
         list of ``{"kind": "SUN" | "AREA" | "HDR-sun", "direction": (3,) unit vector
         toward the light, "floor_irradiance": irradiance it brings to the floor at
         ``base`` (0 when blocked: ``lamp_rays`` times the cosine on the floor), "visible":
-        bool, "lamp": it as a ``lamps_for_blender`` item (the HDR sun as a sun)}``.
+        bool, "lamp": it as a ``lamps_for_blender`` item for ``cast_shadow_masks`` (the
+        HDR sun as a sun of strength 1: only its direction is used there)}``.
     """
     up = scene.up
     p = np.asarray(base, np.float64)[None] + LIGHT_PROBE_HEIGHT * up
@@ -551,7 +552,8 @@ MIN_CAST_SHADOW_PX = 100
 def cast_shadow_masks(scene: BenchScene, depth, lights: list[dict]) -> list[tuple[np.ndarray, np.ndarray]]:
     """Per light (``lamps_for_blender`` items: kind, direction of travel, strength, an
     area lamp's position): which of the background's floor pixels the scene's **boxes**
-    shadow from it, and which it lights, from the background's z-depth (H, W).
+    shadow from it, and which it reaches past them (walls not counted), from the
+    background's z-depth (H, W).
 
     Boxes only: they stand in frame with the edges that cast their shadows. A wall's
     shadow is cast by its top edge, mostly above the frame, so no depth explains it.

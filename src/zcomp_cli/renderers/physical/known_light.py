@@ -122,7 +122,10 @@ def light_from_spec(spec: dict, depth, normals, shading, known, camera: Camera, 
                                 softness_deg=None if radii[0] is None else float(radii[0]))
         est.source = "manifest"
         est.direction_source = f"manifest: {hows[0]}"
-        est.share_source = f"measured ({est.share_source})"
+        # read from a shadow, or only fitted to the shading (a bare floor: the regression
+        # then splits the light from the ambient as it can, which the report must say)
+        est.share_source = (f"not measured (no shadow of the light in the photo): {est.share_source}"
+                            if est.share_source.startswith("fit") else f"measured ({est.share_source})")
         est.extra_lights = tuple(
             dataclasses.replace(x, direction_source=f"manifest: {how}",
                                 softness_deg=x.softness_deg if r is None else float(r))
