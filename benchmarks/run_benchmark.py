@@ -62,16 +62,17 @@ def true_lights(case: dict) -> list[dict]:
     import numpy as np
 
     from zcomp_cli.benchsuite.scenes import BenchScene, lights_at
+    from zcomp_cli.errors import InputError
 
     scene = BenchScene.from_dict(case["scene"])
     base = np.asarray(case["pose"]["position"], np.float64)
     try:
         return lights_at(scene, base)
-    except Exception:  # no bpy (its bundled maps) here: lamps only
+    except InputError:  # no bpy (its bundled maps) here: lamps only
         return lights_at(scene, base, with_hdr=False)
 
 
-def cast_shadows_shown(case: dict, bench_dir: Path, lights: list[dict], background) -> list[dict]:
+def cast_shadows_shown(case: dict, bench_dir: Path, lights: list[dict]) -> list[dict]:
     """The lights of ``lights`` (``true_lights`` items) whose cast shadows the background
     shows: its boxes shadow at least ``MIN_CAST_SHADOW_PX`` floor pixels from that light
     and leave as many lit, and the shadowed floor's shading (image over albedo) is more
@@ -81,12 +82,13 @@ def cast_shadows_shown(case: dict, bench_dir: Path, lights: list[dict], backgrou
 
     from zcomp_cli.benchsuite.scenes import MIN_CAST_SHADOW_PX, BenchScene, cast_shadow_masks
     from zcomp_cli.conventions import REC601
-    from zcomp_cli.imageio import read_map
+    from zcomp_cli.imageio import read_image, read_map
     from zcomp_cli.metrics.shadow import SHADOW_THRESHOLD
 
     if not lights:
         return []
     f = case["files"]
+    background = read_image(bench_dir / f["image"])
     depth = read_map(bench_dir / f["depth"], channels=1).reshape(background.shape[:2])
     albedo = read_map(bench_dir / f["albedo"], channels=3)
     shading = (background @ REC601) / np.maximum(albedo @ REC601, 1e-4)
@@ -100,8 +102,21 @@ def cast_shadows_shown(case: dict, bench_dir: Path, lights: list[dict], backgrou
     return out
 
 
-def per_case(bench_dir: Path, res_dir: Path) -> list[dict]:
-    """Per case: PSNR near the object, light-direction error, whether its GT shadow is in frame."""
+def case_truths(bench_dir: Path) -> dict[str, dict]:
+    """Per case id, what the generator knows of its lights, the same for every method:
+    ``{"lights": true_lights, "shown": cast_shadows_shown of those reaching the object}``."""
+    bench = json.loads((bench_dir / "benchmark.json").read_text())
+    out = {}
+    for c in bench["cases"]:
+        lights = true_lights(c)
+        out[c["id"]] = {"lights": lights,
+                        "shown": cast_shadows_shown(c, bench_dir, [t for t in lights if t["visible"]])}
+    return out
+
+
+def per_case(bench_dir: Path, res_dir: Path, truths: dict[str, dict] | None = None) -> list[dict]:
+    """Per case: PSNR near the object, light-direction error, whether its GT shadow is in
+    frame. ``truths``: ``case_truths(bench_dir)``, computed here when not given."""
     import numpy as np
 
     from zcomp_cli.conventions import linear_to_srgb
@@ -109,12 +124,13 @@ def per_case(bench_dir: Path, res_dir: Path) -> list[dict]:
     from zcomp_cli.metrics.shadow import darkened_region
 
     bench = json.loads((bench_dir / "benchmark.json").read_text())
+    truths = case_truths(bench_dir) if truths is None else truths
     rows = []
     for c in bench["cases"]:
         job = next(iter(sorted(res_dir.glob(f"*{c['id']}*"))), None)
         row = {"case": c["id"], "psnr_near": float("nan"), "light_dir_err_deg": float("nan"),
                "shadow_in_frame": False, "lamp": "", "lamp_blocked": ""}
-        lights = true_lights(c)
+        lights = truths[c["id"]]["lights"]
         # a lamp counts only where it reaches the object: a sun behind a wall casts none
         # of the object's shadow (the ground truth's shadow is then the HDR map's)
         lamps = [t for t in lights if t["kind"] != "HDR-sun"]
@@ -139,7 +155,7 @@ def per_case(bench_dir: Path, res_dir: Path) -> list[dict]:
         rep = json.loads((job / "report.json").read_text())
         light = (((rep.get("renderer") or {}).get("info") or {}).get("light") or {})
         seen = [t for t in lights if t["visible"]]
-        shown = cast_shadows_shown(c, bench_dir, seen, bg)
+        shown = truths[c["id"]]["shown"]
         row["cast_shadows_shown"] = ",".join(t["kind"] for t in shown)
         if light.get("direction") is not None and seen:
             est = np.asarray(light["direction"], float)
@@ -236,6 +252,7 @@ def main(argv=None) -> int:
     if args.true_direction:
         runs.append(("physical-true-dir", "physical", None))
     rows, case_rows = [], []
+    truths = case_truths(out)
     for name, method, src in runs:
         res_dir = out / "results" / name
         if not args.skip_composite:
@@ -251,7 +268,7 @@ def main(argv=None) -> int:
             print(r.stdout, r.stderr, file=sys.stderr)
             return r.returncode
         means = read_means(res_dir / "eval.json")
-        cases = per_case(out, res_dir)
+        cases = per_case(out, res_dir, truths)
         for c in cases:
             case_rows.append({"method": name, **c})
         import math

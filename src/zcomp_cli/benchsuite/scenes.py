@@ -527,18 +527,20 @@ def lights_at(scene: BenchScene, base, *, with_hdr: bool = True) -> list[dict]:
     """
     up = scene.up
     p = np.asarray(base, np.float64)[None] + LIGHT_PROBE_HEIGHT * up
-    out = []
+    out, reaches = [], []
     for lp in lamps_for_blender(scene):
         d, reach, e = lamp_rays(lp, p)
         out.append({"kind": lp["kind"], "direction": d[0], "floor_irradiance": float(e[0]) * max(float(d[0] @ up), 0.0),
-                    "reach": float(reach[0]), "lamp": lp})
+                    "lamp": lp})
+        reaches.append(float(reach[0]))
     if with_hdr:
         h = hdr_lights(scene)
         sun = np.asarray(h["sun_direction"], np.float64)
         out.append({"kind": "HDR-sun", "direction": sun, "floor_irradiance": h["sun_floor_irradiance"],
-                    "reach": math.inf, "lamp": {"kind": "SUN", "direction": (-sun).tolist(), "strength": 1.0}})
-    for li in out:
-        li["visible"] = li["floor_irradiance"] > 0 and not occluded(scene, p, li["direction"], li.pop("reach"))[0]
+                    "lamp": {"kind": "SUN", "direction": (-sun).tolist(), "strength": 1.0}})
+        reaches.append(math.inf)
+    for li, reach in zip(out, reaches):
+        li["visible"] = li["floor_irradiance"] > 0 and not occluded(scene, p, li["direction"], reach)[0]
         if not li["visible"]:
             li["floor_irradiance"] = 0.0
     return sorted(out, key=lambda x: -x["floor_irradiance"])
