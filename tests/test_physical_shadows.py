@@ -345,3 +345,29 @@ def test_two_known_directions_with_auto_strength_measure_each_shadow():
     # the ambient is what neither light brings: ambient / lit level on the floor
     true_amb = r1 + r2 - 1.0
     assert abs(out.info["light"]["ambient_share"] - true_amb) < 0.1
+
+
+def test_known_direction_stays_when_the_photo_shows_no_light_along_it():
+    """``strength: auto`` on a photo lit by its ambient alone (the fit finds no light
+    along the given direction): the manifest's direction is kept, not replaced by the
+    prior's, and its shadow is cast at the documented minimum ambient share."""
+    import dataclasses
+
+    from zcomp_cli.renderers.physical.lighting import MIN_FIT_AMBIENT_SHARE
+
+    s = floor_scene(112, 84, with_wall=True, wall_distance=4.5, light_intensity=0.0, ambient=0.5)
+    given = np.array([0.6, 1.0, 0.3]) / np.linalg.norm([0.6, 1.0, 0.3]) @ s.cam_to_world  # camera frame
+    bg, comp, sel, mask = _insert(s, [0.4, 0.3, -2.6])
+    light = {"type": "directional", "direction": list(given), "azimuth_deg": None,
+             "elevation_deg": None, "angular_radius_deg": None, "strength": "auto"}
+    out = PhysicalRenderer().render([dataclasses.replace(r, light=light) for r in (bg, comp)], seed=1)
+    info = out.info["light"]
+    assert out.info["fallback"] is None
+    assert np.allclose(info["direction"], given)
+    assert info["ambient_share"] == pytest.approx(MIN_FIT_AMBIENT_SHARE)
+    assert "no light along the given direction" in info["share_source"]
+    # the object's cast shadow is drawn: the composite is darker than the background
+    # somewhere off the object, by about 1 - share on the floor
+    ratio = out.images[1][..., 1] / np.maximum(out.images[0][..., 1], 1e-6)
+    off = mask & ~sel & (s.depth > 0)
+    assert ratio[off].min() < 1.0 - 0.8 * (1.0 - MIN_FIT_AMBIENT_SHARE)

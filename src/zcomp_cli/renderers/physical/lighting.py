@@ -547,7 +547,7 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     coefs = np.stack([_fit_candidate(basis, dt, S[:, c], ridge, dark_weight=1.0)[0] for c in range(3)], 1)
     inten = np.maximum(coefs[4], 0.0)
     sh_c = coefs[:4]
-    if inten.max() <= 0:
+    if inten.max() <= 0 and not given:
         return prior("no directional component found (fitted intensity 0)")
     # The ambient share straight from the evidence: on the dominant surface, the shading
     # of the pixels the model puts in shadow over that of the lit ones. On lit pixels
@@ -559,7 +559,8 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     shadow_px, lit_px = on_up & (frac < 0.2), on_up & (frac > 0.8)
     cos_up = float(max(best @ up, 0.05))
     share_src = "fit"
-    share_read = False
+    share_read = False  # from a cast shadow
+    fit_only = True  # nor from shadowed vs lit pixels
     if from_shadows or confirmed:
         # shadow / lit level of the same surface, read on the predicted cast shadow
         v_e = march_visibility(Pe, Ne, best, d, cam, steps=march_steps) < 0.5
@@ -581,22 +582,30 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
         inten = np.maximum((lit_c - amb_f) / cos_up, 0.0)
         sh_c = _ambient_given_light(basis, S, inten, dt, ridge, up, amb_f)
         share_src = "shadowed vs lit pixels of the dominant surface"
+        fit_only = False
     amb_up = float(np.maximum(sh_basis(up[None]) @ sh_c, 0).mean())
     dir_up = float(inten.mean() * max(best @ up, 0.0))
     share = amb_up / max(amb_up + dir_up, 1e-12)
-    if not (from_shadows or share_read) and share < MIN_FIT_AMBIENT_SHARE:
+    # the fit sees no light along a given direction (a bare floor: its shading is the
+    # same for any split of ambient and light)
+    no_light_fitted = given and fit_only and share > 1.0 - 1e-3
+    if not (from_shadows or share_read) and (share < MIN_FIT_AMBIENT_SHARE or no_light_fitted):
         # Without a cast shadow the regression may put all the light in the directional
         # term (share 0): faces turned from a wrong direction then go black. Keep at
         # least MIN_FIT_AMBIENT_SHARE of the support's shading in the ambient.
         # (the level is the support's median shading: the regression's own split can
         # be wild -- a negative ambient against a huge light -- when shadows mislead it)
+        # A given direction whose light the fit cannot see (a bare floor: its shading is
+        # the same for any split) keeps its direction and gets the same split: the
+        # manifest says there is a light, so it casts a shadow.
         cos_b = float(max(best @ up, 0.05))
         tot = np.median(S[on_up], 0) if on_up.sum() >= MIN_SHADOW_PIXELS else np.median(S, 0)
         sh_c = sh_c.copy()
         sh_c[0] += MIN_FIT_AMBIENT_SHARE * tot - (sh_basis(up[None]) @ sh_c)[0]
         inten = (1 - MIN_FIT_AMBIENT_SHARE) * tot / cos_b
         share = MIN_FIT_AMBIENT_SHARE
-        share_src += f" (raised to the minimum {MIN_FIT_AMBIENT_SHARE})"
+        share_src += (f" (no light along the given direction: ambient share set to {MIN_FIT_AMBIENT_SHARE})"
+                      if no_light_fitted else f" (raised to the minimum {MIN_FIT_AMBIENT_SHARE})")
     extras: tuple = ()
     if extra_dirs:
         # several lights: each one's strength from the darkness of its own shadow
