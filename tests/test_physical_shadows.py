@@ -371,3 +371,57 @@ def test_known_direction_stays_when_the_photo_shows_no_light_along_it():
     ratio = out.images[1][..., 1] / np.maximum(out.images[0][..., 1], 1e-6)
     off = mask & ~sel & (s.depth > 0)
     assert ratio[off].min() < 1.0 - 0.8 * (1.0 - MIN_FIT_AMBIENT_SHARE)
+
+
+def _sphere_mesh(centre_cam, radius):
+    import trimesh
+
+    from zcomp_cli.renderers.physical.meshshadow import PosedMesh
+
+    m = trimesh.creation.icosphere(subdivisions=4, radius=radius)
+    return PosedMesh(np.asarray(m.vertices) + np.asarray(centre_cam), np.asarray(m.faces))
+
+
+def test_mesh_silhouette_covers_the_object_pixels():
+    from zcomp_cli.renderers.physical.meshshadow import mesh_silhouette
+
+    s = floor_scene(112, 84)
+    c = s.world_to_camera([0.2, 0.15, -2.4])
+    sil = mesh_silhouette(_sphere_mesh(c, 0.15), s.camera, s.depth.shape)
+    b = sphere_object_bundle(s.camera, c, 0.15, floor_normal=s.up_cam)
+    cover = b.mask > 0.5
+    # every object pixel, and the silhouette's edge pixels at most one ring more
+    assert (cover & ~sil).sum() <= 2
+    assert sil.sum() < 1.25 * cover.sum()
+    # behind the camera: nothing
+    assert not mesh_silhouette(_sphere_mesh(-c, 0.15), s.camera, s.depth.shape).any()
+
+
+def test_a_thin_objects_shadow_comes_from_its_mesh_not_a_thick_depth_shell():
+    """With the posed mesh, the floor behind a thin object's silhouette, which the real
+    object leaves in the light, is not shadowed by the 2.5D depth marched with a
+    guessed thickness (a dark line along the silhouette, a shadow too long)."""
+    import dataclasses
+
+    light = (-0.6, 0.5, -1.0)  # low, from behind-left: rays from the floor behind pass the object
+    s = floor_scene(160, 120, light_dir=light, ambient=0.3)
+    r = 0.08
+    centre_w = np.array([0.0, r, -2.6])
+    bg, comp, sel, mask = _insert(s, centre_w, radius=r)
+    c = s.world_to_camera(centre_w)
+    req = [bg, dataclasses.replace(comp, occluder=_sphere_mesh(c, r))]
+    known = {"type": "directional", "direction": list(s.light_dir_cam), "azimuth_deg": None,
+             "elevation_deg": None, "angular_radius_deg": 0.5, "strength": 2.0}
+    out = PhysicalRenderer().render([dataclasses.replace(q, light=known) for q in req], seed=1)
+    ratio = out.images[1].mean(-1) / np.maximum(out.images[0].mean(-1), 1e-6)
+    # exact: the floor point's ray toward the light misses the sphere by a margin
+    P = s.camera.unproject(s.depth).astype(np.float64)
+    l = s.light_dir_cam / np.linalg.norm(s.light_dir_cam)
+    rel = np.asarray(c) - P
+    t = np.maximum(rel @ l, 0.0)
+    miss = np.linalg.norm(rel - t[..., None] * l, axis=-1)
+    lit = mask & ~sel & (s.depth > 0) & (miss > r + 0.04)
+    shadowed = mask & ~sel & (s.depth > 0) & (miss < 0.7 * r)
+    assert lit.sum() > 100 and shadowed.sum() > 10
+    assert np.percentile(ratio[lit], 1) > 0.8  # lit stays lit (ambient occlusion aside)
+    assert np.median(ratio[shadowed]) < 0.7  # the real shadow is drawn

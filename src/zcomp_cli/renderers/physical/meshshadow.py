@@ -59,6 +59,32 @@ def load_posed_mesh(meta: dict, alignment: dict | None = None) -> PosedMesh | No
     return PosedMesh(V, np.concatenate(fs))
 
 
+def mesh_silhouette(mesh: PosedMesh, camera, shape) -> np.ndarray:
+    """(H, W) bool: the pixels the posed mesh covers in ``camera``'s image (its
+    triangles rasterised, edge pixels included; those reaching behind the camera are
+    left out).
+
+    Where the mesh is known it alone stands for the object as an occluder: the 2.5D
+    depth's shell, marched with a guessed thickness, shadows floor pixels just behind a
+    thin object's silhouette (a dark one-pixel line along it) and lengthens its shadow."""
+    import cv2
+
+    H, W = shape
+    out = np.zeros((H, W), np.uint8)
+    xy, z = camera.project(mesh.vertices)
+    tri = mesh.faces[np.all(z[mesh.faces] > 1e-6, axis=1)]
+    if len(tri) == 0:
+        return out > 0
+    pts = np.round(xy[tri] * 16.0).astype(np.int32)  # 4 fractional bits
+    # drop triangles wholly outside the frame (and any absurd projection)
+    lo, hi = pts.min(1), pts.max(1)
+    keep = (hi[:, 0] >= 0) & (hi[:, 1] >= 0) & (lo[:, 0] < W * 16) & (lo[:, 1] < H * 16)
+    keep &= np.all(np.abs(pts) < 2 ** 26, axis=(1, 2))
+    # a pixel index i spans [i, i + 1): shift by half a pixel so cv2 fills by centres
+    cv2.fillPoly(out, list(pts[keep] - 8), 1, lineType=cv2.LINE_8, shift=4)
+    return out > 0
+
+
 def _basis(l):
     a = np.array([1.0, 0, 0]) if abs(l[0]) < 0.9 else np.array([0, 1.0, 0])
     u = np.cross(l, a)

@@ -283,12 +283,18 @@ class PhysicalRenderer(Renderer):
         vis = np.zeros(gy.shape)
         t_hit = np.full(gy.shape, np.inf)
         if lit.any():
+            scene_only = None
+            if occluder is not None:
+                # the real mesh is the object's occluder; the depth's shell only the
+                # scene's (``mesh_silhouette``)
+                from zcomp_cli.renderers.physical.meshshadow import mesh_silhouette
+
+                scene_only = ~mesh_silhouette(occluder, camera, (H, W))
             v, t = march_visibility(P[lit], N[lit], l, d, camera,
                                     steps=int(self._s["march_steps"]),
                                     jitter=pixel_jitter(gy[lit], gx[lit]), return_distance=True,
-                                    nearest=True)
+                                    nearest=True, occluder_mask=scene_only)
             if occluder is not None:
-                # the real mesh as well: its shadow where the 2.5D shell lets rays through
                 from zcomp_cli.renderers.physical.meshshadow import mesh_shadow
 
                 vm, tm = mesh_shadow(occluder, P[lit], N[lit], l)
