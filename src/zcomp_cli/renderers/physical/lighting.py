@@ -560,7 +560,7 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     cos_up = float(max(best @ up, 0.05))
     share_src = "fit"
     share_read = False  # from a cast shadow
-    fit_only = True  # nor from shadowed vs lit pixels
+    fit_only = True  # neither from a cast shadow nor from shadowed vs lit pixels
     if from_shadows or confirmed:
         # shadow / lit level of the same surface, read on the predicted cast shadow
         v_e = march_visibility(Pe, Ne, best, d, cam, steps=march_steps) < 0.5
@@ -572,7 +572,7 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
             inten = np.maximum((lit_c - amb_f) / cos_up, 0.0)
             sh_c = _ambient_given_light(basis, S, inten, dt, ridge, up, amb_f)
             share_src = "cast shadows of visible geometry vs the same surface around them"
-            share_read = True
+            share_read, fit_only = True, False
     if (not from_shadows and not share_read and shadow_px.sum() >= MIN_SHADOW_PIXELS
             and lit_px.sum() >= MIN_SHADOW_PIXELS):
         lit_c = np.median(S[lit_px], 0)

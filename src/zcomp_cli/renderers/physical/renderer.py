@@ -265,16 +265,26 @@ class PhysicalRenderer(Renderer):
             return (amb + ndl[:, None] * np.asarray(est.intensity)[None, :]) * ao_t[:, None]
         # each light's shadow: one march, then the penumbra filter
         out = amb * ao_t[:, None]
+        scene_only = None
+        if occluder is not None:
+            # the real mesh is the object's occluder; the depth's shell only the scene's
+            # (``mesh_silhouette``): one silhouette for every light
+            from zcomp_cli.renderers.physical.meshshadow import mesh_silhouette
+
+            scene_only = ~mesh_silhouette(occluder, camera, (H, W))
         for l, inten, cone in _lights(est):
             v_t = self._soft_visibility(d, n, geo_all, camera, l, cone, window(WINDOW_MARGIN_PX, even=(
-                H * W > FULL_RES_PIXELS)), ys, xs, occluder)
+                H * W > FULL_RES_PIXELS)), ys, xs, occluder, scene_only)
             out = out + (np.maximum(0.0, nv @ l) * v_t)[:, None] * np.asarray(inten)[None, :]
         return out
 
-    def _soft_visibility(self, d, n, geo_all, camera, l, cone_deg, box, ys, xs, occluder) -> np.ndarray:
+    def _soft_visibility(self, d, n, geo_all, camera, l, cone_deg, box, ys, xs, occluder,
+                         scene_only=None) -> np.ndarray:
         """Filtered visibility of the light ``l`` at pixels (ys, xs), marched over the
-        window ``box``. Above FULL_RES_PIXELS the march runs on a stride-2 grid (the
-        filter smooths it anyway): a quarter of the rays, the synthesis budget at 512x512."""
+        window ``box``; ``scene_only``: (H, W) bool, the texels that occlude in the march
+        (None: all), the ``occluder`` mesh shadowing for the rest. Above FULL_RES_PIXELS
+        the march runs on a stride-2 grid (the filter smooths it anyway): a quarter of
+        the rays, the synthesis budget at 512x512."""
         H, W = d.shape
         st = 2 if H * W > FULL_RES_PIXELS else 1
         wy0, wx0, wy1, wx1 = box
@@ -283,13 +293,6 @@ class PhysicalRenderer(Renderer):
         vis = np.zeros(gy.shape)
         t_hit = np.full(gy.shape, np.inf)
         if lit.any():
-            scene_only = None
-            if occluder is not None:
-                # the real mesh is the object's occluder; the depth's shell only the
-                # scene's (``mesh_silhouette``)
-                from zcomp_cli.renderers.physical.meshshadow import mesh_silhouette
-
-                scene_only = ~mesh_silhouette(occluder, camera, (H, W))
             v, t = march_visibility(P[lit], N[lit], l, d, camera,
                                     steps=int(self._s["march_steps"]),
                                     jitter=pixel_jitter(gy[lit], gx[lit]), return_distance=True,
