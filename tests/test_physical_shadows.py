@@ -395,6 +395,13 @@ def test_mesh_silhouette_covers_the_object_pixels():
     assert sil.sum() < 1.25 * cover.sum()
     # behind the camera: nothing
     assert not mesh_silhouette(_sphere_mesh(-c, 0.15), s.camera, s.depth.shape).any()
+    # wholly outside the frame: nothing
+    assert not mesh_silhouette(_sphere_mesh(c + np.array([50.0, 0, 0]), 0.15), s.camera, s.depth.shape).any()
+    # a non-finite vertex drops its triangles, nothing else
+    bad = _sphere_mesh(c, 0.15)
+    bad.vertices[0, 0] = np.nan
+    sil_bad = mesh_silhouette(bad, s.camera, s.depth.shape)
+    assert not (sil_bad & ~sil).any() and (sil & ~sil_bad).sum() <= 10
 
 
 def test_a_thin_objects_shadow_comes_from_its_mesh_not_a_thick_depth_shell():

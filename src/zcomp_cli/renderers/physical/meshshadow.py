@@ -75,13 +75,15 @@ def mesh_silhouette(mesh: PosedMesh, camera, shape) -> np.ndarray:
     tri = mesh.faces[np.all(z[mesh.faces] > 1e-6, axis=1)]
     if len(tri) == 0:
         return out > 0
-    pts = np.round(xy[tri] * 16.0).astype(np.int32)  # 4 fractional bits
-    # drop triangles wholly outside the frame (and any absurd projection)
-    lo, hi = pts.min(1), pts.max(1)
-    keep = (hi[:, 0] >= 0) & (hi[:, 1] >= 0) & (lo[:, 0] < W * 16) & (lo[:, 1] < H * 16)
-    keep &= np.all(np.abs(pts) < 2 ** 26, axis=(1, 2))
+    q = xy[tri]  # (M, 3, 2) pixels
+    # drop triangles wholly outside the frame, and non-finite or absurd projections
+    # (checked before the integer cast, which would wrap them)
+    keep = np.all(np.isfinite(q) & (np.abs(q) < 2 ** 22), axis=(1, 2))
+    lo, hi = q.min(1), q.max(1)
+    keep &= (hi[:, 0] >= 0) & (hi[:, 1] >= 0) & (lo[:, 0] < W) & (lo[:, 1] < H)
+    pts = np.round(q[keep] * 16.0).astype(np.int32)  # 4 fractional bits
     # a pixel index i spans [i, i + 1): shift by half a pixel so cv2 fills by centres
-    cv2.fillPoly(out, list(pts[keep] - 8), 1, lineType=cv2.LINE_8, shift=4)
+    cv2.fillPoly(out, list(pts - 8), 1, lineType=cv2.LINE_8, shift=4)
     return out > 0
 
 
