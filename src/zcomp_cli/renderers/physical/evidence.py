@@ -38,6 +38,8 @@ CREASE_FRAC = 0.03
 # Pixels this close (in pixels) to a crease give none at all: mixed pixels across the
 # orientation change or depth jump.
 CREASE_CORE_PX = 1.5
+# Width of one albedo bin of ``same_material_level`` (natural log: 1.25x apart).
+ALBEDO_RANGE = float(np.log(1.25))
 
 
 def orientation_labels(normals: np.ndarray, valid: np.ndarray, up: np.ndarray) -> np.ndarray:
@@ -51,9 +53,62 @@ def orientation_labels(normals: np.ndarray, valid: np.ndarray, up: np.ndarray) -
     return np.where(valid, lab, 0)
 
 
+def same_material_level(values: np.ndarray, weight: np.ndarray, radius: float,
+                        albedo: np.ndarray | None) -> np.ndarray:
+    """Local level of ``values`` (H, W) over the ``weight`` pixels within ``radius``, each
+    pixel compared with those of a similar albedo only (a bilateral filter in log albedo,
+    ``ALBEDO_RANGE`` per bin, splatted with linear weights between bins).
+
+    Why: image over albedo is not the shading alone. The glossy reflection and the
+    light bounced from the surroundings add nearly the same radiance to a dark tile as
+    to a bright one, so a checker floor's bright tiles read 10-30 % "darker" than the
+    dark ones around them: a pattern of fake shadows. Against pixels of their own
+    albedo they read level. Where too few such pixels are near (under 2 % of the
+    blur's full weight), the level of all orientation-mates is used.
+
+    Args:
+        values, weight: (H, W). radius: Gaussian blur radius in pixels.
+        albedo: (H, W) albedo luminance (> 0), or None: orientation only.
+    Returns: (H, W) float64 level.
+    """
+    plain = normalized_blur(values, weight, radius)
+    if albedo is None:
+        return plain
+    from zcomp_cli.renderers.physical.softshadow import gaussian_blur
+
+    la = np.log(np.clip(np.nan_to_num(np.asarray(albedo, np.float64), nan=0.5, posinf=1.0), 1e-3, None))
+    sel = weight > 0
+    if not sel.any():
+        return plain
+    lo, hi = float(la[sel].min()), float(la[sel].max())
+    if hi - lo < ALBEDO_RANGE:
+        return plain
+    # bins at fixed log-albedo positions: a pixel's bins depend on its own albedo alone
+    t = la / ALBEDO_RANGE
+    k0 = np.floor(t).astype(np.int64)
+    frac = t - k0
+    w = weight.astype(np.float32)
+    num = np.zeros(values.shape)
+    den = np.zeros(values.shape)
+    full = np.maximum(gaussian_blur(w, radius), 1e-6)
+    for k in range(int(np.floor(lo / ALBEDO_RANGE)), int(np.floor(hi / ALBEDO_RANGE)) + 2):
+        # splat: each pixel's weight in bin k (linear between its two nearest bins)
+        sk = np.where(k0 == k, 1.0 - frac, np.where(k0 + 1 == k, frac, 0.0))
+        if not (sk * w).any():
+            continue
+        nk = gaussian_blur((values * w * sk).astype(np.float32), radius)
+        dk = gaussian_blur((w * sk).astype(np.float32), radius)
+        # slice: read bin k back at each pixel's own albedo
+        num += sk * nk
+        den += sk * dk
+    return np.where(den > 0.02 * full, num / np.maximum(den, 1e-9), plain)
+
+
 def darkness_map(lum: np.ndarray, normals: np.ndarray, valid: np.ndarray, up: np.ndarray,
-                 depth: np.ndarray | None = None, *, return_band: bool = False):
-    """Relative darkness of each pixel against the same orientation around it.
+                 depth: np.ndarray | None = None, *, albedo: np.ndarray | None = None,
+                 return_band: bool = False):
+    """Relative darkness of each pixel against the same orientation (and, with
+    ``albedo``, the same material: ``same_material_level``) around it.
 
     Returns:
         e: (H, W) ``1 - Y / local level`` in [-0.5, 1], 0 where invalid;
@@ -72,9 +127,9 @@ def darkness_map(lum: np.ndarray, normals: np.ndarray, valid: np.ndarray, up: np
     e = np.zeros((H, W))
     for g in np.unique(lab[lab > 0]):
         grp = lab == g
-        b0 = normalized_blur(lum, grp, rad)
+        b0 = same_material_level(lum, grp, rad, albedo)
         lit = grp & (lum > 0.8 * b0)
-        b = normalized_blur(lum, lit if lit.any() else grp, rad)
+        b = same_material_level(lum, lit if lit.any() else grp, rad, albedo)
         e = np.where(grp, 1.0 - lum / np.maximum(b, 1e-9), e)
     edge = np.zeros((H, W), bool)
     edge[:, 1:] |= lab[:, 1:] != lab[:, :-1]

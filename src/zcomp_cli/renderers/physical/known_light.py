@@ -94,9 +94,10 @@ def probe_lights(hdr: np.ndarray, rotation_deg: float = 0.0, up=(0.0, 1.0, 0.0))
 
 
 def light_from_spec(spec: dict, depth, normals, shading, known, camera: Camera, *,
-                    max_resolution: int = 160, march_steps: int = 16) -> LightEstimate:
+                    max_resolution: int = 160, march_steps: int = 16, albedo=None) -> LightEstimate:
     """LightEstimate of a manifest light; the ambient level is the lit level of the
-    support (its known pixels the light reaches) over ``1 + strength * cos``."""
+    support (its known pixels the light reaches) over ``1 + strength * cos``.
+    ``albedo`` (H, W, 3) serves ``strength: auto`` (``estimate_lighting``)."""
     d, n, sh, k, cam = _downsample(depth, normals, shading, known, camera, max_resolution)
     nn = np.linalg.norm(n, axis=-1)
     valid = k & (d > 0) & (np.abs(nn - 1) < 0.2) & np.all(np.isfinite(sh), -1) & np.all(sh > 0, -1)
@@ -118,7 +119,7 @@ def light_from_spec(spec: dict, depth, normals, shading, known, camera: Camera, 
         from zcomp_cli.renderers.physical.lighting import estimate_lighting
 
         est = estimate_lighting(depth, normals, shading, known, camera, max_resolution=max_resolution,
-                                march_steps=march_steps, direction=np.stack(dirs),
+                                march_steps=march_steps, direction=np.stack(dirs), albedo=albedo,
                                 softness_deg=None if radii[0] is None else float(radii[0]))
         est.source = "manifest"
         est.direction_source = f"manifest: {hows[0]}"

@@ -81,7 +81,8 @@ class PhysicalRenderer(Renderer):
 
             est = light_from_spec(light, d, n, sh, known, req.camera,
                                   max_resolution=int(self._s["max_resolution"]),
-                                  march_steps=int(self._s["estimate_march_steps"]))
+                                  march_steps=int(self._s["estimate_march_steps"]),
+                                  albedo=_clean(req.maps.albedo, 0.0, 1.0))
             if key is not None:
                 self._cache[key] = est
             return est
@@ -91,7 +92,7 @@ class PhysicalRenderer(Renderer):
             march_steps=int(self._s["estimate_march_steps"]),
             max_fit_pixels=int(self._s["max_fit_pixels"]),
             cone_samples=int(self._s["cone_samples"]),
-            softness_deg=self._s["shadow_softness"], seed=seed)
+            softness_deg=self._s["shadow_softness"], seed=seed, albedo=_clean(req.maps.albedo, 0.0, 1.0))
         if key is not None:
             self._cache[key] = est
         return est

@@ -54,7 +54,9 @@ def pixel_jitter(ys: np.ndarray, xs: np.ndarray, salt: int = 0) -> np.ndarray:
     return ((bayer[(ys + salt) % 4, (xs + 3 * salt) % 4] + 0.5) / 16.0)
 
 
-def _gauss(img: np.ndarray, radius: float) -> np.ndarray:
+def gaussian_blur(img: np.ndarray, radius: float) -> np.ndarray:
+    """Gaussian blur of an (H, W[, C]) float32 image, sigma ``radius / 2`` pixels, the
+    border replicated; ``radius <= 0`` returns it unchanged."""
     import cv2
 
     if radius <= 0:
@@ -70,8 +72,8 @@ def normalized_blur(values: np.ndarray, weight: np.ndarray, radius: float) -> np
     if radius <= 0:
         return values
     w = weight.astype(np.float32)
-    num = _gauss((values * w).astype(np.float32), radius)
-    den = _gauss(w, radius)
+    num = gaussian_blur((values * w).astype(np.float32), radius)
+    den = gaussian_blur(w, radius)
     return np.where(den > 1e-4, num / np.maximum(den, 1e-4), values).astype(np.float64)
 
 
