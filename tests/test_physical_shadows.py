@@ -432,3 +432,22 @@ def test_a_thin_objects_shadow_comes_from_its_mesh_not_a_thick_depth_shell():
     assert lit.sum() > 100 and shadowed.sum() > 10
     assert np.percentile(ratio[lit], 1) > 0.8  # lit stays lit (ambient occlusion aside)
     assert np.median(ratio[shadowed]) < 0.7  # the real shadow is drawn
+
+
+def test_a_lifted_direction_keeps_its_light_when_the_fit_finds_none_along_it():
+    # a light grazing the floor from behind the camera lights the wall more than the
+    # floor: the shading's direction is grazing, lifted to MIN_FIT_ELEVATION_DEG, and
+    # along the lifted direction the fit finds no light. It keeps the lifted direction
+    # (its azimuth was measured) with the minimum ambient share; it used to fall to the
+    # prior's direction and its 0.4 share ("no directional component found").
+    from zcomp_cli.renderers.physical.lighting import MIN_FIT_AMBIENT_SHARE, MIN_FIT_ELEVATION_DEG
+
+    s = floor_scene(112, 84, light_dir=(0.0, 0.2, 1.0), ambient=0.3, with_wall=True, wall_distance=4.0)
+    e = estimate_lighting(s.depth, s.normals, s.shading, s.depth > 0, s.camera, **FAST)
+    assert e.direction_source == "shading vs surface orientation" and e.fallback is not None
+    assert "no light along the lifted direction" in e.share_source
+    assert e.ambient_share == pytest.approx(MIN_FIT_AMBIENT_SHARE)
+    assert np.degrees(np.arcsin(e.direction @ s.up_cam)) == pytest.approx(MIN_FIT_ELEVATION_DEG, abs=1.0)
+    assert _angle(e.direction - (e.direction @ s.up_cam) * s.up_cam,
+                  s.light_dir_cam - (s.light_dir_cam @ s.up_cam) * s.up_cam) < 30.0  # 21 deg: the shading's own
+    assert float(np.min(e.intensity)) > 0

@@ -534,7 +534,8 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
         # the shadow's darkness is read on the crease band too, as measured (a cast
         # shadow at its occluder's base is darkened by the occlusion as well)
         Pe, Ne, Ee = pts_all.reshape(-1, 3)[bi], nvalid.reshape(-1, 3)[bi], e_map.ravel()[bi]
-    if not from_shadows and not given and best @ up < np.sin(np.deg2rad(MIN_FIT_ELEVATION_DEG)):
+    lifted = not from_shadows and not given and best @ up < np.sin(np.deg2rad(MIN_FIT_ELEVATION_DEG))
+    if lifted:
         # A grazing direction from shading alone fits the support with a huge intensity
         # that then floods the object's vertical faces (white objects on the fresh
         # benchmark): lift it to MIN_FIT_ELEVATION_DEG above the support.
@@ -563,7 +564,10 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     coefs = np.stack([_fit_candidate(basis, dt, S[:, c], ridge, dark_weight=1.0)[0] for c in range(3)], 1)
     inten = np.maximum(coefs[4], 0.0)
     sh_c = coefs[:4]
-    if inten.max() <= 0 and not given:
+    # (a lifted direction was chosen, not fitted: the fit along it may find no light, as
+    # along a given one; it keeps its light with the minimum ambient share below, rather
+    # than falling to the prior's direction and share)
+    if inten.max() <= 0 and not given and not lifted:
         return prior("no directional component found (fitted intensity 0)")
     # The ambient share straight from the evidence: on the dominant surface, the shading
     # of the pixels the model puts in shadow over that of the lit ones. On lit pixels
@@ -604,7 +608,7 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     share = amb_up / max(amb_up + dir_up, 1e-12)
     # the fit sees no light along a given direction (a bare floor: its shading is the
     # same for any split of ambient and light)
-    no_light_fitted = given and fit_only and share > 1.0 - 1e-3
+    no_light_fitted = (given or lifted) and fit_only and share > 1.0 - 1e-3
     if not (from_shadows or share_read) and (share < MIN_FIT_AMBIENT_SHARE or no_light_fitted):
         # Without a cast shadow the regression may put all the light in the directional
         # term (share 0): faces turned from a wrong direction then go black. Keep at
@@ -620,8 +624,9 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
         sh_c[0] += MIN_FIT_AMBIENT_SHARE * tot - (sh_basis(up[None]) @ sh_c)[0]
         inten = (1 - MIN_FIT_AMBIENT_SHARE) * tot / cos_b
         share = MIN_FIT_AMBIENT_SHARE
-        share_src += (f" (no light along the given direction: ambient share set to {MIN_FIT_AMBIENT_SHARE})"
-                      if no_light_fitted else f" (raised to the minimum {MIN_FIT_AMBIENT_SHARE})")
+        share_src += (f" (no light along the {'given' if given else 'lifted'} direction: ambient share "
+                      f"set to {MIN_FIT_AMBIENT_SHARE})" if no_light_fitted
+                      else f" (raised to the minimum {MIN_FIT_AMBIENT_SHARE})")
     extras: tuple = ()
     if extra_dirs:
         # several lights: each one's strength from the darkness of its own shadow
