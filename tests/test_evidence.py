@@ -8,6 +8,7 @@ pixels of its own albedo (``same_material_level``)."""
 import numpy as np
 import pytest
 
+from zcomp_cli.conventions import luminance
 from zcomp_cli.renderers.physical import estimate_lighting
 from zcomp_cli.renderers.physical.evidence import darkness_map, same_material_level
 from zcomp_cli.testing import floor_scene
@@ -28,11 +29,9 @@ def _checker_floor(s, tile_m=0.5, dark=0.12, bright=0.7):
 
 
 def _dark(s, shading, albedo=None):
-    lum = shading @ np.array([0.299, 0.587, 0.114])
-    n = s.normals.astype(np.float64)
-    up = s.up_cam if hasattr(s, "up_cam") else np.array([0.0, 1.0, 0.0])
-    alb_lum = None if albedo is None else albedo @ np.array([0.299, 0.587, 0.114])
-    return darkness_map(lum, n, s.depth > 0, up, s.depth, albedo=alb_lum)
+    alb_lum = None if albedo is None else luminance(albedo)
+    return darkness_map(luminance(shading), s.normals.astype(np.float64), s.depth > 0, s.up_cam, s.depth,
+                        albedo=alb_lum)
 
 
 def test_checker_tiles_read_level_against_their_own_albedo():

@@ -15,7 +15,7 @@ from dataclasses import dataclass, asdict
 import numpy as np
 
 from zcomp_cli.camera import Camera
-from zcomp_cli.conventions import DEFAULT_SEED, REC601
+from zcomp_cli.conventions import DEFAULT_SEED, REC601, luminance
 from zcomp_cli.renderers.physical.evidence import (ao_corrected_band, darkness_map, evidence_sample,
                                                    evidence_scores)
 from zcomp_cli.renderers.physical.shading import cone_directions, direct_term, sh_basis
@@ -464,10 +464,11 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     if albedo is not None:
         import cv2
 
+        # the albedo at the estimation copy's size, as ``_downsample`` makes the shading
         a = np.nan_to_num(np.asarray(albedo, np.float32), nan=0.0, posinf=1.0, neginf=0.0)
         if a.shape[:2] != d.shape:
             a = cv2.resize(a, (d.shape[1], d.shape[0]), interpolation=cv2.INTER_AREA)
-        alb_lum = a.reshape(d.shape + (-1,)) @ REC601.astype(np.float32) if a.ndim == 3 else a
+        alb_lum = luminance(a)
     e_map, usable, band = darkness_map(lum, nvalid, valid, up, d, albedo=alb_lum, return_band=True)
     ei, ew = evidence_sample(e_map, usable)
     Pe, Ne, Ee = pts_all.reshape(-1, 3)[ei], nvalid.reshape(-1, 3)[ei], e_map.ravel()[ei]

@@ -70,6 +70,7 @@ class PhysicalRenderer(Renderer):
         if key is not None and key in self._cache:
             return self._cache[key]
         d, n, sh, known = self._inputs(req)
+        albedo = _clean(req.maps.albedo, 0.0, 1.0)  # darkness is read within an albedo
         if key is not None:
             # Cached per scene, so it must depend on the scene alone: fit on every valid
             # background pixel, not on the first job's shading mask -- else a job's
@@ -82,7 +83,7 @@ class PhysicalRenderer(Renderer):
             est = light_from_spec(light, d, n, sh, known, req.camera,
                                   max_resolution=int(self._s["max_resolution"]),
                                   march_steps=int(self._s["estimate_march_steps"]),
-                                  albedo=_clean(req.maps.albedo, 0.0, 1.0))
+                                  albedo=albedo)
             if key is not None:
                 self._cache[key] = est
             return est
@@ -92,7 +93,7 @@ class PhysicalRenderer(Renderer):
             march_steps=int(self._s["estimate_march_steps"]),
             max_fit_pixels=int(self._s["max_fit_pixels"]),
             cone_samples=int(self._s["cone_samples"]),
-            softness_deg=self._s["shadow_softness"], seed=seed, albedo=_clean(req.maps.albedo, 0.0, 1.0))
+            softness_deg=self._s["shadow_softness"], seed=seed, albedo=albedo)
         if key is not None:
             self._cache[key] = est
         return est
