@@ -90,7 +90,7 @@ def floor_scene(width: int = 128, height: int = 96, *, fov_deg: float = 50.0,
                 ambient: float = 0.3, albedo=(0.6, 0.6, 0.6), with_box: bool = False,
                 box_center=(0.0, -3.0), box_size=(0.6, 0.8, 0.6),
                 box_albedo=(0.5, 0.4, 0.3), with_wall: bool = False,
-                wall_distance: float = 6.0, occluders=(), extra_lights=()) -> SyntheticScene:
+                wall_distance: float = 6.0, occluders=(), extra_lights=(), lamp=None) -> SyntheticScene:
     """Ray cast a ground plane (+ optional axis-aligned box and back wall).
 
     Args:
@@ -110,6 +110,9 @@ def floor_scene(width: int = 128, height: int = 96, *, fov_deg: float = 50.0,
         extra_lights: more directional lights ``(world direction toward it, intensity)``,
             each with its own exact shadows (``meta["extra_lights_cam"]``: their
             camera-frame directions).
+        lamp: a point lamp ``(world position (3,), intensity)``: it adds
+            ``intensity * max(0, n . (p - x)) / |p - x|^3`` with exact shadows
+            (``meta["lamp_cam"]``: its camera-frame position).
     Returns:
         SyntheticScene; sky pixels have depth 0, normals 0, albedo 0, shading 0.
     """
@@ -164,6 +167,18 @@ def floor_scene(width: int = 128, height: int = 96, *, fov_deg: float = 50.0,
         le, vis_e, ndl_e = lit(le)
         shade = shade + float(ie) * ndl_e * vis_e
         extra_cam.append((R.T @ le).tolist())
+    lamp_cam = None
+    if lamp is not None:
+        lp, li = np.asarray(lamp[0], np.float64), float(lamp[1])
+        v = lp[None] - P
+        dist = np.maximum(np.linalg.norm(v, axis=1), 1e-9)
+        vl = v / dist[:, None]
+        vis_l = np.ones(n_pix)
+        for bb in boxes:
+            t_sh, _ = _ray_box(P + n_best * 1e-4, vl, *bb)
+            vis_l = np.where(t_sh < dist, 0.0, vis_l)
+        shade = shade + li * np.maximum(0.0, (n_best * vl).sum(1)) / dist ** 2 * vis_l
+        lamp_cam = (R.T @ (lp - origin)).tolist()
     shade = np.where(hit, shade, 0.0)
     p_cam = (P - origin) @ R
     depth = np.where(hit, -p_cam[:, 2], 0.0)
@@ -180,7 +195,7 @@ def floor_scene(width: int = 128, height: int = 96, *, fov_deg: float = 50.0,
         light_dir_cam=R.T @ l, ambient=float(ambient), light_intensity=float(light_intensity),
         cam_to_world=R, camera_origin=origin,
         meta={"box": None if box is None else [box[0].tolist(), box[1].tolist()],
-              "extra_lights_cam": extra_cam},
+              "extra_lights_cam": extra_cam, "lamp_cam": lamp_cam},
     )
 
 

@@ -16,8 +16,9 @@ import numpy as np
 
 from zcomp_cli.camera import Camera
 from zcomp_cli.conventions import DEFAULT_SEED, REC601, luminance
-from zcomp_cli.renderers.physical.evidence import (ao_corrected_band, darkness_map, evidence_sample,
+from zcomp_cli.renderers.physical.evidence import (EVIDENCE_TAU, ao_corrected_band, darkness_map, evidence_sample,
                                                    evidence_scores)
+from zcomp_cli.renderers.physical.nearlamp import fit_near_lamp
 from zcomp_cli.renderers.physical.shading import cone_directions, direct_term, sh_basis
 from zcomp_cli.renderers.physical.visibility import march_visibility
 
@@ -59,6 +60,10 @@ SECOND_LIGHT_SEP_DEG = 25.0
 # A second light is fainter: its shadow keeps more of the lit level (the first light
 # still reaches it), so its pixels count from the shadow metric's 10 % darkening.
 SECOND_LIGHT_TAU = 0.1
+# A lamp read from the support's falloff stands beside the photo's cast shadows when,
+# seen from the pixels they darken, it lies within this angle of their direction; else
+# the shadows decide.
+LAMP_AGREE_DEG = 25.0
 # The ambient keeps at least this share of the lit support when the lights' measured
 # shadows add up to more direct light than the support receives.
 MIN_SPLIT_AMBIENT_SHARE = 0.05
@@ -108,6 +113,10 @@ class LightEstimate:
     evidence_px: float = 0.0
     direction_source: str = "prior"
     extra_lights: tuple = ()  # ExtraLight, each drawn with its own shadow
+    # a lamp near the scene (``nearlamp``): (3,) camera-frame position, and the support's
+    # centre ``direction`` points from; the renderer aims the light at each object
+    lamp_position: np.ndarray | None = None
+    lamp_aim: np.ndarray | None = None
 
     @property
     def cone_deg(self) -> float:
@@ -455,10 +464,20 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     cands = cands[cands @ up > 0.05]
     step_deg = np.rad2deg(np.sqrt(4 * np.pi / (2 * n_candidates)))
 
+    # 0. A lamp near the scene: the support's shading falls off from the point under it
+    #    (``nearlamp``). A sun's does not, and a floor's shading against orientation
+    #    cannot place a light at all; the falloff can.
+    lamp = None
+    if direction is None:
+        on_support = Nrm @ up > np.cos(np.deg2rad(15))
+        lamp = fit_near_lamp(P[on_support], Y[on_support], up)
+        if lamp is not None and not lamp.found:
+            lamp = None
+    near = lamp is not None
     # 1. Cast shadows of the visible geometry (``evidence``): where the candidate light
     #    puts them, is the surface darker than around? Unseen occluders' shadows add
     #    nothing to any candidate.
-    lum = sh @ np.array([0.299, 0.587, 0.114])
+    lum0 = sh @ np.array([0.299, 0.587, 0.114])
     nvalid = np.where(valid[..., None], n / np.maximum(nn, 1e-12)[..., None], 0.0)
     alb_lum = None
     if albedo is not None:
@@ -469,21 +488,54 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
         if a.shape[:2] != d.shape:
             a = cv2.resize(a, (d.shape[1], d.shape[0]), interpolation=cv2.INTER_AREA)
         alb_lum = luminance(a)
-    e_map, usable, band = darkness_map(lum, nvalid, valid, up, d, albedo=alb_lum, return_band=True)
-    ei, ew = evidence_sample(e_map, usable)
-    Pe, Ne, Ee = pts_all.reshape(-1, 3)[ei], nvalid.reshape(-1, 3)[ei], e_map.ravel()[ei]
-    # (a given direction needs no search: the darkness map still serves the share)
-    ev = (evidence_scores(Pe, Ne, Ee, ew, cands, d, cam, steps=march_steps) if direction is None
-          else np.zeros(0))
-    evidence_px = float(ev.max()) if len(ev) else 0.0
-    from_shadows = evidence_px >= MIN_EVIDENCE_PX
+    lamp_note = ""
+    while True:
+        lum = lum0
+        if near:
+            # darkness against the lamp's falloff, not against a constant: the far
+            # floor is not in shadow (read as one, it pointed the search 40-70 deg off
+            # on the lamp-lit scenes of seed 8128)
+            sup = valid & ((nvalid @ up) > np.cos(np.deg2rad(15)))
+            if sup.any():
+                model = lamp.support_shading(pts_all[sup])
+                lum = lum0.copy()
+                lum[sup] = lum0[sup] * float(np.median(model)) / np.maximum(model, 1e-9)
+        e_map, usable, band = darkness_map(lum, nvalid, valid, up, d, albedo=alb_lum, return_band=True)
+        ei, ew = evidence_sample(e_map, usable)
+        Pe, Ne, Ee = pts_all.reshape(-1, 3)[ei], nvalid.reshape(-1, 3)[ei], e_map.ravel()[ei]
+        # (a given direction needs no search: the darkness map still serves the share)
+        ev = (evidence_scores(Pe, Ne, Ee, ew, cands, d, cam, steps=march_steps) if direction is None
+              else np.zeros(0))
+        evidence_px = float(ev.max()) if len(ev) else 0.0
+        from_shadows = evidence_px >= MIN_EVIDENCE_PX
+        if not (near and from_shadows):
+            break
+        # Cast shadows beside the lamp's falloff: seen from the shadowed pixels, the
+        # lamp must lie along the shadows' direction, else the falloff was something
+        # else -- gloss, a wall's occlusion -- and the shadows decide (seed 8128: a
+        # sun-lit and a sky-lit scene whose falloff read as a lamp 70 and 105 deg from
+        # their shadows' direction; the analytic lamp-and-box scene of the tests: 10).
+        bd = cands[int(np.argmax(ev))]
+        hit = (march_visibility(Pe, Ne, bd, d, cam, steps=march_steps) < 0.5) & (Ee > EVIDENCE_TAU) & ((Ne @ bd) > 0.05)
+        at = Pe[hit].mean(0) if hit.any() else lamp.aim
+        lamp_deg = float(np.degrees(np.arccos(np.clip(bd @ lamp.direction_at(at), -1.0, 1.0))))
+        if lamp_deg <= LAMP_AGREE_DEG:
+            break
+        lamp_note = (f"; a falloff read as a lamp (span {lamp.falloff:.2f}) set aside: seen from "
+                     f"the shadows, it is {lamp_deg:.3g} deg from their direction")
+        lamp, near = None, False
     agree_deg, band_px = float("nan"), 0.0
     given = direction is not None
     extra_dirs: list = []
-    if given:
-        D = np.asarray(direction, np.float64).reshape(-1, 3)
-        D = D / np.maximum(np.linalg.norm(D, axis=1, keepdims=True), 1e-12)
-        best, extra_dirs = D[0], list(D[1:])
+    if given or near:
+        if given:
+            D = np.asarray(direction, np.float64).reshape(-1, 3)
+            D = D / np.maximum(np.linalg.norm(D, axis=1, keepdims=True), 1e-12)
+            best, extra_dirs = D[0], list(D[1:])
+        else:
+            # (a lamp's shadows radiate from its foot: its cast shadows in the photo
+            # are no directional light's, so the falloff decides over them)
+            best = lamp.direction_at(lamp.aim)
         from_shadows, spread_deg, contrast = False, 0.0, float("nan")
         # the crease band's pixels count for the share: a shadow at its occluder's base
         e_band = ao_corrected_band(e_map, band, pts_all, nvalid, d, cam)
@@ -530,12 +582,12 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
                          f"(evidence {evidence_px:.3g} px < {MIN_EVIDENCE_PX}) and a flat score landscape "
                          f"(contrast {contrast:.3g} < {flat_threshold}), normal spread {spread:.3g}")
 
-    confirmed = given or (not from_shadows and band_px >= MIN_AGREE_EVIDENCE_PX and agree_deg <= AGREE_DEG)
+    confirmed = given or near or (not from_shadows and band_px >= MIN_AGREE_EVIDENCE_PX and agree_deg <= AGREE_DEG)
     if confirmed:
         # the shadow's darkness is read on the crease band too, as measured (a cast
         # shadow at its occluder's base is darkened by the occlusion as well)
         Pe, Ne, Ee = pts_all.reshape(-1, 3)[bi], nvalid.reshape(-1, 3)[bi], e_map.ravel()[bi]
-    lifted = not from_shadows and not given and best @ up < np.sin(np.deg2rad(MIN_FIT_ELEVATION_DEG))
+    lifted = not from_shadows and not given and not near and best @ up < np.sin(np.deg2rad(MIN_FIT_ELEVATION_DEG))
     if lifted:
         # A grazing direction from shading alone fits the support with a huge intensity
         # that then floods the object's vertical faces (white objects on the fresh
@@ -568,7 +620,7 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     # (a lifted direction was chosen, not fitted: the fit along it may find no light, as
     # along a given one; it keeps its light with the minimum ambient share below, rather
     # than falling to the prior's direction and share)
-    if inten.max() <= 0 and not given and not lifted:
+    if inten.max() <= 0 and not given and not lifted and not near:
         return prior("no directional component found (fitted intensity 0)")
     # The ambient share straight from the evidence: on the dominant surface, the shading
     # of the pixels the model puts in shadow over that of the lit ones. On lit pixels
@@ -609,7 +661,7 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     share = amb_up / max(amb_up + dir_up, 1e-12)
     # the fit sees no light along a given direction (a bare floor: its shading is the
     # same for any split of ambient and light)
-    no_light_fitted = (given or lifted) and fit_only and share > 1.0 - 1e-3
+    no_light_fitted = (given or lifted or near) and fit_only and share > 1.0 - 1e-3
     if not (from_shadows or share_read) and (share < MIN_FIT_AMBIENT_SHARE or no_light_fitted):
         # Without a cast shadow the regression may put all the light in the directional
         # term (share 0): faces turned from a wrong direction then go black. Keep at
@@ -625,7 +677,7 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
         sh_c[0] += MIN_FIT_AMBIENT_SHARE * tot - (sh_basis(up[None]) @ sh_c)[0]
         inten = (1 - MIN_FIT_AMBIENT_SHARE) * tot / cos_b
         share = MIN_FIT_AMBIENT_SHARE
-        share_src += (f" (no light along the {'given' if given else 'lifted'} direction: ambient share "
+        share_src += (f" (no light along the {'given' if given else 'lamp' if near else 'lifted'} direction: ambient share "
                       f"set to {MIN_FIT_AMBIENT_SHARE})" if no_light_fitted
                       else f" (raised to the minimum {MIN_FIT_AMBIENT_SHARE})")
     extras: tuple = ()
@@ -650,9 +702,14 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
                          contrast, spread, fallback, float(uncertainty), share_src,
                          evidence_px=evidence_px,
                          direction_source=("given (manifest)" if given else
-                                           "cast shadows of visible geometry" if from_shadows
+                                           f"a lamp near the scene: the falloff of the support's shading "
+                                           f"(span {lamp.falloff:.2f} of its median), lamp at "
+                                           f"{np.round(lamp.position, 2).tolist()} (camera frame)" if near else
+                                           f"cast shadows of visible geometry{lamp_note}" if from_shadows
                                            else "shading vs surface orientation, confirmed by cast "
                                            f"shadows ({band_px:.3g} px with the crease band, their best direction "
                                            f"{agree_deg:.3g} deg away)"
                                            if confirmed else "shading vs surface orientation"),
-                         extra_lights=extras)
+                         extra_lights=extras,
+                         lamp_position=None if lamp is None else lamp.position,
+                         lamp_aim=None if lamp is None else lamp.aim)

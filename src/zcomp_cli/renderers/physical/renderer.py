@@ -119,6 +119,10 @@ class PhysicalRenderer(Renderer):
         timings = {"estimate": 0.0, "synthesis": 0.0}
         t0 = time.perf_counter()
         est = self.estimate(requests[0], seed)
+        if est.lamp_position is not None:
+            # step 1a: a lamp near the scene, seen from this job's object (the estimate
+            # is the scene's, aimed at its support's centre)
+            est = _aimed_at_object(est, requests)
         timings["estimate"] = time.perf_counter() - t0
         grown = None
         if not est.fallback and est.source == "manifest":
@@ -319,6 +323,50 @@ class PhysicalRenderer(Renderer):
         vs = penumbra_filter(vis, t_hit, d[wy0:wy1, wx0:wx1], _depth_classes(d[wy0:wy1, wx0:wx1]),
                              ok, camera.fx, tan_a)
         return vs[ys - wy0, xs - wx0]
+
+
+# A lamp's light aimed at an object changes its strength by (distance to the support's
+# centre / distance to the object)^2, within these bounds (a lamp fitted right over the
+# object must not flood it).
+LAMP_GAIN_RANGE = (0.25, 4.0)
+
+
+def _object_centre(requests: Sequence[RenderRequest]) -> np.ndarray | None:
+    """(3,) camera-frame centre of the inserted object: its posed mesh's bounding box,
+    else the mean of its visible points (where the last request's depth is nearer than
+    the first's: the composite over the background); None when neither exists."""
+    for req in requests:
+        if req.occluder is not None and len(req.occluder.vertices):
+            v = np.asarray(req.occluder.vertices, np.float64)
+            v = v[np.all(np.isfinite(v), 1)]
+            if len(v):
+                return 0.5 * (v.min(0) + v.max(0))
+    d0 = _clean(requests[0].maps.depth, 0.0, 1e6)
+    d1 = _clean(requests[-1].maps.depth, 0.0, 1e6)
+    m = ~np.asarray(requests[-1].known, bool) & (d1 > 0) & ((d0 <= 0) | (d1 < d0 * (1 - 1e-3)))
+    if not m.any():
+        return None
+    return requests[-1].camera.unproject(d1)[m].astype(np.float64).mean(0)
+
+
+def _aimed_at_object(est: LightEstimate, requests: Sequence[RenderRequest]) -> LightEstimate:
+    """The estimate with its lamp's direction and strength as the object sees them."""
+    import dataclasses
+
+    c = _object_centre(requests)
+    lamp = np.asarray(est.lamp_position, np.float64)
+    if c is None or not np.all(np.isfinite(c)):
+        return est
+    v = lamp - c
+    dist = float(np.linalg.norm(v))
+    if dist <= 1e-9:
+        return est
+    d0 = float(np.linalg.norm(lamp - np.asarray(est.lamp_aim, np.float64)))
+    gain = float(np.clip((d0 / dist) ** 2, *LAMP_GAIN_RANGE))
+    return dataclasses.replace(
+        est, direction=v / dist, intensity=np.asarray(est.intensity) * gain,
+        direction_source=f"{est.direction_source}; aimed at the object at {np.round(c, 2).tolist()} "
+                         f"(strength x{gain:.2f})")
 
 
 def _lights(est: LightEstimate):
