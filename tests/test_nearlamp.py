@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from zcomp_cli.renderers.physical import PhysicalRenderer, estimate_lighting
+from zcomp_cli.renderers.physical.lighting import LAMP_SOFTNESS_DEG
 from zcomp_cli.renderers.physical.nearlamp import LAMP_MIN_FALLOFF, MIN_SUPPORT_PIXELS, fit_near_lamp
 from zcomp_cli.testing import floor_scene
 
@@ -74,6 +75,11 @@ def test_the_estimate_reads_a_lamp_and_draws_its_shadow():
     assert e.fallback is None and e.direction_source.startswith("a lamp near the scene")
     truth = np.asarray(s.meta["lamp_cam"])
     assert np.linalg.norm(e.lamp_position - truth) < 0.15 * np.linalg.norm(truth - e.lamp_aim)
+    # the split of ambient and lamp is the falloff fit's, at the support's centre
+    v = truth - e.lamp_aim
+    true_share = 0.3 / (0.3 + LAMP[1] * max(v @ s.up_cam, 0.0) / np.linalg.norm(v) ** 3)
+    assert e.share_source.startswith("the lamp's falloff") and abs(e.ambient_share - true_share) < 0.05
+    assert e.softness_deg == LAMP_SOFTNESS_DEG  # not measured: the lamp's size is unknown
 
 
 def test_the_renderer_aims_the_lamp_at_each_object():

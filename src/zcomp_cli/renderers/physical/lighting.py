@@ -64,6 +64,10 @@ SECOND_LIGHT_TAU = 0.1
 # seen from the pixels they darken, it lies within this angle of their direction; else
 # the shadows decide.
 LAMP_AGREE_DEG = 25.0
+# Angular radius a lamp near the scene is drawn with (its size is not measured). On the
+# 10 lamp-lit scenes of seed 8128, PSNR / shadow IoU: 32.13 dB / 0.47 with the softness
+# refit (0 deg on 8), 33.30 / 0.54 at 3 deg, 33.82 / 0.60 at 8, 33.40 / 0.61 at 15.
+LAMP_SOFTNESS_DEG = 8.0
 # The ambient keeps at least this share of the lit support when the lights' measured
 # shadows add up to more direct light than the support receives.
 MIN_SPLIT_AMBIENT_SHARE = 0.05
@@ -598,6 +602,10 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
         best = np.cos(e) * h + np.sin(e) * up
     # softness: refit with cone-averaged visibility
     radii = SOFTNESS_CANDIDATES_DEG if softness_deg is None else (float(softness_deg),)
+    if near and softness_deg is None:
+        # the refit along one direction cannot see a lamp's size (it chose a hard 0 deg
+        # on 8 of seed 8128's 9 lamps: jagged, speckled shadows where the truth's are soft)
+        radii = (LAMP_SOFTNESS_DEG,)
     fits = []
     for r in radii:
         dirs = cone_directions(best, r, cone_samples if r > 0 else 1, seed=seed)
@@ -634,7 +642,23 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     share_src = "fit"
     share_read = False  # from a cast shadow
     fit_only = True  # neither from a cast shadow nor from shadowed vs lit pixels
-    if from_shadows or confirmed:
+    if near:
+        # The lamp's own split: its fit's ambient A over the lit level A + B g at the
+        # support's centre. On the lamp-lit scenes of seeds 8128 and 27182 it was
+        # 0.09-0.67 where the ground truth's umbra kept 0.04-0.48 of the background;
+        # read on the predicted cast shadow (one direction for a lamp whose shadows
+        # diverge) it was 0.73-0.94, and the minimum 0.6 where none was predicted.
+        lit_aim = float(lamp.support_shading(lamp.aim[None])[0])
+        ratio = float(np.clip(lamp.ambient / max(lit_aim, 1e-9), MIN_SPLIT_AMBIENT_SHARE, 1.0))
+        sup_c = np.median(S[on_up], 0) if on_up.any() else np.median(S, 0)
+        sup_y = float(np.median(Y[on_up])) if on_up.any() else float(np.median(Y))
+        lit_c = sup_c * lit_aim / max(sup_y, 1e-9)
+        amb_f = ratio * lit_c
+        inten = np.maximum((lit_c - amb_f) / cos_up, 0.0)
+        sh_c = _ambient_given_light(basis, S, inten, dt, ridge, up, amb_f)
+        share_src = "the lamp's falloff: its ambient over the lit level at the support's centre"
+        share_read, fit_only = True, False
+    elif from_shadows or confirmed:
         # shadow / lit level of the same surface, read on the predicted cast shadow
         v_e = march_visibility(Pe, Ne, best, d, cam, steps=march_steps) < 0.5
         on_dom = (Ne @ up > np.cos(np.deg2rad(15))) & v_e & ((Ne @ best) > 0.05)
