@@ -5,7 +5,8 @@
 
     PYTHONPATH=src python benchmarks/bench_physical_speed.py [--repeats 3]
 
-Analytic scenes (zcomp_cli.testing): a floor, a box casting a shadow, a sphere inserted
+Analytic scenes (zcomp_cli.testing): a floor, a box casting a shadow (under a sun, and
+under a lamp near the scene for a second estimate timing), a sphere inserted
 with a shading mask of twice its size. Prints the median wall time of each stage; no
 assertion (timings depend on the machine and its load).
 """
@@ -19,12 +20,16 @@ import time
 import numpy as np
 
 
-def _requests(W, H):
+def _requests(W, H, lamp=None):
     from zcomp_cli.maps import SceneMaps
     from zcomp_cli.renderers.base import RenderRequest
     from zcomp_cli.testing import floor_scene, insert_bundle, sphere_object_bundle
 
-    s = floor_scene(W, H, with_box=True, light_dir=(0.7, 1.0, 0.2), ambient=0.3, box_center=(-0.4, -3.2))
+    if lamp is None:
+        s = floor_scene(W, H, with_box=True, light_dir=(0.7, 1.0, 0.2), ambient=0.3, box_center=(-0.4, -3.2))
+    else:  # a lamp near the scene, no sun (``nearlamp``: its falloff is fitted too)
+        s = floor_scene(W, H, with_box=True, light_intensity=0.0, ambient=0.3, box_center=(-0.4, -3.2),
+                        lamp=lamp)
     c = s.world_to_camera([0.4, 0.3, -2.6])
     b = sphere_object_bundle(s.camera, c, 0.3, (0.7, 0.7, 0.7), floor_normal=s.up_cam, supersample=1)
     d, n, a, sel = insert_bundle(s.depth, s.normals, s.albedo, b)
@@ -53,6 +58,13 @@ def main(argv=None) -> int:
         e = r.estimate(bg)
         est_t.append(time.perf_counter() - t)
     err = np.degrees(np.arccos(np.clip(e.direction @ s.light_dir_cam, -1, 1)))
+    lamp_t = []
+    bg_l, _, s_l = _requests(512, 384, lamp=((1.0, 2.5, -4.0), 4.0))
+    for _ in range(args.repeats):
+        r = PhysicalRenderer()
+        t = time.perf_counter()
+        e_l = r.estimate(bg_l)
+        lamp_t.append(time.perf_counter() - t)
     syn_t = []
     bg, comp, _ = _requests(512, 512)
     r = PhysicalRenderer()
@@ -63,6 +75,8 @@ def main(argv=None) -> int:
     print(f"light estimate, 512x384: median {statistics.median(est_t):.3f} s "
           f"(runs: {', '.join(f'{t:.3f}' for t in est_t)}); direction error {err:.1f} deg, "
           f"source: {e.direction_source}")
+    print(f"light estimate, 512x384, a lamp near the scene: median {statistics.median(lamp_t):.3f} s "
+          f"(runs: {', '.join(f'{t:.3f}' for t in lamp_t)}); source: {e_l.direction_source[:40]}...")
     print(f"synthesis (bg + composite pass), 512x512, roi {bg.roi}: median {statistics.median(syn_t):.3f} s "
           f"(runs: {', '.join(f'{t:.3f}' for t in syn_t)})")
     return 0

@@ -378,7 +378,8 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
                       softness_deg: float | None = None, flat_threshold: float = 0.02,
                       seed: int = DEFAULT_SEED, direction=None, albedo=None) -> LightEstimate:
     """Estimate a directional light (a second one where the cast shadows ask for it,
-    ``extra_lights``) + SH ambient from the known shading.
+    ``extra_lights``; a lamp near the scene, ``lamp_position``, where the support's
+    shading falls off from one, ``nearlamp``) + SH ambient from the known shading.
 
     Args:
         depth: (H, W) z-depth (0 invalid). normals: (H, W, 3) camera frame.
