@@ -119,3 +119,26 @@ def test_a_falloff_the_shadows_contradict_is_set_aside():
     e = estimate_lighting(s.depth, s.normals, shading, s.depth > 0, s.camera, **FAST)
     assert "set aside" in e.direction_source and e.lamp_position is None
     assert _angle(e.direction, s.light_dir_cam) < 10.0
+
+
+def test_the_lamp_is_aimed_at_the_posed_meshs_centre():
+    # with the posed mesh, its bounding box's centre is the object's: exact
+    import dataclasses
+
+    from test_physical_shadows import _sphere_mesh
+
+    s = _lamp_scene()
+    truth = np.asarray(s.meta["lamp_cam"])
+    centre_w = [-0.9, 0.3, -3.2]
+    bg, comp, sel, mask = _insert(s, centre_w)
+    c = s.world_to_camera(centre_w)
+    out = PhysicalRenderer().render([bg, dataclasses.replace(comp, occluder=_sphere_mesh(c, 0.3))], seed=1)
+    light = out.info["light"]
+    est = PhysicalRenderer().estimate(bg)
+    # the direction from the fitted lamp to the sphere's centre, and the strength scaled
+    # by the squared distance ratio to the support's centre
+    want = (est.lamp_position - c) / np.linalg.norm(est.lamp_position - c)
+    assert _angle(np.asarray(light["direction"]), want) < 1e-3
+    gain = (np.linalg.norm(est.lamp_position - est.lamp_aim) / np.linalg.norm(est.lamp_position - c)) ** 2
+    assert np.allclose(light["intensity"], np.asarray(est.intensity) * np.clip(gain, 0.25, 4.0))
+    assert _angle(want, truth - c) < 5.0
