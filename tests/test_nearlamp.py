@@ -45,11 +45,15 @@ def test_a_sun_lit_floor_has_no_lamp():
     assert fit is None or not fit.found
 
 
-def test_the_fit_does_not_depend_on_the_depth_scale():
+def test_the_fit_does_not_depend_on_the_depth_scale_or_the_exposure():
     # an estimator's relative depth: the same scene 10x larger is the same light
     P, y, up = _floor(_lamp_scene())
     a, b = fit_near_lamp(P, y, up), fit_near_lamp(10.0 * P, y, up)
     assert b.found and np.allclose(b.position, 10.0 * a.position, rtol=1e-6, atol=1e-6)
+    # nor on the exposure: an HDR photograph 1e6 times brighter (or darker) is the same light
+    for k in (1e6, 1e-6):
+        c = fit_near_lamp(P, k * y, up)
+        assert c.found and np.allclose(c.position, a.position, atol=1e-6) and c.falloff == pytest.approx(a.falloff)
 
 
 def test_bad_values_are_dropped_and_degenerate_input_gives_none():
