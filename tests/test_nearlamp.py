@@ -146,3 +146,51 @@ def test_the_lamp_is_aimed_at_the_posed_meshs_centre():
     gain = (np.linalg.norm(est.lamp_position - est.lamp_aim) / np.linalg.norm(est.lamp_position - c)) ** 2
     assert np.allclose(light["intensity"], np.asarray(est.intensity) * np.clip(gain, 0.25, 4.0))
     assert _angle(want, truth - c) < 5.0
+
+
+def _checker(P, s, dark=0.15, bright=0.6, size=0.5):
+    """(N,) checker albedo of camera-frame floor points P of scene s."""
+    W = P @ s.cam_to_world.T + s.camera_origin
+    return np.where((np.floor(W[:, 0] / size) + np.floor(W[:, 2] / size)) % 2 == 0, dark, bright)
+
+
+def test_a_lamp_multiplies_the_albedo_a_glossy_glow_adds_to_it():
+    from zcomp_cli.renderers.physical.nearlamp import LAMP_MAX_GLOSS_INDEX, gloss_index
+
+    s = _lamp_scene()
+    P, y, up = _floor(s)
+    a = _checker(P, s)
+    lamp = fit_near_lamp(P, y, up, albedo=a)  # the lamp's light on a checker floor
+    assert lamp.found and abs(lamp.gloss_index) < 0.1
+    # the same falloff as a reflection: image = albedo * flat shading + glow, so image
+    # over albedo carries glow / albedo
+    glow = y - y.min()
+    gloss = fit_near_lamp(P, 0.3 + glow / a * 0.15, up, albedo=a)
+    assert gloss.falloff >= LAMP_MIN_FALLOFF and gloss.gloss_index > LAMP_MAX_GLOSS_INDEX
+    assert not gloss.found
+    # no contrast, too few pixels, or a falloff missing on one class
+    assert np.isnan(fit_near_lamp(P, y, up, albedo=np.full(len(y), 0.4)).gloss_index)
+    g = lamp.support_shading(P) - lamp.ambient
+    assert np.isnan(gloss_index(g[:60], y[:60], a[:60]))
+    y_dark_flat = np.where(a < 0.3, 0.5, y)
+    assert gloss_index(g, y_dark_flat, a) == np.inf
+    with pytest.raises(ValueError, match="albedo has 3 values"):
+        fit_near_lamp(P, y, up, albedo=np.ones(3))
+
+
+def test_the_estimate_tells_a_glossy_glow_from_a_lamp_by_the_albedo():
+    # a sky-lit checker floor whose glossy glow peaks under the lamp's place: read as a
+    # lamp without the albedo, as gloss with it
+    lit = _lamp_scene()
+    s = floor_scene(128, 96, light_intensity=0.0, ambient=0.3)
+    P = s.camera.unproject(s.depth).reshape(-1, 3)
+    floor = (s.depth.reshape(-1) > 0) & (s.normals.reshape(-1, 3) @ s.up_cam > 0.99)
+    a = np.where(floor, _checker(P, s), 0.5)
+    glow = lit.shading[..., 0].reshape(-1) - 0.3  # the lamp's term, as a reflection
+    shading = (0.3 + np.where(floor, 0.15 * glow / a, 0.0)).reshape(s.depth.shape)
+    shading = np.repeat(shading[..., None], 3, -1)
+    albedo = np.repeat(a.reshape(s.depth.shape)[..., None], 3, -1)
+    blind = estimate_lighting(s.depth, s.normals, shading, s.depth > 0, s.camera, **FAST)
+    assert blind.direction_source.startswith("a lamp near the scene")
+    e = estimate_lighting(s.depth, s.normals, shading, s.depth > 0, s.camera, albedo=albedo, **FAST)
+    assert e.lamp_position is None and not e.direction_source.startswith("a lamp")

@@ -472,18 +472,6 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     # 0. A lamp near the scene: the support's shading falls off from the point under it
     #    (``nearlamp``). A sun's does not, and a floor's shading against orientation
     #    cannot place a light at all; the falloff can.
-    lamp = None
-    if direction is None:
-        on_support = Nrm @ up > np.cos(np.deg2rad(15))
-        lamp = fit_near_lamp(P[on_support], Y[on_support], up)
-        if lamp is not None and not lamp.found:
-            lamp = None
-    near = lamp is not None
-    # 1. Cast shadows of the visible geometry (``evidence``): where the candidate light
-    #    puts them, is the surface darker than around? Unseen occluders' shadows add
-    #    nothing to any candidate.
-    lum0 = sh @ np.array([0.299, 0.587, 0.114])
-    nvalid = np.where(valid[..., None], n / np.maximum(nn, 1e-12)[..., None], 0.0)
     alb_lum = None
     if albedo is not None:
         import cv2
@@ -493,6 +481,19 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
         if a.shape[:2] != d.shape:
             a = cv2.resize(a, (d.shape[1], d.shape[0]), interpolation=cv2.INTER_AREA)
         alb_lum = luminance(a)
+    lamp = None
+    if direction is None:
+        on_support = Nrm @ up > np.cos(np.deg2rad(15))
+        lamp = fit_near_lamp(P[on_support], Y[on_support], up,
+                             albedo=None if alb_lum is None else alb_lum.reshape(-1)[idx][on_support])
+        if lamp is not None and not lamp.found:
+            lamp = None
+    near = lamp is not None
+    # 1. Cast shadows of the visible geometry (``evidence``): where the candidate light
+    #    puts them, is the surface darker than around? Unseen occluders' shadows add
+    #    nothing to any candidate.
+    lum0 = sh @ np.array([0.299, 0.587, 0.114])
+    nvalid = np.where(valid[..., None], n / np.maximum(nn, 1e-12)[..., None], 0.0)
     lamp_note = ""
     while True:
         lum = lum0
