@@ -687,7 +687,7 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     share = amb_up / max(amb_up + dir_up, 1e-12)
     # the fit sees no light along a given direction (a bare floor: its shading is the
     # same for any split of ambient and light)
-    no_light_fitted = (given or lifted or near) and fit_only and share > 1.0 - 1e-3
+    no_light_fitted = (given or lifted) and fit_only and share > 1.0 - 1e-3
     if not (from_shadows or share_read) and (share < MIN_FIT_AMBIENT_SHARE or no_light_fitted):
         # Without a cast shadow the regression may put all the light in the directional
         # term (share 0): faces turned from a wrong direction then go black. Keep at
@@ -703,7 +703,7 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
         sh_c[0] += MIN_FIT_AMBIENT_SHARE * tot - (sh_basis(up[None]) @ sh_c)[0]
         inten = (1 - MIN_FIT_AMBIENT_SHARE) * tot / cos_b
         share = MIN_FIT_AMBIENT_SHARE
-        share_src += (f" (no light along the {'given' if given else 'lamp' if near else 'lifted'} direction: ambient share "
+        share_src += (f" (no light along the {'given' if given else 'lifted'} direction: ambient share "
                       f"set to {MIN_FIT_AMBIENT_SHARE})" if no_light_fitted
                       else f" (raised to the minimum {MIN_FIT_AMBIENT_SHARE})")
     extras: tuple = ()
@@ -731,11 +731,11 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
                                            f"a lamp near the scene: the falloff of the support's shading "
                                            f"(span {lamp.falloff:.2f} of its median), lamp at "
                                            f"{np.round(lamp.position, 2).tolist()} (camera frame)" if near else
-                                           f"cast shadows of visible geometry{lamp_note}" if from_shadows
+                                           "cast shadows of visible geometry" if from_shadows
                                            else "shading vs surface orientation, confirmed by cast "
                                            f"shadows ({band_px:.3g} px with the crease band, their best direction "
                                            f"{agree_deg:.3g} deg away)"
-                                           if confirmed else "shading vs surface orientation"),
+                                           if confirmed else "shading vs surface orientation") + lamp_note,
                          extra_lights=extras,
                          lamp_position=None if lamp is None else lamp.position,
                          lamp_aim=None if lamp is None else lamp.aim)
