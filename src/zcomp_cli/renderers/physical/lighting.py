@@ -481,18 +481,18 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
         if a.shape[:2] != d.shape:
             a = cv2.resize(a, (d.shape[1], d.shape[0]), interpolation=cv2.INTER_AREA)
         alb_lum = luminance(a)
+    on_up = Nrm @ up > np.cos(np.deg2rad(15))  # the support's fit pixels
     lamp = None
     if direction is None:
-        on_support = Nrm @ up > np.cos(np.deg2rad(15))
-        lamp = fit_near_lamp(P[on_support], Y[on_support], up,
-                             albedo=None if alb_lum is None else alb_lum.reshape(-1)[idx][on_support])
+        lamp = fit_near_lamp(P[on_up], Y[on_up], up,
+                             albedo=None if alb_lum is None else alb_lum.reshape(-1)[idx][on_up])
         if lamp is not None and not lamp.found:
             lamp = None
     near = lamp is not None
     # 1. Cast shadows of the visible geometry (``evidence``): where the candidate light
     #    puts them, is the surface darker than around? Unseen occluders' shadows add
     #    nothing to any candidate.
-    lum0 = sh @ np.array([0.299, 0.587, 0.114])
+    lum0 = luminance(np.asarray(sh, np.float64))
     nvalid = np.where(valid[..., None], n / np.maximum(nn, 1e-12)[..., None], 0.0)
     lamp_note = ""
     while True:
@@ -638,7 +638,6 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     # trades one for the other; the shadowed pixels are what pin the share down.
     ndl_fit = np.maximum(Nrm @ best, 0.0)
     frac = np.where(ndl_fit > 1e-3, dt / np.maximum(ndl_fit, 1e-3), 1.0)
-    on_up = Nrm @ up > np.cos(np.deg2rad(15))
     shadow_px, lit_px = on_up & (frac < 0.2), on_up & (frac > 0.8)
     cos_up = float(max(best @ up, 0.05))
     share_src = "fit"

@@ -141,7 +141,7 @@ def _robust_line(g: np.ndarray, y: np.ndarray, iters: int = 3):
         res = y[None] - sf * m
         s = 1.4826 * np.median(np.abs(res), axis=1) + 1e-6 * scale_y
         w = 1.0 / np.maximum(1.0, np.abs(res) / (HUBER_K * s[:, None]))
-    res = y[None] - sf * (A[:, None] + B[:, None] * g)
+    # (``res``: the last iteration's, of the returned A, B and levels)
     loss = np.mean(np.minimum((res / scale_y) ** 2, TRUNCATE_REL ** 2), axis=1)
     # (a negative ambient is no sky: a lamp that explains the support only by taking
     # light away elsewhere is a gradient of something else -- walls' occlusion, gloss)
