@@ -143,3 +143,83 @@ def mesh_shadow(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, light_
     vis = (~blocked).astype(np.float64)
     t_hit = np.where(blocked, occ_h - ph, np.inf)
     return vis, t_hit
+
+
+# Area elements ("discs") a mesh is cut into for its ambient occlusion: enough that a
+# floor point near the object's base sees many, few enough that points x discs stays
+# cheap (10^4 x 10^3 per job).
+AO_DISCS = 1024
+
+
+@dataclass
+class MeshDiscs:
+    """Area elements of a posed mesh: centres (M, 3), outward unit normals (M, 3) and
+    areas (M,), camera frame, metres."""
+
+    centres: np.ndarray
+    normals: np.ndarray
+    areas: np.ndarray
+
+
+def mesh_discs(mesh: PosedMesh, n: int = AO_DISCS) -> MeshDiscs:
+    """``n`` area-weighted surface samples of the posed mesh, each standing for an equal
+    share of its area, with its face's normal (deterministic).
+
+    Normals point out of the mesh: the faces' winding gives them, and a mesh whose
+    signed volume is negative (wound inside out) has them all turned."""
+    V, F = mesh.vertices, mesh.faces
+    tri = V[F]
+    cr = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    area = 0.5 * np.linalg.norm(cr, axis=1)
+    ok = area > 0
+    if not ok.any():
+        z = np.zeros((0, 3))
+        return MeshDiscs(z, z, np.zeros(0))
+    tri, cr, area = tri[ok], cr[ok], area[ok]
+    nrm = cr / (2.0 * area[:, None])
+    if np.einsum("ij,ij->i", tri[:, 0] - tri[:, 0].mean(0), cr).sum() < 0:
+        nrm = -nrm
+    rng = np.random.default_rng(0)
+    pick = rng.choice(len(tri), size=n, p=area / area.sum())
+    r1, r2 = rng.random(n), rng.random(n)
+    s1 = np.sqrt(r1)
+    c = ((1 - s1)[:, None] * tri[pick, 0] + (s1 * (1 - r2))[:, None] * tri[pick, 1]
+         + (s1 * r2)[:, None] * tri[pick, 2])
+    return MeshDiscs(c, nrm[pick], np.full(n, area.sum() / n))
+
+
+def mesh_occlusion(discs: MeshDiscs, points: np.ndarray, normals: np.ndarray, *,
+                   chunk: int = 2048) -> np.ndarray:
+    """Share of the cosine-weighted hemisphere of each point (N, 3) with unit normal
+    (N, 3) that the mesh hides: (N,) in [0, 1].
+
+    Each disc (area ``A`` at distance ``r`` along ``w``) hides its form factor
+    ``A max(0, n . w) max(0, -n_j . w) / (pi r^2 + A)`` (the ``+ A`` keeps a disc
+    finite when a point touches it). Only discs turned toward the point count: on a
+    closed mesh they cover its silhouette once, where the back faces would count it
+    twice. Smooth by construction (no discrete directions, no star of copies), and the
+    range is unlimited, as the sky's occlusion is: the screen-space occlusion reaches
+    10 % of the depth and, marching the object's 2.5D shell as a solid slab, hid most
+    of the sky from the floor seen under a chair's seat (0.27 where rays cast at the
+    mesh give 0.6-0.7).
+    """
+    P = np.asarray(points, np.float64)
+    Nn = np.asarray(normals, np.float64)
+    out = np.zeros(len(P))
+    if len(P) == 0 or len(discs.areas) == 0:
+        return out
+    # in float32 GEMMs: w = c_j - p expanded, (n, M) at a time
+    C = discs.centres.astype(np.float32)
+    Nd = discs.normals.astype(np.float32)
+    A = discs.areas.astype(np.float32)[None]
+    cc = (C * C).sum(1)[None]
+    cn = (C * Nd).sum(1)[None]
+    for i in range(0, len(P), chunk):
+        p = P[i:i + chunk].astype(np.float32)
+        q = Nn[i:i + chunk].astype(np.float32)
+        r2 = np.maximum(cc + (p * p).sum(1)[:, None] - 2.0 * (p @ C.T), 0.0)
+        wp = q @ C.T - (p * q).sum(1)[:, None]  # w . n_p
+        wj = p @ Nd.T - cn  # -w . n_j
+        f = A * np.maximum(wp, 0.0) * np.maximum(wj, 0.0) / (np.maximum(r2, 1e-18) * (np.pi * r2 + A))
+        out[i:i + chunk] = f.sum(1)
+    return np.clip(out, 0.0, 1.0)

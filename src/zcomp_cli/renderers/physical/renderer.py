@@ -244,8 +244,23 @@ class PhysicalRenderer(Renderer):
         ay0, ax0, ay1, ax1 = window(int(3 * max(AO_BLUR_PX, 1.5 * ao_st)) + 4, even=ao_st)
         gy, gx, P, N, ok = points(ay0, ax0, ay1, ax1, ao_st)
         ao_c = np.ones(gy.shape)
+        scene_only = None
+        if occluder is not None:
+            # the real mesh is the object's occluder; the depth's shell only the scene's
+            # (``mesh_silhouette``): one silhouette for every light and the sky
+            from zcomp_cli.renderers.physical.meshshadow import mesh_silhouette
+
+            scene_only = ~mesh_silhouette(occluder, camera, (H, W))
         if ok.any():
-            ao_c[ok] = ambient_occlusion(P[ok], N[ok], gy[ok], gx[ok], d, camera)
+            ao_c[ok] = ambient_occlusion(P[ok], N[ok], gy[ok], gx[ok], d, camera, occluder_mask=scene_only)
+            if occluder is not None:
+                # the sky the object hides, from its mesh (``mesh_occlusion``): smooth,
+                # unlimited in range, and no solid slab behind its visible shell. Seed
+                # 8128 (physical): shadow IoU 0.366 -> 0.399, darkness error 0.192 ->
+                # 0.165, PSNR near the object +0.31 dB
+                from zcomp_cli.renderers.physical.meshshadow import mesh_discs, mesh_occlusion
+
+                ao_c[ok] *= 1.0 - mesh_occlusion(mesh_discs(occluder), P[ok], N[ok])
         h_, w_ = ay1 - ay0, ax1 - ax0
         up2 = lambda a: np.repeat(np.repeat(a, ao_st, 0), ao_st, 1)[:h_, :w_]
         ao = up2(ao_c)
@@ -271,13 +286,6 @@ class PhysicalRenderer(Renderer):
             return (amb + ndl[:, None] * np.asarray(est.intensity)[None, :]) * ao_t[:, None]
         # each light's shadow: one march, then the penumbra filter
         out = amb * ao_t[:, None]
-        scene_only = None
-        if occluder is not None:
-            # the real mesh is the object's occluder; the depth's shell only the scene's
-            # (``mesh_silhouette``): one silhouette for every light
-            from zcomp_cli.renderers.physical.meshshadow import mesh_silhouette
-
-            scene_only = ~mesh_silhouette(occluder, camera, (H, W))
         for l, inten, cone in _lights(est):
             v_t = self._soft_visibility(d, n, geo_all, camera, l, cone, window(WINDOW_MARGIN_PX, even=(
                 H * W > FULL_RES_PIXELS)), ys, xs, occluder, scene_only)

@@ -150,10 +150,12 @@ def _hemisphere_dirs(normals: np.ndarray, jitter: np.ndarray, k: int) -> list[np
 
 def ambient_occlusion(points: np.ndarray, normals: np.ndarray, ys: np.ndarray, xs: np.ndarray,
                       depth: np.ndarray, camera: Camera, *, k: int = AO_DIRECTIONS,
-                      steps: int = AO_STEPS, range_rel: float = AO_RANGE_REL) -> np.ndarray:
+                      steps: int = AO_STEPS, range_rel: float = AO_RANGE_REL,
+                      occluder_mask: np.ndarray | None = None) -> np.ndarray:
     """Cosine-weighted ambient visibility in [0, 1] of (N,) camera-frame points over the
-    depth map (screen space, like the direct shadow). Unfiltered: noisy by design (the
-    directions turn per pixel), filter it."""
+    depth map (screen space, like the direct shadow); ``occluder_mask``: (H, W) bool, the
+    texels that may occlude (None: all). Unfiltered: noisy by design (the directions
+    turn per pixel), filter it."""
     if len(points) == 0:
         return np.zeros(0)
     jit = pixel_jitter(ys, xs, salt=1)
@@ -161,5 +163,5 @@ def ambient_occlusion(points: np.ndarray, normals: np.ndarray, ys: np.ndarray, x
     for i, d in enumerate(_hemisphere_dirs(normals, jit, k)):
         acc += march_visibility(points, normals, d, depth, camera, steps=steps,
                                 max_distance_rel=range_rel, jitter=pixel_jitter(ys, xs, salt=i + 2),
-                                nearest=True)
+                                nearest=True, occluder_mask=occluder_mask)
     return acc / k
