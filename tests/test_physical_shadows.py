@@ -507,3 +507,25 @@ def test_the_sky_a_floating_object_hides_comes_from_its_mesh():
     # the darkening is there where the sphere hides much of the sky
     deep = floor & (occ > 0.12)
     assert deep.sum() > 5 and np.median(ratio[deep]) < 1.0 - 0.3 * np.median(occ[deep])
+
+
+@pytest.mark.parametrize("shape", ["box", "capsule"])
+def test_mesh_silhouette_has_no_holes_where_faces_overlap(shape):
+    """A closed mesh's front and back faces overlap on screen: each triangle is filled on
+    its own, not by the even-odd rule over all of them (which left holes, and the
+    object's pixels outside the silhouette occluded the march: a speckled shadow)."""
+    import cv2
+    import trimesh
+
+    from zcomp_cli.renderers.physical.meshshadow import PosedMesh, mesh_silhouette
+
+    s = floor_scene(112, 84)
+    m = trimesh.creation.box((0.3, 0.4, 0.25)) if shape == "box" else trimesh.creation.capsule(0.35, 0.15)
+    rot = trimesh.transformations.rotation_matrix(0.6, [1, 1, 0])[:3, :3]
+    V = np.asarray(m.vertices) @ rot.T + s.world_to_camera([0.1, 0.4, -2.4])
+    sil = mesh_silhouette(PosedMesh(V, np.asarray(m.faces)), s.camera, s.depth.shape)
+    xy, _ = s.camera.project(V)
+    hull = np.zeros(s.depth.shape, np.uint8)
+    cv2.fillConvexPoly(hull, cv2.convexHull(np.round(xy - 0.5).astype(np.int32)), 1)
+    inner = cv2.erode(hull, np.ones((3, 3), np.uint8)) > 0  # a convex shape: its hull
+    assert inner.sum() > 200 and not (inner & ~sil).any()

@@ -260,7 +260,8 @@ class PhysicalRenderer(Renderer):
                 # 0.165, PSNR near the object +0.31 dB
                 from zcomp_cli.renderers.physical.meshshadow import mesh_discs, mesh_occlusion
 
-                ao_c[ok] *= 1.0 - mesh_occlusion(mesh_discs(occluder), P[ok], N[ok])
+                occ = mesh_occlusion(mesh_discs(occluder), P[ok], N[ok])
+                ao_c[ok] *= 1.0 - occ * _mask_edge_fade(todo)[gy[ok], gx[ok]]
         h_, w_ = ay1 - ay0, ax1 - ax0
         up2 = lambda a: np.repeat(np.repeat(a, ao_st, 0), ao_st, 1)[:h_, :w_]
         ao = up2(ao_c)
@@ -331,6 +332,22 @@ class PhysicalRenderer(Renderer):
         vs = penumbra_filter(vis, t_hit, d[wy0:wy1, wx0:wx1], _depth_classes(d[wy0:wy1, wx0:wx1]),
                              ok, camera.fx, tan_a)
         return vs[ys - wy0, xs - wx0]
+
+
+# Share of the shading mask's inner radius over which the object's sky occlusion fades
+# out toward the mask's edge: it reaches farther than the mask (a sphere still hides a
+# quarter of the sky one radius past its side), and cut there it drew an ellipse.
+MESH_AO_FADE = 0.35
+
+
+def _mask_edge_fade(todo: np.ndarray) -> np.ndarray:
+    """(H, W) weight in [0, 1]: 0 on and outside the edge of the ``todo`` mask, rising
+    smoothly to 1 over ``MESH_AO_FADE`` of the deepest inner distance."""
+    import cv2
+
+    dist = cv2.distanceTransform(np.pad(todo, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1]
+    x = np.clip(dist / max(MESH_AO_FADE * float(dist.max()), 1.0), 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
 
 
 # A lamp's light aimed at an object changes its strength by (distance to the support's
