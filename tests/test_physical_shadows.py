@@ -529,3 +529,21 @@ def test_mesh_silhouette_has_no_holes_where_faces_overlap(shape):
     cv2.fillConvexPoly(hull, cv2.convexHull(np.round(xy - 0.5).astype(np.int32)), 1)
     inner = cv2.erode(hull, np.ones((3, 3), np.uint8)) > 0  # a convex shape: its hull
     assert inner.sum() > 200 and not (inner & ~sil).any()
+
+
+def test_a_narrow_shading_fit_casts_its_shadow():
+    """The light behind the camera hides the box's shadow behind it (no cast-shadow
+    evidence), but the box's lit and unlit faces pin the direction: its plausible
+    directions lie within MAX_TRUSTED_SPREAD_DEG, so the shadow is cast, not only the
+    contact shadow; a bare floor's stay unconstrained."""
+    from zcomp_cli.renderers.physical.lighting import MAX_TRUSTED_SPREAD_DEG
+
+    s = floor_scene(160, 120, with_box=True, light_dir=(-0.3, 1.2, 1.0), ambient=0.3, box_center=(0.6, -2.8))
+    est = estimate_lighting(s.depth, s.normals, s.shading, s.depth > 0, s.camera, **FAST)
+    assert est.evidence_px < 1.0  # nothing to read from a cast shadow
+    assert est.fallback is None and "plausible directions within" in est.direction_source
+    assert est.direction_uncertainty_deg <= MAX_TRUSTED_SPREAD_DEG
+    assert _angle(est.direction, s.light_dir_cam) < 10.0
+    bare = floor_scene(160, 120, light_dir=(-0.3, 1.2, 1.0), ambient=0.3)
+    est = estimate_lighting(bare.depth, bare.normals, bare.shading, bare.depth > 0, bare.camera, **FAST)
+    assert est.fallback is not None
