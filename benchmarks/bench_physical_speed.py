@@ -66,7 +66,7 @@ def main(argv=None) -> int:
         e_l = r.estimate(bg_l)
         lamp_t.append(time.perf_counter() - t)
     syn_t = []
-    bg, comp, _ = _requests(512, 512)
+    bg, comp, s = _requests(512, 512)
     r = PhysicalRenderer()
     r.estimate(bg)  # cached: only synthesis is timed below
     for _ in range(args.repeats):
@@ -77,8 +77,25 @@ def main(argv=None) -> int:
           f"source: {e.direction_source}")
     print(f"light estimate, 512x384, a lamp near the scene: median {statistics.median(lamp_t):.3f} s "
           f"(runs: {', '.join(f'{t:.3f}' for t in lamp_t)}); source: {e_l.direction_source[:40]}...")
+    # the path of a bundle rendered by Blender: its posed mesh occludes (the object's
+    # shadow from a shadow map, its sky occlusion from area elements, its silhouette)
+    import dataclasses
+
+    import trimesh
+
+    from zcomp_cli.renderers.physical.meshshadow import PosedMesh
+
+    sph = trimesh.creation.icosphere(subdivisions=5, radius=0.3)
+    mesh = PosedMesh(np.asarray(sph.vertices) + s.world_to_camera([0.4, 0.3, -2.6]), np.asarray(sph.faces))
+    comp_m = dataclasses.replace(comp, occluder=mesh)
+    mesh_t = []
+    for _ in range(args.repeats):
+        out = r.render([bg, comp_m])
+        mesh_t.append(out.timings["synthesis"])
     print(f"synthesis (bg + composite pass), 512x512, roi {bg.roi}: median {statistics.median(syn_t):.3f} s "
           f"(runs: {', '.join(f'{t:.3f}' for t in syn_t)})")
+    print(f"synthesis with the posed mesh ({len(mesh.faces)} faces): median {statistics.median(mesh_t):.3f} s "
+          f"(runs: {', '.join(f'{t:.3f}' for t in mesh_t)})")
     return 0
 
 
