@@ -151,7 +151,8 @@ def mesh_shadow(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, light_
 
 # Area elements ("discs") a mesh is cut into for its ambient occlusion: enough that a
 # floor point near the object's base sees many, few enough that points x discs stays
-# cheap (34 ms a job at 512x512; 1024 scored the same on seed 8128 at twice the cost).
+# cheap (34 ms a job at 512x512; 1024, at twice the cost, scored 0.04 dB more on seed
+# 8128, shadow IoU 0.387 vs 0.385).
 AO_DISCS = 512
 
 
