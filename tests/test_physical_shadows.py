@@ -507,6 +507,11 @@ def test_the_sky_a_floating_object_hides_comes_from_its_mesh():
     # the darkening is there where the sphere hides much of the sky
     deep = floor & (occ > 0.12)
     assert deep.sum() > 5 and np.median(ratio[deep]) < 1.0 - 0.3 * np.median(occ[deep])
+    # it fades out toward the shading mask's edge (cut there, it drew an ellipse)
+    import cv2
+
+    edge = floor & ~(cv2.erode(mask.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
+    assert (occ[edge] > 0.02).any() and np.abs(ratio[edge] - 1.0).max() < 0.01
 
 
 @pytest.mark.parametrize("shape", ["box", "capsule"])

@@ -194,9 +194,10 @@ def mesh_discs(mesh: PosedMesh, n: int = AO_DISCS) -> MeshDiscs:
 
 
 def mesh_occlusion(discs: MeshDiscs, points: np.ndarray, normals: np.ndarray, *,
-                   chunk: int = 2048) -> np.ndarray:
+                   chunk: int = 2048, return_distance: bool = False):
     """Share of the cosine-weighted hemisphere of each point (N, 3) with unit normal
-    (N, 3) that the mesh hides: (N,) in [0, 1].
+    (N, 3) that the mesh hides: (N,) in [0, 1]; with ``return_distance`` also (N,) the
+    distance (metres) to the nearest area element.
 
     Each disc (area ``A`` at distance ``r`` along ``w``) hides its form factor
     ``A max(0, n . w) max(0, -n_j . w) / (pi r^2 + A)`` (the ``+ A`` keeps a disc
@@ -211,8 +212,9 @@ def mesh_occlusion(discs: MeshDiscs, points: np.ndarray, normals: np.ndarray, *,
     P = np.asarray(points, np.float64)
     Nn = np.asarray(normals, np.float64)
     out = np.zeros(len(P))
+    dmin = np.full(len(P), np.inf)
     if len(P) == 0 or len(discs.areas) == 0:
-        return out
+        return (out, dmin) if return_distance else out
     # in float32 GEMMs: w = c_j - p expanded, (n, M) at a time
     C = discs.centres.astype(np.float32)
     Nd = discs.normals.astype(np.float32)
@@ -227,4 +229,6 @@ def mesh_occlusion(discs: MeshDiscs, points: np.ndarray, normals: np.ndarray, *,
         wj = p @ Nd.T - cn  # -w . n_j
         f = A * np.maximum(wp, 0.0) * np.maximum(wj, 0.0) / (np.maximum(r2, 1e-18) * (np.pi * r2 + A))
         out[i:i + chunk] = f.sum(1)
-    return np.clip(out, 0.0, 1.0)
+        dmin[i:i + chunk] = np.sqrt(r2.min(1))
+    out = np.clip(out, 0.0, 1.0)
+    return (out, dmin) if return_distance else out

@@ -251,27 +251,45 @@ class PhysicalRenderer(Renderer):
             from zcomp_cli.renderers.physical.meshshadow import mesh_silhouette
 
             scene_only = ~mesh_silhouette(occluder, camera, (H, W))
+        occ_c = dist_c = None
         if ok.any():
             ao_c[ok] = ambient_occlusion(P[ok], N[ok], gy[ok], gx[ok], d, camera, occluder_mask=scene_only)
             if occluder is not None:
                 # the sky the object hides, from its mesh (``mesh_occlusion``): smooth,
-                # unlimited in range, and no solid slab behind its visible shell. Seed
-                # 8128 (physical): shadow IoU 0.366 -> 0.399, darkness error 0.192 ->
-                # 0.165, PSNR near the object +0.31 dB
+                # unlimited in range, and no solid slab behind its visible shell
                 from zcomp_cli.renderers.physical.meshshadow import mesh_discs, mesh_occlusion
 
-                occ = mesh_occlusion(mesh_discs(occluder), P[ok], N[ok])
-                ao_c[ok] *= 1.0 - occ * _mask_edge_fade(todo)[gy[ok], gx[ok]]
+                occ_c, dist_c = np.zeros(gy.shape), np.zeros(gy.shape)
+                occ_c[ok], dist_c[ok] = mesh_occlusion(mesh_discs(occluder), P[ok], N[ok], return_distance=True)
         h_, w_ = ay1 - ay0, ax1 - ax0
         up2 = lambda a: np.repeat(np.repeat(a, ao_st, 0), ao_st, 1)[:h_, :w_]
-        ao = up2(ao_c)
         okf = geo_all[ay0:ay1, ax0:ax1]
         cls = _depth_classes(d[ay0:ay1, ax0:ax1])
         # a 2x2 block straddling a silhouette must not lend the object's value to the
         # floor (a light rim): only pixels of their anchor's class vouch for it; the
         # normalised blur fills the others from their own class
         same = up2(ok) & (up2(cls[::ao_st, ::ao_st]) == cls)
-        ao = classwise_blur(ao, cls, okf & same, max(AO_BLUR_PX, 1.5 * ao_st), fill=okf)
+        rad = max(AO_BLUR_PX, 1.5 * ao_st)
+        ao = classwise_blur(up2(ao_c), cls, okf & same, rad, fill=okf)
+        if occ_c is not None:
+            occ = classwise_blur(up2(occ_c), cls, okf & same, rad, fill=okf)
+            dist = up2(dist_c)
+            # The sky occlusion reaches past the shading mask (a sphere still hides a
+            # quarter of the sky one radius past its side); cut at the mask's edge it
+            # drew an ellipse. It fades out over the outer MESH_AO_FADE of the mask's
+            # radius, the farthest of its pixels from the mesh (in metres: the mask is
+            # a ball around the object, squeezed on screen below it), after the blur.
+            # Any other mask (an API caller's) ends it within 2 blur radii of its edge.
+            tw = todo[ay0:ay1, ax0:ax1] & okf
+            if tw.any():
+                import cv2
+
+                R = float(dist[tw].max())
+                t = np.clip((R - dist) / max(MESH_AO_FADE * R, 1e-9), 0.0, 1.0)
+                px = cv2.distanceTransform(np.pad(todo[ay0:ay1, ax0:ax1], 1).astype(np.uint8),
+                                           cv2.DIST_L2, 5)[1:-1, 1:-1]
+                u = np.clip(px / (2.0 * rad), 0.0, 1.0)
+                ao = ao * (1.0 - occ * t * t * (3.0 - 2.0 * t) * u * u * (3.0 - 2.0 * u))
         # occluded directions still see light bounced off the occluders
         rho = float(np.clip(np.mean(albedo_mean), 0.0, 0.9))
         ao = ao + (1.0 - ao) * rho * AO_BOUNCE
@@ -334,20 +352,9 @@ class PhysicalRenderer(Renderer):
         return vs[ys - wy0, xs - wx0]
 
 
-# Share of the shading mask's inner radius over which the object's sky occlusion fades
-# out toward the mask's edge: it reaches farther than the mask (a sphere still hides a
-# quarter of the sky one radius past its side), and cut there it drew an ellipse.
+# Outer share of the shading mask's radius over which the object's sky occlusion fades
+# out (``_synthesise``).
 MESH_AO_FADE = 0.35
-
-
-def _mask_edge_fade(todo: np.ndarray) -> np.ndarray:
-    """(H, W) weight in [0, 1]: 0 on and outside the edge of the ``todo`` mask, rising
-    smoothly to 1 over ``MESH_AO_FADE`` of the deepest inner distance."""
-    import cv2
-
-    dist = cv2.distanceTransform(np.pad(todo, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1]
-    x = np.clip(dist / max(MESH_AO_FADE * float(dist.max()), 1.0), 0.0, 1.0)
-    return x * x * (3.0 - 2.0 * x)
 
 
 # A lamp's light aimed at an object changes its strength by (distance to the support's
