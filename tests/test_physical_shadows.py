@@ -474,8 +474,20 @@ def test_mesh_occlusion_known_values():
     away = mesh_occlusion(mesh_discs(sph), np.array([[1.0, 0.5, 0.0], [0.0, 1.0 + 1e-3, 0.0]]),
                           np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]))
     assert np.all(away < 1e-3)
+    # by the contact, the discs are too sparse; the mesh's triangles (exact form
+    # factors) stand in for them there, and it is dark where the sphere meets the floor
+    xn = np.array([0.02, 0.05, 0.1, 0.2, 0.3])
+    Pn = np.stack([xn, np.zeros_like(xn), np.zeros_like(xn)], 1)
+    upn = np.tile([0.0, 1.0, 0.0], (len(xn), 1))
+    dn = np.linalg.norm(c - Pn, axis=1)
+    exact_n = (r / dn) ** 2 * (0.5 / dn)
+    for m in (sph, inside_out):
+        near = mesh_occlusion(mesh_discs(m), Pn, upn, mesh=m)
+        assert np.allclose(near, exact_n, atol=0.03), (near, exact_n)
+    assert mesh_occlusion(mesh_discs(sph), Pn[:1], upn[:1])[0] < 0.5  # discs alone miss it
     flat = PosedMesh(np.zeros((3, 3)), np.array([[0, 1, 2]]))
     assert not mesh_occlusion(mesh_discs(flat), P, up).any()
+    assert not mesh_occlusion(mesh_discs(flat), P, up, mesh=flat).any()
     assert mesh_occlusion(mesh_discs(sph), np.zeros((0, 3)), np.zeros((0, 3))).shape == (0,)
 
 

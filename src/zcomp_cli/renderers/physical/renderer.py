@@ -260,7 +260,10 @@ class PhysicalRenderer(Renderer):
                 from zcomp_cli.renderers.physical.meshshadow import mesh_discs, mesh_occlusion
 
                 occ_c, dist_c = np.zeros(gy.shape), np.zeros(gy.shape)
-                occ_c[ok], dist_c[ok] = mesh_occlusion(mesh_discs(occluder), P[ok], N[ok], return_distance=True)
+                # (the exact near field for the scene's points by the object, not the
+                # object's own: ``refine``)
+                occ_c[ok], dist_c[ok] = mesh_occlusion(mesh_discs(occluder), P[ok], N[ok], mesh=occluder,
+                                                       refine=scene_only[gy[ok], gx[ok]], return_distance=True)
         h_, w_ = ay1 - ay0, ax1 - ax0
         up2 = lambda a: np.repeat(np.repeat(a, ao_st, 0), ao_st, 1)[:h_, :w_]
         okf = geo_all[ay0:ay1, ax0:ax1]
