@@ -48,7 +48,7 @@ MAX_TRUSTED_SPREAD_DEG = 25.0
 MIN_AGREE_EVIDENCE_PX = 1.0
 AGREE_DEG = 10.0
 # A looser agreement for the shadow of a compact occluder at its base: 3-30 px of band
-# evidence (a box's short shadow; a wall's foot gives 40-150 px and a family of
+# evidence (a box's short shadow; a wall's foot gave 41-144 px and a family of
 # directions) within RELAXED_AGREE_DEG of the shading's. The two directions are then
 # averaged. On seeds 123, 8128, 27182, 5077, 6091, 7321 and 4242 that admitted 8 scenes,
 # their averaged directions 6-25 deg off (median 7), where the shading's alone were 1-32;
