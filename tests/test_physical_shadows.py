@@ -592,3 +592,24 @@ def test_the_shipped_examples_box_shadow_confirms_the_shading_within_the_relaxed
     sun = next(li for li in lights_at(sc, base, with_hdr=False) if li["kind"] == "SUN")["direction"]
     assert AGREE_DEG < RELAXED_AGREE_DEG
     assert _angle(est.direction, sun) < 8.0
+
+
+def test_a_degenerate_or_non_finite_occluder_mesh_hides_nothing_and_stays_finite():
+    """A posed mesh without area (all its triangles collapsed) or with a non-finite
+    vertex: the composite stays finite, and the collapsed one changes nothing."""
+    import dataclasses
+
+    from zcomp_cli.renderers.physical.meshshadow import PosedMesh
+
+    s = floor_scene(112, 84, light_dir=SUN, ambient=0.3)
+    bg, comp, sel, mask = _insert(s, [0.0, 0.3, -2.6])
+    c = s.world_to_camera([0.0, 0.3, -2.6])
+    flat = PosedMesh(np.repeat(np.asarray(c, np.float64)[None], 3, 0), np.array([[0, 1, 2]]))
+    bad = _sphere_mesh(c, 0.3)
+    bad.vertices[0] = np.nan
+    base = PhysicalRenderer().render([bg, comp], seed=1).images[1]
+    for occ in (flat, bad):
+        img = PhysicalRenderer().render([bg, dataclasses.replace(comp, occluder=occ)], seed=1).images[1]
+        assert np.all(np.isfinite(img))
+    img = PhysicalRenderer().render([bg, dataclasses.replace(comp, occluder=flat)], seed=1).images[1]
+    assert np.array_equal(img, base)  # as if there were none

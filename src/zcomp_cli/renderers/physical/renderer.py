@@ -283,11 +283,11 @@ class PhysicalRenderer(Renderer):
             # radius, the farthest of its pixels from the mesh (in metres: the mask is
             # a ball around the object, squeezed on screen below it), after the blur.
             # Any other mask (an API caller's) ends it within 2 blur radii of its edge.
-            tw = todo[ay0:ay1, ax0:ax1] & okf
-            if tw.any():
+            tw = todo[ay0:ay1, ax0:ax1] & okf & np.isfinite(dist)
+            R = float(dist[tw].max()) if tw.any() else 0.0
+            if R > 0:  # (a mesh without area has no elements: nothing hidden)
                 import cv2
 
-                R = float(dist[tw].max())
                 t = np.clip((R - dist) / max(MESH_AO_FADE * R, 1e-9), 0.0, 1.0)
                 px = cv2.distanceTransform(np.pad(todo[ay0:ay1, ax0:ax1], 1).astype(np.uint8),
                                            cv2.DIST_L2, 5)[1:-1, 1:-1]
