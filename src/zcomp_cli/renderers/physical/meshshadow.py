@@ -94,6 +94,19 @@ def mesh_silhouette(mesh: PosedMesh, camera, shape) -> np.ndarray:
     return out > 0
 
 
+def _sample_triangles(tri: np.ndarray, p: np.ndarray, n: int):
+    """``n`` points uniform over triangles ``tri`` (M, 3, 3), each picked with
+    probability ``p`` (M,) (its share of the area): (picked triangle indices (n,),
+    points (n, 3)). Deterministic (seed 0), so a mesh always gives the same samples."""
+    rng = np.random.default_rng(0)
+    pick = rng.choice(len(tri), size=n, p=p)
+    r1, r2 = rng.random(n), rng.random(n)
+    s1 = np.sqrt(r1)
+    pts = ((1 - s1)[:, None] * tri[pick, 0] + (s1 * (1 - r2))[:, None] * tri[pick, 1]
+           + (s1 * r2)[:, None] * tri[pick, 2])
+    return pick, pts
+
+
 def _basis(l):
     a = np.array([1.0, 0, 0]) if abs(l[0]) < 0.9 else np.array([0, 1.0, 0])
     u = np.cross(l, a)
@@ -118,12 +131,7 @@ def mesh_shadow(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, light_
     if cell is None:
         cell = ext / 256.0
     n_s = int(min(MAX_SAMPLES, max(2000, 8 * area.sum() / cell ** 2)))
-    rng = np.random.default_rng(0)
-    pick = rng.choice(len(F), size=n_s, p=area / max(area.sum(), 1e-12))
-    r1, r2 = rng.random(n_s), rng.random(n_s)
-    s1 = np.sqrt(r1)
-    smp = ((1 - s1)[:, None] * tri[pick, 0] + (s1 * (1 - r2))[:, None] * tri[pick, 1]
-           + (s1 * r2)[:, None] * tri[pick, 2])
+    _, smp = _sample_triangles(tri, area / max(area.sum(), 1e-12), n_s)
     su, sv, sh = smp @ u, smp @ v, smp @ l
     u0, v0 = su.min() - 2 * cell, sv.min() - 2 * cell
     W = int(np.ceil((su.max() - u0) / cell)) + 3
@@ -193,12 +201,7 @@ def mesh_discs(mesh: PosedMesh, n: int = AO_DISCS) -> MeshDiscs:
     nrm = cr / (2.0 * area[:, None])
     if _inside_out(tri, cr):
         nrm = -nrm
-    rng = np.random.default_rng(0)
-    pick = rng.choice(len(tri), size=n, p=area / area.sum())
-    r1, r2 = rng.random(n), rng.random(n)
-    s1 = np.sqrt(r1)
-    c = ((1 - s1)[:, None] * tri[pick, 0] + (s1 * (1 - r2))[:, None] * tri[pick, 1]
-         + (s1 * r2)[:, None] * tri[pick, 2])
+    pick, c = _sample_triangles(tri, area / area.sum(), n)
     return MeshDiscs(c, nrm[pick], np.full(n, area.sum() / n))
 
 
