@@ -608,8 +608,13 @@ def test_a_degenerate_or_non_finite_occluder_mesh_hides_nothing_and_stays_finite
     bad = _sphere_mesh(c, 0.3)
     bad.vertices[0] = np.nan
     base = PhysicalRenderer().render([bg, comp], seed=1).images[1]
+    known = {"type": "directional", "direction": list(s.light_dir_cam), "azimuth_deg": None,
+             "elevation_deg": None, "angular_radius_deg": 2.0, "strength": 2.0}
     for occ in (flat, bad):
         img = PhysicalRenderer().render([bg, dataclasses.replace(comp, occluder=occ)], seed=1).images[1]
         assert np.all(np.isfinite(img))
+        # with a light to cast its shadow too (the shadow map sampled it: a ValueError)
+        req = [dataclasses.replace(q, light=known) for q in (bg, dataclasses.replace(comp, occluder=occ))]
+        assert np.all(np.isfinite(PhysicalRenderer().render(req, seed=1).images[1]))
     img = PhysicalRenderer().render([bg, dataclasses.replace(comp, occluder=flat)], seed=1).images[1]
     assert np.array_equal(img, base)  # as if there were none

@@ -126,7 +126,14 @@ def mesh_shadow(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, light_
     u, v = _basis(l)
     V, F = mesh.vertices, mesh.faces
     tri = V[F]  # (M, 3, 3)
+    # a non-finite corner drops its triangle (as the silhouette and the sky's elements
+    # do); a mesh left without area shadows nothing (sampling it raised a ValueError)
+    tri = tri[np.all(np.isfinite(tri), axis=(1, 2))]
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    P = np.asarray(points, np.float64)
+    if not area.sum() > 0:
+        return np.ones(len(P)), np.full(len(P), np.inf)
+    V = V[np.all(np.isfinite(V), axis=1)]
     ext = np.ptp(V @ np.stack([u, v], 1), axis=0).max() + 1e-9
     if cell is None:
         cell = ext / 256.0
@@ -144,7 +151,6 @@ def mesh_shadow(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, light_
     from scipy.ndimage import maximum_filter
 
     grid = maximum_filter(grid, size=3, mode="constant", cval=-np.inf)
-    P = np.asarray(points, np.float64)
     pu, pv, ph = P @ u, P @ v, P @ l
     ju = np.floor((pu - u0) / cell).astype(np.int64)
     jv = np.floor((pv - v0) / cell).astype(np.int64)
