@@ -373,6 +373,31 @@ def test_known_direction_stays_when_the_photo_shows_no_light_along_it():
     assert ratio[off].min() < 1.0 - 0.8 * (1.0 - MIN_FIT_AMBIENT_SHARE)
 
 
+
+def test_unmeasured_known_lights_share_one_lights_direct_light():
+    """Two ``strength: auto`` lights, neither shadow in the photo: together they bring
+    the direct light one such light would, so the ambient keeps the single light's
+    share (each taken as bright as the single light left 0.2, shadows twice too dark)."""
+    import dataclasses
+
+    from zcomp_cli.renderers.physical.lighting import MIN_FIT_AMBIENT_SHARE
+
+    s = floor_scene(112, 84, with_wall=True, wall_distance=4.5, light_intensity=0.0, ambient=0.5)
+    mk = lambda v: {"type": "directional", "direction": list(np.asarray(v) / np.linalg.norm(v) @ s.cam_to_world),  # noqa: E731
+                    "azimuth_deg": None, "elevation_deg": None, "angular_radius_deg": None, "strength": "auto"}
+    bg, comp, sel, mask = _insert(s, [0.4, 0.3, -2.6])
+    light = {"type": "lights", "lights": [mk([0.6, 1.0, 0.3]), mk([-0.6, 1.0, 0.3])]}
+    out = PhysicalRenderer().render([dataclasses.replace(r, light=light) for r in (bg, comp)], seed=1)
+    info = out.info["light"]
+    assert info["ambient_share"] == pytest.approx(MIN_FIT_AMBIENT_SHARE)
+    extra = info["lights"][1]
+    assert extra["shadow_ratio"] == pytest.approx(1.0 - (1.0 - MIN_FIT_AMBIENT_SHARE) / 2)
+    assert "none measured" in extra["shadow_ratio_from"]
+    # the shadows are drawn
+    ratio = out.images[1][..., 1] / np.maximum(out.images[0][..., 1], 1e-6)
+    off = mask & ~sel & (s.depth > 0)
+    assert ratio[off].min() < 1.0 - 0.5 * (1.0 - MIN_FIT_AMBIENT_SHARE) / 2
+
 def _sphere_mesh(centre_cam, radius):
     import trimesh
 

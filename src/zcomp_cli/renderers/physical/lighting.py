@@ -332,8 +332,12 @@ def _split_lights(best, radius, dt, extra_dirs, share, P, Nrm, S, basis, Pe, Ne,
 
     Where only light i is blocked the support keeps ``r_i`` of its lit level ``L``, so
     light i brings ``(1 - r_i) L`` and the ambient what is left. Each ``r_i`` is read
-    on the evidence pixels in that light's shadow alone; without them the first light
-    keeps its single-light ``share`` and the others MIN_FIT_AMBIENT_SHARE (faint).
+    on the evidence pixels in that light's shadow alone. A light without them gets an
+    equal part, ``(1 - share) / K`` of the K lights, of the direct light the single-light
+    fit found (``share`` its ambient share): K unmeasured lights together bring what one
+    light did, and the ambient keeps ``share``. (Each one taken as bright as the single
+    light made the ambient ``1 - K (1 - share)``: 0.2 for two manifest lights on a bare
+    floor, shadows twice as dark as the photo's.)
     ``strict`` (an estimated second light): None unless every further light's shadow
     was measured and the shadows are consistent, ``sum (1 - r_i) <= 1 -
     MIN_SPLIT_AMBIENT_SHARE``. A "second light" whose shadows are darker than the
@@ -358,8 +362,8 @@ def _split_lights(best, radius, dt, extra_dirs, share, P, Nrm, S, basis, Pe, Ne,
         elif strict and i > 0:
             return None
         else:
-            ratios.append(float(share) if i == 0 else MIN_FIT_AMBIENT_SHARE)
-            sources.append("the single-light fit" if i == 0 else f"none measured: {MIN_FIT_AMBIENT_SHARE}")
+            ratios.append(1.0 - (1.0 - float(share)) / len(dirs))
+            sources.append(f"none measured: 1/{len(dirs)} of the single-light fit's direct light")
     dts = [dt] + [direct_term(P, Nrm, l[None], d, cam, march_visibility, steps=march_steps) for l in dirs[1:]]
     on_up = Nrm @ up > cos15
     lit = on_up.copy()
