@@ -63,7 +63,10 @@ def test_lighting_recovered_from_box_shadow(boxed):
     # 0.1: the direction search down-weights too-dark residuals (unseen occluders), which
     # costs a little share accuracy on a scene whose every shadow is visible.
     assert abs(e.ambient_share - true_share) < 0.1
-    assert e.softness_deg <= 3.0  # a point light gives a crisp shadow
+    # the light's size is not measured: the documented key light's, whatever the scene
+    from zcomp_cli.renderers.physical.lighting import KEY_SOFTNESS_DEG
+
+    assert e.softness_deg == KEY_SOFTNESS_DEG
     assert np.allclose(e.intensity, 1.0, atol=0.2)
 
 

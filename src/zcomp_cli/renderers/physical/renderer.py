@@ -23,7 +23,7 @@ _DEFAULTS = {
     "estimate_march_steps": 16,  # ray-march samples per shadow ray (estimation)
     "max_resolution": 160,       # long side of the copy used for light estimation
     "cone_samples": 8,           # light directions per pixel for soft shadows
-    "shadow_softness": None,     # force the light's angular radius (deg); None = fit
+    "shadow_softness": None,     # force the light's angular radius (deg); None = KEY_SOFTNESS_DEG
     "max_fit_pixels": 2000,      # pixels used by the light fit
 }
 
