@@ -17,21 +17,8 @@ import numpy as np
 
 from zcomp_cli.camera import Camera
 from zcomp_cli.conventions import REC601
-from zcomp_cli.renderers.physical.lighting import ExtraLight, LightEstimate, _downsample, fibonacci_sphere
+from zcomp_cli.renderers.physical.lighting import ExtraLight, LightEstimate, _downsample, dominant_normal, fibonacci_sphere
 from zcomp_cli.renderers.physical.visibility import march_visibility
-
-
-def dominant_normal(normals: np.ndarray) -> np.ndarray:
-    """The most common orientation of (N, 3) unit normals, as the support's normal; the
-    camera's +y when none is within 60 deg of it."""
-    up = np.array([0.0, 1.0, 0.0])
-    if len(normals) < 3:
-        return up
-    bins = fibonacci_sphere(200)
-    votes = (normals @ bins.T > np.cos(np.deg2rad(15))).sum(0)
-    dom = normals[normals @ bins[votes.argmax()] > np.cos(np.deg2rad(15))].mean(0)
-    dom /= max(np.linalg.norm(dom), 1e-12)
-    return dom if dom @ up > 0.5 else up
 
 
 def direction_from_angles(azimuth_deg: float, elevation_deg: float, up: np.ndarray) -> np.ndarray:
@@ -82,8 +69,6 @@ def probe_lights(hdr: np.ndarray, rotation_deg: float = 0.0, up=(0.0, 1.0, 0.0))
     sdir = sdir / max(np.linalg.norm(sdir), 1e-12)
     e_sun = (L[sun] * d_omega[sun, None]).sum(0)
     # sky irradiance for a set of normals, fitted by c0 + c . n
-    from zcomp_cli.renderers.physical.lighting import fibonacci_sphere
-
     ns = fibonacci_sphere(64)
     sky = ~sun
     E = np.maximum(ns @ dirs[sky].T, 0.0) @ (L[sky] * d_omega[sky, None])  # (64, 3)

@@ -182,6 +182,19 @@ def fibonacci_sphere(n: int) -> np.ndarray:
     return np.stack([r * np.cos(ph), r * np.sin(ph), z], 1)
 
 
+def dominant_normal(normals: np.ndarray) -> np.ndarray:
+    """The most common orientation of (N, 3) unit normals, as the support's normal; the
+    camera's +y when none is within 60 deg of it."""
+    up = np.array([0.0, 1.0, 0.0])
+    if len(normals) < 3:
+        return up
+    bins = fibonacci_sphere(200)
+    votes = (normals @ bins.T > np.cos(np.deg2rad(15))).sum(0)
+    dom = normals[normals @ bins[votes.argmax()] > np.cos(np.deg2rad(15))].mean(0)
+    dom /= max(np.linalg.norm(dom), 1e-12)
+    return dom if dom @ up > 0.5 else up
+
+
 # Screen-space visibility can only MISS occluders (outside the frame, or hidden behind
 # other surfaces), never invent them: a pixel darker than the model predicts may sit in
 # the shadow of something unseen, but a pixel brighter than predicted contradicts the
@@ -441,13 +454,7 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     up = np.array([0.0, 1.0, 0.0])
     spread = 0.0
     if len(idx) >= 3:
-        bins = fibonacci_sphere(200)
-        votes = (Nrm @ bins.T > np.cos(np.deg2rad(15))).sum(0)
-        dom = bins[votes.argmax()]
-        dom = Nrm[Nrm @ dom > np.cos(np.deg2rad(15))].mean(0)
-        dom /= np.linalg.norm(dom)
-        if dom @ up > 0.5:
-            up = dom
+        up = dominant_normal(Nrm)
         ev = np.linalg.eigvalsh(np.cov(Nrm.T))
         spread = float(np.sqrt(max(ev[-2], 0.0)))
     march = dict(steps=march_steps)
