@@ -67,6 +67,7 @@ def test_lighting_recovered_from_box_shadow(boxed):
     from zcomp_cli.renderers.physical.lighting import KEY_SOFTNESS_DEG
 
     assert e.softness_deg == KEY_SOFTNESS_DEG
+    assert e.to_info()["lights"][0]["angular_radius_from"].startswith("not measured")
     assert np.allclose(e.intensity, 1.0, atol=0.2)
 
 

@@ -132,6 +132,7 @@ def test_known_light_gives_the_estimated_shadow():
     known = PhysicalRenderer().render(reqs, seed=1)
     assert known.info["light"]["source"] == "manifest" and known.info["fallback"] is None
     assert known.info["light"]["lights"][0]["direction_from"].startswith("manifest")
+    assert known.info["light"]["lights"][0]["angular_radius_from"] == "manifest: angular_radius_deg"
     ratio = lambda o: o.images[1].mean(-1) / np.maximum(o.images[0].mean(-1), 1e-6)  # noqa: E731
     r_est, r_known = ratio(est), ratio(known)
     floor = mask & ~sel

@@ -107,6 +107,8 @@ def light_from_spec(spec: dict, depth, normals, shading, known, camera: Camera, 
                                 march_steps=march_steps, direction=np.stack(dirs), albedo=albedo,
                                 softness_deg=None if radii[0] is None else float(radii[0]))
         est.source = "manifest"
+        if radii[0] is not None:
+            est.softness_source = "manifest: angular_radius_deg"
         est.direction_source = f"manifest: {hows[0]}"
         # read from a shadow, or only fitted to the shading (a bare floor: the regression
         # then splits the light from the ambient as it can, which the report must say)
@@ -136,7 +138,9 @@ def light_from_spec(spec: dict, depth, normals, shading, known, camera: Camera, 
                    for l, s_, c, r, how in zip(dirs[1:], strengths[1:], coss[1:], radii[1:], hows[1:]))
     return LightEstimate(dirs[0], strengths[0] * amb, sh_c, float(1.0 / total), radius(radii[0]),
                          float("nan"), float("nan"), 0.0, None, 0.0, "manifest strength", "manifest",
-                         0.0, f"manifest: {hows[0]}", extra_lights=extras)
+                         0.0, f"manifest: {hows[0]}", extra_lights=extras,
+                         softness_source=("manifest: angular_radius_deg" if radii[0] is not None
+                                          else "manifest default: 1 deg"))
 
 
 def _spec_direction(spec: dict, up: np.ndarray):
@@ -171,7 +175,8 @@ def _probe_estimate(spec, N, S, P, up, d, cam, march_steps) -> LightEstimate:
     name = Path(spec["hdr"]).name
     return LightEstimate(l, e_sun * scale, sky_s, float(share), radius, float("nan"), float("nan"), 0.0,
                          None, 0.0, "manifest probe", "manifest",
-                         0.0, f"manifest: probe {name}, rotation {float(spec.get('rotation_deg', 0.0)):g} deg")
+                         0.0, f"manifest: probe {name}, rotation {float(spec.get('rotation_deg', 0.0)):g} deg",
+                         softness_source=f"manifest: probe {name}, its brightest area")
 
 
 __all__ = ["light_from_spec", "direction_from_angles", "dominant_normal", "REC601"]

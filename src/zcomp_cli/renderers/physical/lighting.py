@@ -142,6 +142,7 @@ class LightEstimate:
     # centre ``direction`` points from; the renderer aims the light at each object
     lamp_position: np.ndarray | None = None
     lamp_aim: np.ndarray | None = None
+    softness_source: str = "prior (not measured)"
 
     @property
     def cone_deg(self) -> float:
@@ -161,7 +162,7 @@ class LightEstimate:
         d["lights"] = [
             {"kind": "directional", "source": self.source, "direction_camera": d["direction"],
              "direction_from": self.direction_source, "intensity_rgb": d["intensity"],
-             "angular_radius_deg": self.cone_deg,
+             "angular_radius_deg": self.cone_deg, "angular_radius_from": self.softness_source,
              "shadow": "contact shadow only" if self.fallback else "cast shadow"},
             *({"kind": "directional", "source": self.source, "direction_camera": np.asarray(x.direction).tolist(),
                "direction_from": x.direction_source, "intensity_rgb": np.asarray(x.intensity).tolist(),
@@ -646,6 +647,9 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     # softness: the light's angular radius is not measured (KEY_SOFTNESS_DEG, a lamp's
     # LAMP_SOFTNESS_DEG) unless given
     radius = float(softness_deg) if softness_deg is not None else (LAMP_SOFTNESS_DEG if near else KEY_SOFTNESS_DEG)
+    softness_src = ("given (the renderer's shadow_softness)" if softness_deg is not None else
+                    f"not measured: a lamp's {LAMP_SOFTNESS_DEG:g} deg" if near else
+                    f"not measured: a key light's {KEY_SOFTNESS_DEG:g} deg")
     dirs = cone_directions(best, radius, cone_samples if radius > 0 else 1, seed=seed)
     dt = direct_term(P, Nrm, dirs, d, cam, march_visibility, **march)
     s_r = _fit_candidate(basis, dt, Y, ridge)[1]
@@ -777,4 +781,4 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
                                               else "")) + lamp_note,
                          extra_lights=extras,
                          lamp_position=None if lamp is None else lamp.position,
-                         lamp_aim=None if lamp is None else lamp.aim)
+                         lamp_aim=None if lamp is None else lamp.aim, softness_source=softness_src)
