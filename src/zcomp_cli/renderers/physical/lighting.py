@@ -424,7 +424,8 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
         depth: (H, W) z-depth (0 invalid). normals: (H, W, 3) camera frame.
         shading: (H, W, 3) linear shading (used where ``known``). known: (H, W) bool.
         n_candidates: hemisphere candidate directions (coarse search; then refined).
-        softness_deg: force the cone half-angle instead of fitting it.
+        softness_deg: the light's angular radius (degrees), instead of KEY_SOFTNESS_DEG
+            (a lamp near the scene: LAMP_SOFTNESS_DEG); it is not measured.
         flat_threshold: relative score contrast below which the direction is declared
             unconstrained and the prior is used.
         direction: (3,) or (K, 3) camera-frame directions toward the lights when they
@@ -471,7 +472,9 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
         sh_c[0] = amb
         return LightEstimate(prior_dir, inten, sh_c, PRIOR_AMBIENT_SHARE,
                              PRIOR_SOFTNESS_DEG if softness_deg is None else float(softness_deg),
-                             float("nan"), 0.0, spread, reason)
+                             float("nan"), 0.0, spread, reason,
+                             softness_source=("prior (not measured)" if softness_deg is None
+                                              else "given (the renderer's shadow_softness)"))
 
     if len(idx) < 50:
         return prior(f"too few known pixels with valid geometry ({len(idx)} < 50)")
