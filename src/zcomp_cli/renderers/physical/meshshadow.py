@@ -183,10 +183,18 @@ class MeshDiscs:
     areas: np.ndarray
 
 
-def _inside_out(tri: np.ndarray, cross: np.ndarray) -> bool:
-    """Whether triangles (M, 3, 3) with corner cross products (M, 3) are wound inside
-    out: a negative signed volume."""
-    return bool(np.einsum("ij,ij->i", tri[:, 0] - tri[:, 0].mean(0), cross).sum() < 0)
+def _area_triangles(mesh: PosedMesh):
+    """The mesh's triangles with area (finite corners, non-zero area) as the sky's
+    elements and its exact near field both use them: (tri (M, 3, 3), corner cross
+    products (M, 3), areas (M,), inside_out). ``inside_out``: wound inside out, a
+    negative signed volume; their outward normals are then the cross products turned."""
+    tri = mesh.vertices[mesh.faces]
+    cr = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    area = 0.5 * np.linalg.norm(cr, axis=1)
+    ok = area > 0  # (False for a non-finite corner too)
+    tri, cr, area = tri[ok], cr[ok], area[ok]
+    inside_out = bool(len(tri)) and bool(np.einsum("ij,ij->i", tri[:, 0] - tri[:, 0].mean(0), cr).sum() < 0)
+    return tri, cr, area, inside_out
 
 
 def mesh_discs(mesh: PosedMesh, n: int = AO_DISCS) -> MeshDiscs:
@@ -195,17 +203,12 @@ def mesh_discs(mesh: PosedMesh, n: int = AO_DISCS) -> MeshDiscs:
 
     Normals point out of the mesh: the faces' winding gives them, and a mesh whose
     signed volume is negative (wound inside out) has them all turned."""
-    V, F = mesh.vertices, mesh.faces
-    tri = V[F]
-    cr = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    area = 0.5 * np.linalg.norm(cr, axis=1)
-    ok = area > 0
-    if not ok.any():
+    tri, cr, area, inside_out = _area_triangles(mesh)
+    if not len(tri):
         z = np.zeros((0, 3))
         return MeshDiscs(z, z, np.zeros(0))
-    tri, cr, area = tri[ok], cr[ok], area[ok]
     nrm = cr / (2.0 * area[:, None])
-    if _inside_out(tri, cr):
+    if inside_out:
         nrm = -nrm
     pick, c = _sample_triangles(tri, area / area.sum(), n)
     return MeshDiscs(c, nrm[pick], np.full(n, area.sum() / n))
@@ -254,8 +257,8 @@ def mesh_occlusion(discs: MeshDiscs, points: np.ndarray, normals: np.ndarray, *,
     if mesh is not None:
         idx = np.flatnonzero((dmin ** 2 < rho2) & (True if refine is None else np.asarray(refine, bool)))
         if len(idx):
-            tri = mesh.vertices[mesh.faces]
-            if _inside_out(tri, np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])):
+            tri, _, _, inside_out = _area_triangles(mesh)
+            if inside_out:  # wound outward, as the discs' normals are
                 tri = tri[:, ::-1]
             cen = tri.mean(1)
             rad = np.sqrt(((tri - cen[:, None]) ** 2).sum(-1).max(1))
