@@ -69,6 +69,67 @@ def test_penumbra_is_one_smooth_ramp():
     assert row[:30].max() < 0.02 and row[-30:].min() > 0.98
 
 
+def test_penumbra_filter_over_a_box_matches_the_whole_frame():
+    # the filter reads only the context each blur reaches: the box's values are those
+    # of the whole frame's filter, two classes and a varying occluder distance included
+    rng = np.random.default_rng(3)
+    H, W = 90, 130
+    vis = (rng.random((H, W)) > 0.4).astype(float)
+    vis[:, 70:] = 1.0
+    t_hit = np.where(vis < 1, rng.uniform(0.2, 3.0, (H, W)), np.inf)
+    z = rng.uniform(2.0, 4.0, (H, W))
+    cls = np.zeros((H, W), int)
+    cls[30:60, 40:80] = 1
+    valid = rng.random((H, W)) > 0.05
+    whole = penumbra_filter(vis, t_hit, z, cls, valid, 300.0, np.tan(np.deg2rad(8.0)))
+    for box in [(20, 35, 70, 90), (0, 0, 10, 130), (85, 100, 200, 300)]:
+        part = penumbra_filter(vis, t_hit, z, cls, valid, 300.0, np.tan(np.deg2rad(8.0)), box=box)
+        y0, x0, y1, x1 = box
+        np.testing.assert_allclose(part, whole[y0:y1, x0:x1], atol=1e-6)
+
+
+def test_classwise_blur_is_the_per_class_normalised_blur():
+    # each class cropped to the box its kernels read gives the definition's values
+    from zcomp_cli.renderers.physical.softshadow import classwise_blur, normalized_blur
+
+    rng = np.random.default_rng(4)
+    H, W = 80, 100
+    vals = rng.random((H, W))
+    cls = np.zeros((H, W), int)
+    cls[20:40, 30:50] = 1
+    cls[:, :8] = 2
+    valid = rng.random((H, W)) > 0.2
+    fill = rng.random((H, W)) > 0.5
+    for radius in (0.0, 2.0, 8.0, 32.0):
+        got = classwise_blur(vals, cls, valid, radius, fill=fill)
+        want = vals.copy()
+        for c in (0, 1, 2):
+            want = np.where((valid | fill) & (cls == c), normalized_blur(vals, valid & (cls == c), radius), want)
+        np.testing.assert_allclose(got, want, atol=1e-6)
+
+
+def test_triangle_samples_are_stratified_by_area():
+    # each triangle gets the floor or the ceiling of its expected count: no clumps and
+    # no gaps on a surface a shadow map must cover
+    from zcomp_cli.renderers.physical.meshshadow import _sample_triangles
+
+    rng = np.random.default_rng(5)
+    tri = rng.random((300, 3, 3))
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    p = area / area.sum()
+    n = 2000
+    pick, pts = _sample_triangles(tri, p, n)
+    count = np.bincount(pick, minlength=len(tri))
+    assert count.sum() == n
+    assert np.all(count >= np.floor(n * p) - 1) and np.all(count <= np.ceil(n * p) + 1)
+    # and each point lies on its triangle (barycentric coordinates in [0, 1])
+    a, b, c = tri[pick, 0], tri[pick, 1], tri[pick, 2]
+    M = np.stack([b - a, c - a], -1)
+    uv = np.linalg.solve(np.einsum("kji,kjl->kil", M, M), np.einsum("kji,kj->ki", M, pts - a))
+    assert uv.min() >= -1e-6 and uv.sum(1).max() <= 1 + 1e-6
+    np.testing.assert_allclose(a + np.einsum("kij,kj->ki", M, uv), pts, atol=1e-9)
+
+
 def _insert(s, centre_world, radius=0.3):
     c = s.world_to_camera(centre_world)
     b = sphere_object_bundle(s.camera, c, radius, (0.7, 0.7, 0.7), floor_normal=s.up_cam)

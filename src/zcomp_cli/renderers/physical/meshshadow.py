@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 MAX_SAMPLES = 200_000
+MESH_SAMPLE_DENSITY = 8.0
 
 
 @dataclass
@@ -96,10 +97,16 @@ def mesh_silhouette(mesh: PosedMesh, camera, shape) -> np.ndarray:
 
 def _sample_triangles(tri: np.ndarray, p: np.ndarray, n: int):
     """``n`` points uniform over triangles ``tri`` (M, 3, 3), each picked with
-    probability ``p`` (M,) (its share of the area): (picked triangle indices (n,),
+    probability ``p`` (M,) (its share of the area, stratified): (picked triangle indices (n,),
     points (n, 3)). Deterministic (seed 0), so a mesh always gives the same samples."""
     rng = np.random.default_rng(0)
-    pick = rng.choice(len(tri), size=n, p=p)
+    # stratified picks (one jittered uniform in each of n equal strata of the area's
+    # CDF): each triangle gets the floor or ceiling of its expected count, so the
+    # samples cover the surface evenly instead of in Poisson clumps and gaps (a shadow
+    # map needs a sample in every few cells); sorted, they also look the CDF up in order
+    cdf = np.cumsum(p)
+    pick = np.minimum(np.searchsorted(cdf / cdf[-1], (np.arange(n) + rng.random(n)) / n, side="right"),
+                      len(tri) - 1)
     r1, r2 = rng.random(n), rng.random(n)
     s1 = np.sqrt(r1)
     pts = ((1 - s1)[:, None] * tri[pick, 0] + (s1 * (1 - r2))[:, None] * tri[pick, 1]
@@ -137,7 +144,7 @@ def mesh_shadow(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, light_
     ext = np.ptp(V @ np.stack([u, v], 1), axis=0).max() + 1e-9
     if cell is None:
         cell = ext / 256.0
-    n_s = int(min(MAX_SAMPLES, max(2000, 8 * area.sum() / cell ** 2)))
+    n_s = int(min(MAX_SAMPLES, max(2000, MESH_SAMPLE_DENSITY * area.sum() / cell ** 2)))
     _, smp = _sample_triangles(tri, area / max(area.sum(), 1e-12), n_s)
     su, sv, sh = smp @ u, smp @ v, smp @ l
     u0, v0 = su.min() - 2 * cell, sv.min() - 2 * cell
@@ -247,21 +254,27 @@ def mesh_occlusion(discs: MeshDiscs, points: np.ndarray, normals: np.ndarray, *,
     if len(P) == 0 or len(discs.areas) == 0:
         return (out, dmin) if return_distance else out
     rho2 = NEAR_SPACINGS ** 2 * float(discs.areas.mean()) if mesh is not None else 0.0
-    part = np.zeros(len(P))
     for i in range(0, len(P), chunk):
         f, r2 = _form_factors(discs, P[i:i + chunk], Nn[i:i + chunk])
         out[i:i + chunk] = f.sum(1)
         dmin[i:i + chunk] = np.sqrt(r2.min(1))
-        if mesh is not None:
-            part[i:i + chunk] = (f * (r2 < rho2)).sum(1)
     if mesh is not None:
         idx = np.flatnonzero((dmin ** 2 < rho2) & (True if refine is None else np.asarray(refine, bool)))
         if len(idx):
+            # the discs' share within the radius, which the triangles replace (few
+            # points: computed again for them rather than kept for all)
+            f, r2 = _form_factors(discs, P[idx], Nn[idx])
+            part = np.zeros(len(P))
+            part[idx] = (f * (r2 < rho2)).sum(1)
             tri, _, _, inside_out = _area_triangles(mesh)
             if inside_out:  # wound outward, as the discs' normals are
                 tri = tri[:, ::-1]
             cen = tri.mean(1)
             rad = np.sqrt(((tri - cen[:, None]) ** 2).sum(-1).max(1))
+            # only triangles near the box of these points can be within the radius
+            reach = np.sqrt(rho2) + rad.max()
+            near = np.all((cen >= P[idx].min(0) - reach) & (cen <= P[idx].max(0) + reach), axis=1)
+            tri, cen, rad = tri[near], cen[near], rad[near]
             c2 = (cen * cen).sum(1)[None]
             for i in range(0, len(idx), 256):
                 j = idx[i:i + 256]

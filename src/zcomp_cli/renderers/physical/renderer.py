@@ -350,9 +350,12 @@ class PhysicalRenderer(Renderer):
             t_hit = up2(t_hit)
             ok = ok_full
         tan_a = np.tan(np.deg2rad(min(cone_deg, 89.0)))
+        # filtered only over the box of the pixels asked for (the window's margin is
+        # context for the blurs)
+        by0, bx0 = int(ys.min()) - wy0, int(xs.min()) - wx0
         vs = penumbra_filter(vis, t_hit, d[wy0:wy1, wx0:wx1], _depth_classes(d[wy0:wy1, wx0:wx1]),
-                             ok, camera.fx, tan_a)
-        return vs[ys - wy0, xs - wx0]
+                             ok, camera.fx, tan_a, box=(by0, bx0, int(ys.max()) + 1 - wy0, int(xs.max()) + 1 - wx0))
+        return vs[ys - wy0 - by0, xs - wx0 - bx0]
 
 
 # Outer share of the shading mask's radius over which the object's sky occlusion fades

@@ -54,6 +54,11 @@ def pixel_jitter(ys: np.ndarray, xs: np.ndarray, salt: int = 0) -> np.ndarray:
     return ((bayer[(ys + salt) % 4, (xs + 3 * salt) % 4] + 0.5) / 16.0)
 
 
+def blur_reach(radius: float) -> int:
+    """Pixels from its centre that ``gaussian_blur`` of ``radius`` reads (half the kernel)."""
+    return int(np.ceil(3 * radius / 2.0)) if radius > 0 else 0
+
+
 def gaussian_blur(img: np.ndarray, radius: float) -> np.ndarray:
     """Gaussian blur of an (H, W[, C]) float32 image, sigma ``radius / 2`` pixels, the
     border replicated; ``radius <= 0`` returns it unchanged."""
@@ -61,9 +66,8 @@ def gaussian_blur(img: np.ndarray, radius: float) -> np.ndarray:
 
     if radius <= 0:
         return img
-    sigma = radius / 2.0
-    k = 2 * int(np.ceil(3 * sigma)) + 1
-    return cv2.GaussianBlur(img, (k, k), sigma, borderType=cv2.BORDER_REPLICATE)
+    k = 2 * blur_reach(radius) + 1
+    return cv2.GaussianBlur(img, (k, k), radius / 2.0, borderType=cv2.BORDER_REPLICATE)
 
 
 def normalized_blur(values: np.ndarray, weight: np.ndarray, radius: float) -> np.ndarray:
@@ -83,15 +87,30 @@ def classwise_blur(values: np.ndarray, classes: np.ndarray, valid: np.ndarray, r
     weighted by the ``valid`` pixels; written to the valid pixels, and also to the
     ``fill`` pixels of the same class (their own value does not count)."""
     out = values.astype(np.float64).copy()
+    if radius <= 0:
+        return out
+    H, W = values.shape
     dest = valid if fill is None else (valid | fill)
+    reach = blur_reach(radius)
     for c in np.unique(classes[dest]):
-        sel = valid & (classes == c)
-        out = np.where(dest & (classes == c), normalized_blur(values, sel, radius), out)
+        in_c = classes == c
+        m = dest & in_c
+        ys, xs = np.flatnonzero(m.any(1)), np.flatnonzero(m.any(0))
+        # each class over the box its pixels' kernels read (a small object's class
+        # needs a small crop): the same result as over the whole frame
+        sl = (slice(max(0, ys[0] - reach), min(H, ys[-1] + 1 + reach)),
+              slice(max(0, xs[0] - reach), min(W, xs[-1] + 1 + reach)))
+        w = (valid[sl] & in_c[sl]).astype(np.float32)
+        num = gaussian_blur((values[sl] * w).astype(np.float32), radius)
+        den = gaussian_blur(w, radius)
+        m = dest[sl] & in_c[sl] & (den > 1e-4)
+        out[sl][m] = num[m] / den[m]
     return out
 
 
 def penumbra_filter(vis: np.ndarray, t_hit: np.ndarray, z: np.ndarray, classes: np.ndarray,
-                    valid: np.ndarray, focal_px: float, tan_radius: float) -> np.ndarray:
+                    valid: np.ndarray, focal_px: float, tan_radius: float,
+                    box: tuple[int, int, int, int] | None = None) -> np.ndarray:
     """Smooth a hard shadow into the penumbra a light of angular radius ``atan(tan_radius)``
     casts.
 
@@ -102,24 +121,44 @@ def penumbra_filter(vis: np.ndarray, t_hit: np.ndarray, z: np.ndarray, classes: 
         classes: (H, W) int labels; the blur never mixes labels (object vs scene).
         valid: (H, W) bool, pixels with geometry.
         focal_px: focal length in pixels; tan_radius: tan of the light's angular radius.
+        box: (y0, x0, y1, x1), the pixels whose result is needed (None: all). Each blur
+            then reads only the context its kernel reaches around the box: the result
+            there is the same as on the whole frame, for a fraction of the work when the
+            frame carries a wide margin for the widest penumbra.
     Returns:
-        (H, W) float64 visibility in [0, 1].
+        (H, W) float64 visibility in [0, 1], or (y1 - y0, x1 - x0) with ``box``.
     """
+    H, W = vis.shape
+    y0, x0, y1, x1 = (0, 0, H, W) if box is None else (max(0, int(box[0])), max(0, int(box[1])),
+                                                        min(H, int(box[2])), min(W, int(box[3])))
+
+    def around(reach):  # the box grown by ``reach`` pixels, inside the frame
+        return (slice(max(0, y0 - reach), min(H, y1 + reach)), slice(max(0, x0 - reach), min(W, x1 + reach)))
+
+    def inner(sl):  # the box inside a crop ``sl``
+        return (slice(y0 - sl[0].start, y1 - sl[0].start), slice(x0 - sl[1].start, x1 - sl[1].start))
+
     vis = np.where(valid, vis, 1.0).astype(np.float64)
     if tan_radius <= 0 or not (vis < 1).any():
-        return vis
-    shadowed = valid & (vis < 0.5) & np.isfinite(t_hit)
+        return vis[y0:y1, x0:x1]
     # 2. blocker search: mean occluder distance of the shadowed pixels nearby
-    tb = normalized_blur(np.where(shadowed, t_hit, 0.0), shadowed, BLOCKER_SEARCH_PX)
-    has = normalized_blur(shadowed.astype(np.float64), valid, BLOCKER_SEARCH_PX) > 1e-3
+    sl = around(blur_reach(BLOCKER_SEARCH_PX))
+    v_c, ok_c, t_c = vis[sl], valid[sl], t_hit[sl]
+    shadowed = ok_c & (v_c < 0.5) & np.isfinite(t_c)
+    tb = normalized_blur(np.where(shadowed, t_c, 0.0), shadowed, BLOCKER_SEARCH_PX)[inner(sl)]
+    has = normalized_blur(shadowed.astype(np.float64), ok_c, BLOCKER_SEARCH_PX)[inner(sl)] > 1e-3
     # 3. penumbra half-width in pixels
-    r = np.where(has & valid, tb * tan_radius * focal_px / np.maximum(z, 1e-6), 0.0)
+    ok_b = valid[y0:y1, x0:x1]
+    r = np.where(has & ok_b, tb * tan_radius * focal_px / np.maximum(z[y0:y1, x0:x1], 1e-6), 0.0)
     r = np.clip(np.nan_to_num(r), 0.0, MAX_PENUMBRA_PX)
     # 4. interpolate between blur levels (linear in log2(1 + r): continuous, monotone)
-    # only the levels up to the widest penumbra present
+    # only the levels up to the widest penumbra present, each over the context it reads
     n_lv = max(2, int(np.searchsorted(LEVEL_RADII, r.max())) + 1)
     radii = LEVEL_RADII[:n_lv]
-    levels = [classwise_blur(vis, classes, valid, rad) for rad in radii]
+    levels = []
+    for rad in radii:
+        sl = around(blur_reach(rad))
+        levels.append(classwise_blur(vis[sl], classes[sl], valid[sl], rad)[inner(sl)])
     lv = np.log2(1.0 + np.asarray(radii))
     pos = np.interp(np.log2(1.0 + r), lv, np.arange(len(lv)))
     i0 = np.clip(np.floor(pos).astype(int), 0, len(lv) - 2)

@@ -88,15 +88,12 @@ def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndar
             break
         xs = np.where(inside, x, 0.5)
         ys = np.where(inside, y, 0.5)
-        if nearest:
-            ds = depth[np.clip(ys.astype(np.int64), 0, H - 1), np.clip(xs.astype(np.int64), 0, W - 1)]
-        else:
-            ds = sample_depth(depth, xs, ys)
+        iy, ix = ys.astype(np.int64), xs.astype(np.int64)  # in the frame: no clip needed
+        ds = depth[iy, ix] if nearest else sample_depth(depth, xs, ys)
         gap = qz - ds
-        bias = bias_rel * qz
-        hit = inside & (ds > 0) & (gap > bias) & (gap < thickness_rel * np.maximum(qz, 1e-6))
+        hit = inside & (ds > 0) & (gap > bias_rel * qz) & (gap < thickness_rel * np.maximum(qz, 1e-6))
         if occluder_mask is not None:
-            hit &= occluder_mask[np.clip(ys.astype(np.int64), 0, H - 1), np.clip(xs.astype(np.int64), 0, W - 1)]
+            hit &= occluder_mask[iy, ix]
         if return_distance:
             t_hit = np.where(hit & ~occluded, t, t_hit)
         occluded |= hit
