@@ -332,5 +332,13 @@ def _form_factors(discs: MeshDiscs, P: np.ndarray, Nn: np.ndarray):
     r2 = np.maximum((C * C).sum(1)[None] + (p * p).sum(1)[:, None] - 2.0 * (p @ C.T), 0.0)
     wp = q @ C.T - (p * q).sum(1)[:, None]  # w . n_p
     wj = p @ Nd.T - (C * Nd).sum(1)[None]  # -w . n_j
-    f = A * np.maximum(wp, 0.0) * np.maximum(wj, 0.0) / (np.maximum(r2, 1e-18) * (np.pi * r2 + A))
+    # A max(0, w.n_p) max(0, -w.n_j) / (r2 (pi r2 + A)), in place (these (n, M) arrays
+    # are the cost)
+    f = np.maximum(wp, 0.0, out=wp)
+    f *= A
+    f *= np.maximum(wj, 0.0, out=wj)
+    den = np.multiply(r2, np.float32(np.pi))
+    den += A
+    den *= np.maximum(r2, 1e-18)
+    f /= den
     return f, r2

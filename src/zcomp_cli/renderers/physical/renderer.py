@@ -29,7 +29,9 @@ _DEFAULTS = {
 
 
 def _clean(a, lo, hi):
-    return np.clip(np.nan_to_num(np.asarray(a, np.float64), nan=0.0, posinf=hi, neginf=lo), lo, hi)
+    # (nan_to_num copies, unless given a float64 array; the clip then works in place)
+    out = np.nan_to_num(np.array(a, np.float64), copy=False, nan=0.0, posinf=hi, neginf=lo)
+    return np.clip(out, lo, hi, out=out)
 
 
 class PhysicalRenderer(Renderer):
