@@ -491,6 +491,26 @@ def test_mesh_silhouette_covers_the_object_pixels():
     assert not (sil_bad & ~sil).any() and (sil & ~sil_bad).sum() <= 10
 
 
+def test_a_dense_meshs_silhouette_is_the_object_and_one_ring_at_most():
+    # 81920 faces over ~400 pixels: nearly every triangle lies within a 2x2 pixel block
+    # (marked at once, not one fill each); the silhouette still covers the object and
+    # reaches no further than the ring of its edge pixels
+    import cv2
+    import trimesh
+
+    from zcomp_cli.renderers.physical.meshshadow import PosedMesh, mesh_silhouette
+
+    s = floor_scene(112, 84)
+    c = s.world_to_camera([0.2, 0.15, -2.4])
+    sph = trimesh.creation.icosphere(subdivisions=6, radius=0.15)
+    sil = mesh_silhouette(PosedMesh(np.asarray(sph.vertices) + c, np.asarray(sph.faces)), s.camera,
+                          s.depth.shape)
+    cover = sphere_object_bundle(s.camera, c, 0.15, floor_normal=s.up_cam).mask > 0.5
+    assert (cover & ~sil).sum() <= 2
+    ring = cv2.dilate(cover.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    assert not (sil & ~ring).any()
+
+
 def test_a_thin_objects_shadow_comes_from_its_mesh_not_a_thick_depth_shell():
     """With the posed mesh, the floor behind a thin object's silhouette, which the real
     object leaves in the light, is not shadowed by the 2.5D depth marched with a
