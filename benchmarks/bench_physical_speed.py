@@ -92,10 +92,20 @@ def main(argv=None) -> int:
     for _ in range(args.repeats):
         out = r.render([bg, comp_m])
         mesh_t.append(out.timings["synthesis"])
+    # a dense mesh (a scan, a sculpt): its cost should grow with the pixels, not the faces
+    big = trimesh.creation.icosphere(subdivisions=7, radius=0.3)
+    comp_b = dataclasses.replace(comp, occluder=PosedMesh(
+        np.asarray(big.vertices) + s.world_to_camera([0.4, 0.3, -2.6]), np.asarray(big.faces)))
+    big_t = []
+    for _ in range(args.repeats):
+        out = r.render([bg, comp_b])
+        big_t.append(out.timings["synthesis"])
     print(f"synthesis (bg + composite pass), 512x512, roi {bg.roi}: median {statistics.median(syn_t):.3f} s "
           f"(runs: {', '.join(f'{t:.3f}' for t in syn_t)})")
     print(f"synthesis with the posed mesh ({len(mesh.faces)} faces): median {statistics.median(mesh_t):.3f} s "
           f"(runs: {', '.join(f'{t:.3f}' for t in mesh_t)})")
+    print(f"synthesis with a dense posed mesh ({len(big.faces)} faces): median {statistics.median(big_t):.3f} s "
+          f"(runs: {', '.join(f'{t:.3f}' for t in big_t)})")
     return 0
 
 
