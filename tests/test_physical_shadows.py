@@ -598,6 +598,39 @@ def test_mesh_occlusion_known_values():
     assert mesh_occlusion(mesh_discs(sph), np.zeros((0, 3)), np.zeros((0, 3))).shape == (0,)
 
 
+def test_a_dense_meshs_near_field_is_simplified_and_keeps_its_values():
+    # 81920 faces: more than NEAR_FIELD_TRIANGLES in a point's near field, so the exact
+    # form factors run on a vertex-clustered copy (fewer faces, never the original
+    # 20480-face sphere's); by the contact it still gives the sphere's known occlusion
+    import trimesh
+
+    from zcomp_cli.renderers.physical.meshshadow import (NEAR_SPACINGS, PosedMesh, _near_field_mesh,
+                                                         mesh_discs, mesh_occlusion)
+
+    r, c = 0.5, np.array([0.0, 0.5, 0.0])
+    m = trimesh.creation.icosphere(subdivisions=6, radius=r)
+    dense = PosedMesh(np.asarray(m.vertices) + c, np.asarray(m.faces))
+    discs = mesh_discs(dense)
+    radius = NEAR_SPACINGS * np.sqrt(discs.areas.mean())
+    simple = _near_field_mesh(dense, radius)
+    assert len(simple.faces) < 0.7 * len(dense.faces)
+    light = _sphere_mesh(c, r)  # 5120 faces: left as it is
+    assert _near_field_mesh(light, NEAR_SPACINGS * np.sqrt(mesh_discs(light).areas.mean())) is light
+    # its vertices lie on the sphere to within a cell
+    assert np.abs(np.linalg.norm(simple.vertices - c, axis=1) - r).max() < radius / 12.0
+    xn = np.array([0.02, 0.05, 0.1, 0.2, 0.3])
+    Pn = np.stack([xn, np.zeros_like(xn), np.zeros_like(xn)], 1)
+    upn = np.tile([0.0, 1.0, 0.0], (len(xn), 1))
+    dn = np.linalg.norm(c - Pn, axis=1)
+    near = mesh_occlusion(discs, Pn, upn, mesh=dense)
+    assert np.allclose(near, (r / dn) ** 2 * (0.5 / dn), atol=0.03), near
+    # a non-finite vertex: its own cluster, its faces dropped, the rest unchanged
+    bad = PosedMesh(dense.vertices.copy(), dense.faces)
+    bad.vertices[0] = np.nan
+    got = mesh_occlusion(mesh_discs(bad), Pn, upn, mesh=bad)
+    assert np.all(np.isfinite(got)) and np.allclose(got, near, atol=0.03)
+
+
 def test_the_sky_a_floating_object_hides_comes_from_its_mesh():
     """On a bare floor (contact shadow: the expected shadow is the ambient occlusion),
     the floor around a sphere floating above it is darkened by what the real sphere
