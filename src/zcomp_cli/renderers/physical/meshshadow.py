@@ -20,8 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-MAX_SAMPLES = 200_000
+# Shadow-map samples of the mesh's surface: per cell's area of it, and at most.
 MESH_SAMPLE_DENSITY = 8.0
+MAX_SAMPLES = 200_000
 
 
 @dataclass

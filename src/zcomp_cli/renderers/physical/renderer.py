@@ -29,7 +29,7 @@ _DEFAULTS = {
 
 
 def _clean(a, lo, hi):
-    # (nan_to_num copies, unless given a float64 array; the clip then works in place)
+    # one copy (np.array), then nan_to_num and the clip in place on it
     out = np.nan_to_num(np.array(a, np.float64), copy=False, nan=0.0, posinf=hi, neginf=lo)
     return np.clip(out, lo, hi, out=out)
 
