@@ -21,6 +21,10 @@ from zcomp_cli.renderers.physical.lighting import ExtraLight, LightEstimate, _do
 from zcomp_cli.renderers.physical.visibility import march_visibility
 
 
+# Where a manifest light's radius came from, when it gives ``angular_radius_deg``.
+MANIFEST_RADIUS_SOURCE = "manifest: angular_radius_deg"
+
+
 def direction_from_angles(azimuth_deg: float, elevation_deg: float, up: np.ndarray) -> np.ndarray:
     """Camera-frame unit vector toward a light at ``azimuth_deg`` (0 = image right, 90 =
     away from the camera, in the support plane of normal ``up``) and ``elevation_deg``
@@ -108,7 +112,7 @@ def light_from_spec(spec: dict, depth, normals, shading, known, camera: Camera, 
                                 softness_deg=None if radii[0] is None else float(radii[0]))
         est.source = "manifest"
         if radii[0] is not None:
-            est.softness_source = "manifest: angular_radius_deg"
+            est.softness_source = MANIFEST_RADIUS_SOURCE
         est.direction_source = f"manifest: {hows[0]}"
         # read from a shadow, or only fitted to the shading (a bare floor: the regression
         # then splits the light from the ambient as it can, which the report must say)
@@ -139,7 +143,7 @@ def light_from_spec(spec: dict, depth, normals, shading, known, camera: Camera, 
     return LightEstimate(dirs[0], strengths[0] * amb, sh_c, float(1.0 / total), radius(radii[0]),
                          float("nan"), float("nan"), 0.0, None, 0.0, "manifest strength", "manifest",
                          0.0, f"manifest: {hows[0]}", extra_lights=extras,
-                         softness_source=("manifest: angular_radius_deg" if radii[0] is not None
+                         softness_source=(MANIFEST_RADIUS_SOURCE if radii[0] is not None
                                           else "manifest default: 1 deg"))
 
 

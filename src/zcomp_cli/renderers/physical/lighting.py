@@ -32,6 +32,8 @@ from zcomp_cli.renderers.physical.visibility import march_visibility
 # 5 deg lights. Chosen on seed 8128: 3 and 8 deg gave 33.41 and 33.45 dB, shadow IoU
 # 0.397 and 0.404, darkness error 0.166 and 0.163 (the fit: 33.38, 0.400, 0.164).
 KEY_SOFTNESS_DEG = 8.0
+# Where the radius came from when the caller gives it (``softness_deg``), for the report.
+GIVEN_SOFTNESS_SOURCE = "given (the renderer's shadow_softness)"
 PRIOR_SOFTNESS_DEG = 15.0
 PRIOR_AMBIENT_SHARE = 0.4
 # Pixels in shadow (and lit) on the dominant surface needed to read the ambient share
@@ -474,7 +476,7 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
                              PRIOR_SOFTNESS_DEG if softness_deg is None else float(softness_deg),
                              float("nan"), 0.0, spread, reason,
                              softness_source=("prior (not measured)" if softness_deg is None
-                                              else "given (the renderer's shadow_softness)"))
+                                              else GIVEN_SOFTNESS_SOURCE))
 
     if len(idx) < 50:
         return prior(f"too few known pixels with valid geometry ({len(idx)} < 50)")
@@ -650,7 +652,7 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     # softness: the light's angular radius is not measured (KEY_SOFTNESS_DEG, a lamp's
     # LAMP_SOFTNESS_DEG) unless given
     radius = float(softness_deg) if softness_deg is not None else (LAMP_SOFTNESS_DEG if near else KEY_SOFTNESS_DEG)
-    softness_src = ("given (the renderer's shadow_softness)" if softness_deg is not None else
+    softness_src = (GIVEN_SOFTNESS_SOURCE if softness_deg is not None else
                     f"not measured: a lamp's {LAMP_SOFTNESS_DEG:g} deg" if near else
                     f"not measured: a key light's {KEY_SOFTNESS_DEG:g} deg")
     dirs = cone_directions(best, radius, cone_samples if radius > 0 else 1, seed=seed)

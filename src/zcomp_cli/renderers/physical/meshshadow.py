@@ -146,16 +146,13 @@ def mesh_shadow(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, light_
     l = np.asarray(light_dir, np.float64)
     l = l / np.linalg.norm(l)
     u, v = _basis(l)
-    V, F = mesh.vertices, mesh.faces
-    tri = V[F]  # (M, 3, 3)
     # a non-finite corner drops its triangle (as the silhouette and the sky's elements
     # do); a mesh left without area shadows nothing (sampling it raised a ValueError)
-    tri = tri[np.all(np.isfinite(tri), axis=(1, 2))]
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    tri, _, area, _ = _area_triangles(mesh)
     P = np.asarray(points, np.float64)
     if not area.sum() > 0:
         return np.ones(len(P)), np.full(len(P), np.inf)
-    V = V[np.all(np.isfinite(V), axis=1)]
+    V = mesh.vertices[np.all(np.isfinite(mesh.vertices), axis=1)]
     ext = np.ptp(V @ np.stack([u, v], 1), axis=0).max() + 1e-9
     if cell is None:
         cell = ext / 256.0
@@ -281,7 +278,9 @@ def mesh_occlusion(discs: MeshDiscs, points: np.ndarray, normals: np.ndarray, *,
             f, r2 = _form_factors(discs, P[idx], Nn[idx])
             part = np.zeros(len(P))
             part[idx] = (f * (r2 < rho2)).sum(1)
-            tri, _, _, inside_out = _area_triangles(_near_field_mesh(mesh, np.sqrt(rho2)))
+            whole = _area_triangles(mesh)
+            near_mesh = _near_field_mesh(mesh, np.sqrt(rho2), area=whole[2])
+            tri, _, _, inside_out = whole if near_mesh is mesh else _area_triangles(near_mesh)
             if inside_out:  # wound outward, as the discs' normals are
                 tri = tri[:, ::-1]
             cen = tri.mean(1)
@@ -310,16 +309,18 @@ def mesh_occlusion(discs: MeshDiscs, points: np.ndarray, normals: np.ndarray, *,
 NEAR_FIELD_TRIANGLES = 1000
 
 
-def _near_field_mesh(mesh: PosedMesh, radius: float) -> PosedMesh:
+def _near_field_mesh(mesh: PosedMesh, radius: float, area: np.ndarray | None = None) -> PosedMesh:
     """The mesh as the exact near field of radius ``radius`` uses it: itself, unless its
     mean triangle is smaller than that disc's area / NEAR_FIELD_TRIANGLES; then its
     vertices merged on a grid whose cells hold one such triangle (vertex clustering:
     each cell's vertices become their mean, faces left with fewer than three distinct
     corners dropped). The surface moves by less than a cell, radius / 12.6. (With the
     radius ``mesh_occlusion`` uses, NEAR_SPACINGS spacings of AO_DISCS discs cut from the
-    same area, this is a face count: more than 512000 / (4 pi) = 40744 faces.)"""
-    tri, _, area, _ = _area_triangles(mesh)
-    if not len(tri) or area.mean() >= np.pi * radius ** 2 / NEAR_FIELD_TRIANGLES:
+    same area, this is a face count: more than 512000 / (4 pi) = 40744 faces.) ``area``:
+    the areas ``_area_triangles`` gives for the mesh, when the caller has them."""
+    if area is None:
+        area = _area_triangles(mesh)[2]
+    if not len(area) or area.mean() >= np.pi * radius ** 2 / NEAR_FIELD_TRIANGLES:
         return mesh
     cell = radius * np.sqrt(2.0 * np.pi / NEAR_FIELD_TRIANGLES)  # a right triangle's legs
     V = np.asarray(mesh.vertices, np.float64)

@@ -100,11 +100,8 @@ def classwise_blur(values: np.ndarray, classes: np.ndarray, valid: np.ndarray, r
         # needs a small crop): the same result as over the whole frame
         sl = (slice(max(0, ys[0] - reach), min(H, ys[-1] + 1 + reach)),
               slice(max(0, xs[0] - reach), min(W, xs[-1] + 1 + reach)))
-        w = (valid[sl] & in_c[sl]).astype(np.float32)
-        num = gaussian_blur((values[sl] * w).astype(np.float32), radius)
-        den = gaussian_blur(w, radius)
-        m = dest[sl] & in_c[sl] & (den > 1e-4)
-        out[sl][m] = num[m] / den[m]
+        m = dest[sl] & in_c[sl]
+        out[sl][m] = normalized_blur(values[sl], valid[sl] & in_c[sl], radius)[m]
     return out
 
 
