@@ -624,10 +624,15 @@ def test_a_dense_meshs_near_field_is_simplified_and_keeps_its_values():
     dn = np.linalg.norm(c - Pn, axis=1)
     near = mesh_occlusion(discs, Pn, upn, mesh=dense)
     assert np.allclose(near, (r / dn) ** 2 * (0.5 / dn), atol=0.03), near
-    # a non-finite vertex: its own cluster, its faces dropped, the rest unchanged
+    # non-finite vertices: each its own cluster, their faces dropped, the rest unchanged
+    import warnings
+
     bad = PosedMesh(dense.vertices.copy(), dense.faces)
     bad.vertices[0] = np.nan
-    got = mesh_occlusion(mesh_discs(bad), Pn, upn, mesh=bad)
+    bad.vertices[1] = np.inf
+    with warnings.catch_warnings():  # and quietly: no RuntimeWarning from the inf corner
+        warnings.simplefilter("error", RuntimeWarning)
+        got = mesh_occlusion(mesh_discs(bad), Pn, upn, mesh=bad)
     assert np.all(np.isfinite(got)) and np.allclose(got, near, atol=0.03)
 
 

@@ -208,8 +208,9 @@ def _area_triangles(mesh: PosedMesh):
     products (M, 3), areas (M,), inside_out). ``inside_out``: wound inside out, a
     negative signed volume; their outward normals are then the cross products turned."""
     tri = mesh.vertices[mesh.faces]
-    cr = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    area = 0.5 * np.linalg.norm(cr, axis=1)
+    with np.errstate(invalid="ignore"):  # a non-finite corner: dropped just below
+        cr = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        area = 0.5 * np.linalg.norm(cr, axis=1)
     ok = area > 0  # (False for a non-finite corner too)
     tri, cr, area = tri[ok], cr[ok], area[ok]
     inside_out = bool(len(tri)) and bool(np.einsum("ij,ij->i", tri[:, 0] - tri[:, 0].mean(0), cr).sum() < 0)
