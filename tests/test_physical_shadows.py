@@ -302,6 +302,25 @@ def test_known_direction_with_auto_strength_measures_the_share():
     assert abs(info["ambient_share"] - true_share) < 0.1
 
 
+def test_shadow_level_reads_the_dark_part_of_a_spilling_prediction():
+    """A screen-space shadow spills onto lit floor: the level is the dark pixels' (0.4),
+    not the median over the whole prediction (1.0, no shadow at all, before); too few
+    dark pixels measure nothing."""
+    from zcomp_cli.renderers.physical.evidence import DARK_LEVEL
+    from zcomp_cli.renderers.physical.lighting import MIN_SHADOW_PIXELS, shadow_level
+
+    e = np.concatenate([np.full(30, 0.6), np.zeros(70), np.full(50, 0.9)])
+    predicted = np.r_[np.ones(100, bool), np.zeros(50, bool)]  # the last 50: unpredicted
+    assert shadow_level(e, predicted) == pytest.approx(0.4)
+    assert np.median(1.0 - e[predicted]) == pytest.approx(1.0)
+    few = e.copy()
+    few[MIN_SHADOW_PIXELS - 1:30] = 0.0
+    assert shadow_level(few, predicted) is None
+    # penumbra darker than DARK_LEVEL counts; lighter does not
+    e2 = np.r_[np.full(20, DARK_LEVEL + 0.05), np.full(20, DARK_LEVEL - 0.05)]
+    assert shadow_level(e2, np.ones(40, bool)) == pytest.approx(1.0 - DARK_LEVEL - 0.05)
+
+
 def test_known_direction_with_auto_strength_on_a_bare_floor_says_the_share_is_not_measured():
     """No shadow in the photo to read the darkness from (a bare floor): the share comes
     from the shading fit alone, and the report says it was not measured."""
