@@ -434,7 +434,7 @@ def test_known_direction_stays_when_the_photo_shows_no_light_along_it():
     prior's, and its shadow is cast at the documented minimum ambient share."""
     import dataclasses
 
-    from zcomp_cli.renderers.physical.lighting import MIN_FIT_AMBIENT_SHARE
+    from zcomp_cli.renderers.physical.lighting import MIN_CAST_AMBIENT_SHARE
 
     s = floor_scene(112, 84, with_wall=True, wall_distance=4.5, light_intensity=0.0, ambient=0.5)
     given = np.array([0.6, 1.0, 0.3]) / np.linalg.norm([0.6, 1.0, 0.3]) @ s.cam_to_world  # camera frame
@@ -445,13 +445,13 @@ def test_known_direction_stays_when_the_photo_shows_no_light_along_it():
     info = out.info["light"]
     assert out.info["fallback"] is None
     assert np.allclose(info["direction"], given)
-    assert info["ambient_share"] == pytest.approx(MIN_FIT_AMBIENT_SHARE)
+    assert info["ambient_share"] == pytest.approx(MIN_CAST_AMBIENT_SHARE)
     assert "no light along the given direction" in info["share_source"]
     # the object's cast shadow is drawn: the composite is darker than the background
     # somewhere off the object, by about 1 - share on the floor
     ratio = out.images[1][..., 1] / np.maximum(out.images[0][..., 1], 1e-6)
     off = mask & ~sel & (s.depth > 0)
-    assert ratio[off].min() < 1.0 - 0.8 * (1.0 - MIN_FIT_AMBIENT_SHARE)
+    assert ratio[off].min() < 1.0 - 0.8 * (1.0 - MIN_CAST_AMBIENT_SHARE)
 
 
 
@@ -461,7 +461,7 @@ def test_unmeasured_known_lights_share_one_lights_direct_light():
     share (each taken as bright as the single light left 0.2, shadows twice too dark)."""
     import dataclasses
 
-    from zcomp_cli.renderers.physical.lighting import MIN_FIT_AMBIENT_SHARE
+    from zcomp_cli.renderers.physical.lighting import MIN_CAST_AMBIENT_SHARE
 
     s = floor_scene(112, 84, with_wall=True, wall_distance=4.5, light_intensity=0.0, ambient=0.5)
     mk = lambda v: {"type": "directional", "direction": list(np.asarray(v) / np.linalg.norm(v) @ s.cam_to_world),  # noqa: E731
@@ -470,14 +470,14 @@ def test_unmeasured_known_lights_share_one_lights_direct_light():
     light = {"type": "lights", "lights": [mk([0.6, 1.0, 0.3]), mk([-0.6, 1.0, 0.3])]}
     out = PhysicalRenderer().render([dataclasses.replace(r, light=light) for r in (bg, comp)], seed=1)
     info = out.info["light"]
-    assert info["ambient_share"] == pytest.approx(MIN_FIT_AMBIENT_SHARE)
+    assert info["ambient_share"] == pytest.approx(MIN_CAST_AMBIENT_SHARE)
     extra = info["lights"][1]
-    assert extra["shadow_ratio"] == pytest.approx(1.0 - (1.0 - MIN_FIT_AMBIENT_SHARE) / 2)
+    assert extra["shadow_ratio"] == pytest.approx(1.0 - (1.0 - MIN_CAST_AMBIENT_SHARE) / 2)
     assert "none measured" in extra["shadow_ratio_from"]
     # the shadows are drawn
     ratio = out.images[1][..., 1] / np.maximum(out.images[0][..., 1], 1e-6)
     off = mask & ~sel & (s.depth > 0)
-    assert ratio[off].min() < 1.0 - 0.5 * (1.0 - MIN_FIT_AMBIENT_SHARE) / 2
+    assert ratio[off].min() < 1.0 - 0.5 * (1.0 - MIN_CAST_AMBIENT_SHARE) / 2
 
 def _sphere_mesh(centre_cam, radius):
     import trimesh
