@@ -34,6 +34,8 @@ from zcomp_cli.renderers.physical.visibility import march_visibility
 KEY_SOFTNESS_DEG = 8.0
 # Where the radius came from when the caller gives it (``softness_deg``), for the report.
 GIVEN_SOFTNESS_SOURCE = "given (the renderer's shadow_softness)"
+# Where the prior's radius came from (no light estimated, none given).
+PRIOR_SOFTNESS_SOURCE = "prior (not measured)"
 PRIOR_SOFTNESS_DEG = 15.0
 PRIOR_AMBIENT_SHARE = 0.4
 # Pixels in shadow (and lit) on the dominant surface needed to read the ambient share
@@ -155,7 +157,7 @@ class LightEstimate:
     # centre ``direction`` points from; the renderer aims the light at each object
     lamp_position: np.ndarray | None = None
     lamp_aim: np.ndarray | None = None
-    softness_source: str = "prior (not measured)"
+    softness_source: str = PRIOR_SOFTNESS_SOURCE
 
     @property
     def cone_deg(self) -> float:
@@ -511,7 +513,7 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
         return LightEstimate(prior_dir, inten, sh_c, PRIOR_AMBIENT_SHARE,
                              PRIOR_SOFTNESS_DEG if softness_deg is None else float(softness_deg),
                              float("nan"), 0.0, spread, reason,
-                             softness_source=("prior (not measured)" if softness_deg is None
+                             softness_source=(PRIOR_SOFTNESS_SOURCE if softness_deg is None
                                               else GIVEN_SOFTNESS_SOURCE))
 
     if len(idx) < 50:

@@ -343,10 +343,10 @@ class PhysicalRenderer(Renderer):
             vis[lit], t_hit[lit] = v, t
         vis = np.where(ok & ~lit, 1.0, vis)  # facing away: n.l = 0 does the shading
         ok_full = geo_all[wy0:wy1, wx0:wx1]
+        cls_w = _depth_classes(d[wy0:wy1, wx0:wx1])  # the stride-2 blur's and the penumbra's
         if st == 2:
             h_, w_ = wy1 - wy0, wx1 - wx0
             up2 = lambda a: np.repeat(np.repeat(a, 2, 0), 2, 1)[:h_, :w_]
-            cls_w = _depth_classes(d[wy0:wy1, wx0:wx1])
             same = up2(ok) & (up2(cls_w[::2, ::2]) == cls_w)
             vis = classwise_blur(up2(vis), cls_w, ok_full & same, 1.0, fill=ok_full)
             t_hit = up2(t_hit)
@@ -355,7 +355,7 @@ class PhysicalRenderer(Renderer):
         # filtered only over the box of the pixels asked for (the window's margin is
         # context for the blurs)
         by0, bx0 = int(ys.min()) - wy0, int(xs.min()) - wx0
-        vs = penumbra_filter(vis, t_hit, d[wy0:wy1, wx0:wx1], _depth_classes(d[wy0:wy1, wx0:wx1]),
+        vs = penumbra_filter(vis, t_hit, d[wy0:wy1, wx0:wx1], cls_w,
                              ok, camera.fx, tan_a, box=(by0, bx0, int(ys.max()) + 1 - wy0, int(xs.max()) + 1 - wx0))
         return vs[ys - wy0 - by0, xs - wx0 - bx0]
 
