@@ -53,6 +53,24 @@ def test_shadow_at_the_base_confirms_the_shading_direction(size):
     assert e.share_source.startswith("cast shadows") and abs(e.ambient_share - true_share) < 0.05
 
 
+def test_a_shadow_at_the_base_decides_where_the_shading_is_misled():
+    """The high sun's box shadow hugs its base (crease-band evidence only, as above), and
+    a brightness ramp across the floor (a bright wall's bounce, a window's falloff)
+    pulls the shading's direction far off: the two disagree, and the band's evidence,
+    as much as a cast shadow needs away from a crease (MIN_EVIDENCE_PX), decides alone
+    (before: the contact shadow only, with a direction 48 deg off)."""
+    from zcomp_cli.renderers.physical.lighting import MIN_EVIDENCE_PX, RELAXED_AGREE_DEG
+
+    s = floor_scene(160, 120, with_box=True, light_dir=(0.4, 1.6, 0.1), ambient=0.3, box_center=(-0.4, -3.2))
+    ramp = 1.0 + 0.3 * np.linspace(-1.0, 1.0, s.depth.shape[1])[None, :, None]
+    e = estimate_lighting(s.depth, s.normals, (s.shading * ramp).astype(np.float32), s.depth > 0, s.camera, **FAST)
+    assert e.evidence_px < MIN_EVIDENCE_PX <= e.band_evidence_px
+    assert e.fallback is None and e.direction_source.startswith("cast shadows of visible geometry at their occluders")
+    agree = float(e.direction_source.split(" px with the crease band, ")[1].split(" deg")[0])
+    assert agree > RELAXED_AGREE_DEG  # the shading's direction was far off
+    assert _angle(e.direction, s.light_dir_cam) < 10.0  # 5.9 deg
+
+
 def test_penumbra_is_one_smooth_ramp():
     # a hard shadow edge, occluder 1 m away, 5 deg light: one monotonic ramp, no bands
     H, W = 40, 120
