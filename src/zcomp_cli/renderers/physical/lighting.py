@@ -347,6 +347,17 @@ def _downsample(depth, normals, shading, known, camera, max_res):
     return d, n, sh, k, camera.resized(w, h)
 
 
+def _fine_spiral(b: np.ndarray, step_deg: float, up: np.ndarray, keep: np.ndarray | None = None) -> np.ndarray:
+    """``b`` and 40 directions around it within 1.5 coarse steps, above the support
+    (and where ``keep`` of them, a function of the directions, says so): the refinement
+    of a coarse search's best candidate."""
+    fine = cone_directions(b, 1.5 * step_deg, 40, seed=0)
+    ok = fine @ up > 0.02
+    if keep is not None:
+        ok &= keep(fine)
+    return np.concatenate([b[None], fine[ok]])
+
+
 def _second_light(best, cands, Pe, Ne, Ee, ew, d, cam, up, march_steps, step_deg):
     """The direction of a second light, or None: the candidate at least
     SECOND_LIGHT_SEP_DEG from ``best`` that explains the most cast-shadow evidence
@@ -362,8 +373,7 @@ def _second_light(best, cands, Pe, Ne, Ee, ew, d, cam, up, march_steps, step_deg
     if ev.max() < MIN_EVIDENCE_PX:
         return None
     b = far[int(np.argmax(ev))]
-    fine = cone_directions(b, 1.5 * step_deg, 40, seed=0)
-    fine = np.concatenate([b[None], fine[(fine @ up > 0.02) & (fine @ best < np.cos(np.deg2rad(SECOND_LIGHT_SEP_DEG)))]])
+    fine = _fine_spiral(b, step_deg, up, keep=lambda f: f @ best < np.cos(np.deg2rad(SECOND_LIGHT_SEP_DEG)))
     return fine[int(np.argmax(evidence_scores(Pe, Ne, Ee, w, fine, d, cam, steps=march_steps,
                                               tau=SECOND_LIGHT_TAU)))]
 
@@ -611,7 +621,10 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
                      f"the shadows, it is {lamp_deg:.3g} deg from their direction")
         lamp, near = None, False
     agree_deg, band_px = float("nan"), 0.0
-    band_alone, band_note = False, ""
+    # the crease band's direction agrees with the shading's within AGREE_DEG, or within
+    # the relaxed agreement; or it decides alone (shading branch only)
+    agrees = relaxed = band_alone = False
+    band_note, dt_band = "", None
     given = direction is not None
     extra_dirs: list = []
     if given or near:
@@ -629,8 +642,7 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
         bi, bw = evidence_sample(e_band, usable | band)
     elif from_shadows:
         best = cands[int(np.argmax(ev))]
-        fine = cone_directions(best, 1.5 * step_deg, 40, seed=0)
-        fine = np.concatenate([best[None], fine[fine @ up > 0.02]])
+        fine = _fine_spiral(best, step_deg, up)
         fe = evidence_scores(Pe, Ne, Ee, ew, fine, d, cam, steps=march_steps)
         best = fine[int(np.argmax(fe))]
         # plausible directions: those explaining nearly as much
@@ -648,8 +660,7 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
         spread_deg = direction_uncertainty_deg(cands, scores, best)
         med = float(np.median(scores))
         contrast = float((med - scores.min()) / max(med, 1e-12))
-        fine = cone_directions(best, 1.5 * step_deg, 40, seed=0)
-        fine = np.concatenate([best[None], fine[fine @ up > 0.02]])
+        fine = _fine_spiral(best, step_deg, up)
         fs = score_dirs(fine)
         best = fine[np.argmin(fs)]
         # Confirmation: the evidence again, with the crease band counted for the
@@ -666,9 +677,10 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
             band_px = float(evb.max())
             band_dir = cands[int(np.argmax(evb))]
             agree_deg = float(np.degrees(np.arccos(np.clip(best @ band_dir, -1.0, 1.0))))
-        agreeing = ((band_px >= MIN_AGREE_EVIDENCE_PX and agree_deg <= AGREE_DEG)
-                    or (RELAXED_BAND_PX[0] <= band_px <= RELAXED_BAND_PX[1] and agree_deg <= RELAXED_AGREE_DEG))
-        if not agreeing and band_px >= MIN_EVIDENCE_PX:
+        agrees = band_px >= MIN_AGREE_EVIDENCE_PX and agree_deg <= AGREE_DEG
+        relaxed = (not agrees and RELAXED_BAND_PX[0] <= band_px <= RELAXED_BAND_PX[1]
+                   and agree_deg <= RELAXED_AGREE_DEG)
+        if not (agrees or relaxed) and band_px >= MIN_EVIDENCE_PX:
             # Where the two disagree, as much evidence at the base as a cast shadow
             # needs away from it decides alone: on a floor and a wall the shading
             # hardly pins the light (seed 1618 case 14: 23.5 px, the band's direction
@@ -677,14 +689,13 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
             # photo's shading says no light casts is something else (seed 1618 case 0:
             # a back wall's foot and a box cut by the frame, 108 deg off).
             Pb, Nb, Eb = pts_all.reshape(-1, 3)[bi], nvalid.reshape(-1, 3)[bi], e_band.ravel()[bi]
-            fine = cone_directions(band_dir, 1.5 * step_deg, 40, seed=0)
-            fine = np.concatenate([band_dir[None], fine[fine @ up > 0.02]])
+            fine = _fine_spiral(band_dir, step_deg, up)
             b_dir = fine[int(np.argmax(evidence_scores(Pb, Nb, Eb, bw, fine, d, cam, steps=march_steps)))]
             r = float(softness_deg) if softness_deg is not None else KEY_SOFTNESS_DEG
             dt_b = direct_term(P, Nrm, cone_directions(b_dir, r, cone_samples if r > 0 else 1, seed=seed),
                                d, cam, march_visibility, **march)
             if max(_fit_candidate(basis, dt_b, S[:, c], ridge, dark_weight=1.0)[0][4] for c in range(3)) > 0:
-                best, band_alone, from_shadows = b_dir, True, True
+                best, band_alone, from_shadows, dt_band = b_dir, True, True, dt_b
                 # the shadow's darkness is read on these pixels, as measured
                 Pe, Ne, Ee = Pb, Nb, e_map.ravel()[bi]
                 spread_deg = direction_uncertainty_deg(cands, -evb / max(band_px, 1e-9) + 2.0, best)
@@ -697,15 +708,11 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
                          f"(evidence {evidence_px:.3g} px < {MIN_EVIDENCE_PX}) and a flat score landscape "
                          f"(contrast {contrast:.3g} < {flat_threshold}), normal spread {spread:.3g}")
 
-    agrees = not (given or near or from_shadows) and band_px >= MIN_AGREE_EVIDENCE_PX and agree_deg <= AGREE_DEG
-    confirmed = given or near or agrees
-    relaxed = (not (confirmed or from_shadows) and RELAXED_BAND_PX[0] <= band_px <= RELAXED_BAND_PX[1]
-               and agree_deg <= RELAXED_AGREE_DEG)
     if relaxed or agrees:
         # two independent estimates of the same light: their mean
         best = best + band_dir
         best = best / np.linalg.norm(best)
-        confirmed = True
+    confirmed = given or near or agrees or relaxed
     if confirmed:
         # the shadow's darkness is read on the crease band too, as measured (a cast
         # shadow at its occluder's base is darkened by the occlusion as well)
@@ -725,8 +732,11 @@ def estimate_lighting(depth, normals, shading, known, camera: Camera, *,
     softness_src = (GIVEN_SOFTNESS_SOURCE if softness_deg is not None else
                     f"not measured: a lamp's {LAMP_SOFTNESS_DEG:g} deg" if near else
                     f"not measured: a key light's {KEY_SOFTNESS_DEG:g} deg")
-    dirs = cone_directions(best, radius, cone_samples if radius > 0 else 1, seed=seed)
-    dt = direct_term(P, Nrm, dirs, d, cam, march_visibility, **march)
+    if dt_band is not None:  # (the same direction and radius, already marched)
+        dt = dt_band
+    else:
+        dirs = cone_directions(best, radius, cone_samples if radius > 0 else 1, seed=seed)
+        dt = direct_term(P, Nrm, dirs, d, cam, march_visibility, **march)
     s_r = _fit_candidate(basis, dt, Y, ridge)[1]
     # The direction's uncertainty is reported, but neither widens the shadow nor
     # enters the fit of the light's strength (that diluted the shadows).
