@@ -24,10 +24,27 @@
 
 Another checkout of zcomp can be compared as an extra method, e.g. the code before a
 change: ``--extra physical-before=/tmp/old/src`` runs its ``physical`` renderer with
-that source tree first on PYTHONPATH. ``--true-direction`` adds physical-true-dir: each
-scene given the true directions of the brightest light reaching its object and of a
-second one bright enough (``write_true_direction_jobs``; ``strength: auto``), what the renderer
-reaches with the directions right.
+that source tree first on PYTHONPATH.
+
+**Oracles** (DESIGN.md section 8): ``--oracle direction,size,full`` gives the physical
+renderer progressively more of the truth the generator knows, each level a row
+(``physical-oracle-<level>``, ``write_oracle_jobs``); the gap between two adjacent rows is
+the error of the part added between them:
+
+* ``direction``: the true directions of the brightest light reaching the object and of
+  a second one bright enough (``strength: auto``: the rest is fitted); an area lamp's
+  is where it is (a lamp at its position, ``power: auto``): its light does not come
+  from one direction;
+* ``size``: the same, plus each light's true angular radius (a sun's; the HDR map's
+  brightest source's as measured on it) or an area lamp's radius (a disc of its area);
+* ``full``: everything the path tracer knew: the scene's HDR map as a probe (its
+  rotation, Blender's convention, its strength), every lamp at its position with its
+  power (suns with their irradiance and size), and the camera's pitch; only the
+  exposure is fitted. This row is the transport's own limit.
+
+``--true-direction`` is ``--oracle direction``.
+Besides the paper's metrics each row has PSNR near the object and on the object's own
+pixels (``psnr_object``: what a viewer looks at first).
 """
 
 from __future__ import annotations
@@ -42,7 +59,7 @@ import sys
 from pathlib import Path
 
 COLUMNS = ["psnr", "rmse", "si-rmse", "ssim", "mae", "lpips", "flip", "shadow-iou", "shadow-darkness"]
-EXTRA = ["psnr_near", "light_dir_err_deg", "dominant_light_err_deg", "shown_light_err_deg", "cast_shadow_err_deg",
+EXTRA = ["psnr_near", "psnr_object", "light_dir_err_deg", "dominant_light_err_deg", "shown_light_err_deg", "cast_shadow_err_deg",
          "median_s_per_job"]
 
 
@@ -128,7 +145,8 @@ def per_case(bench_dir: Path, res_dir: Path, truths: dict[str, dict] | None = No
     rows = []
     for c in bench["cases"]:
         job = next(iter(sorted(res_dir.glob(f"*{c['id']}*"))), None)
-        row = {"case": c["id"], "psnr_near": float("nan"), "light_dir_err_deg": float("nan"),
+        row = {"case": c["id"], "psnr_near": float("nan"), "psnr_object": float("nan"),
+               "light_dir_err_deg": float("nan"),
                "shadow_in_frame": False, "lamp": "", "lamp_blocked": ""}
         lights = truths[c["id"]]["lights"]
         # a lamp counts only where it reaches the object: a sun behind a wall casts none
@@ -149,8 +167,9 @@ def per_case(bench_dir: Path, res_dir: Path, truths: dict[str, dict] | None = No
             h = ys.max() - ys.min() + 1
             near = np.zeros(om.shape, bool)
             near[max(0, ys.min() - h // 4):ys.max() + 1 + h // 2, max(0, xs.min() - h):xs.max() + 1 + h] = True
-            mse = np.mean((linear_to_srgb(np.clip(pred, 0, None)) - linear_to_srgb(np.clip(gt, 0, None)))[near] ** 2)
-            row["psnr_near"] = float(10 * np.log10(1.0 / max(mse, 1e-12)))
+            err2 = (linear_to_srgb(np.clip(pred, 0, None)) - linear_to_srgb(np.clip(gt, 0, None))) ** 2
+            row["psnr_near"] = float(10 * np.log10(1.0 / max(float(np.mean(err2[near])), 1e-12)))
+            row["psnr_object"] = float(10 * np.log10(1.0 / max(float(np.mean(err2[om])), 1e-12)))
         row["shadow_in_frame"] = bool(darkened_region(gt, bg, om).sum() >= 30)
         rep = json.loads((job / "report.json").read_text())
         light = (((rep.get("renderer") or {}).get("info") or {}).get("light") or {})
@@ -178,25 +197,114 @@ def per_case(bench_dir: Path, res_dir: Path, truths: dict[str, dict] | None = No
 SECOND_TRUE_LIGHT_FRAC = 0.25
 
 
-def write_true_direction_jobs(bench_dir: Path) -> Path:
-    """OUT/jobs_true_dir.yaml: jobs.yaml with each scene's ``light:`` set to the true
-    directions of the brightest light reaching its object and, when it brings at least
-    SECOND_TRUE_LIGHT_FRAC of that on the floor, the next one (``true_lights``: a lamp
-    or the HDR map's sun), the strengths measured (``auto``). A scene no light reaches
-    keeps the estimate."""
+ORACLE_LEVELS = ("direction", "size", "full")
+
+
+def _true_radius_deg(t: dict, case: dict) -> float:
+    """A ``true_lights`` item's angular radius (degrees) seen from the object's base: a
+    sun's half its angle, an area lamp's square as a disc of its area at its distance,
+    the HDR map's brightest source as measured on the map (``probe.split_probe``)."""
+    import math
+
+    import numpy as np
+
+    lp = t["lamp"]
+    if t["kind"] == "SUN":
+        return 0.5 * float(lp["angle_deg"])
+    if t["kind"] == "AREA":
+        base = np.asarray(case["pose"]["position"], np.float64)
+        dist = float(np.linalg.norm(np.asarray(lp["position"], np.float64) - base))
+        return math.degrees(math.atan(float(lp["size"]) / math.sqrt(math.pi) / max(dist, 1e-6)))
+    src = _hdr_sources(case)
+    if not src:
+        return 0.5
+    return min(src, key=lambda s: -float(np.asarray(s.direction) @ np.asarray(t["direction"]))).radius_deg
+
+
+def _probe_spec(case: dict) -> tuple[dict, dict]:
+    """The case's HDR map as a manifest probe (Blender's convention; the yaw that puts
+    its env frame where the generator's world shader had it) and the camera's tilt."""
+    import math
+
+    import numpy as np
+
+    from zcomp_cli.benchsuite.scenes import BenchScene, bundled_hdr_path
+    from zcomp_cli.worldframe import ground_frame
+
+    scene = BenchScene.from_dict(case["scene"])
+    M = scene.env_to_camera()
+    fwd = ground_frame(scene.up)[2]
+    f_env = M.T @ fwd
+    heading = math.degrees(math.atan2(f_env[1], f_env[0]))
+    rot = (heading - 90.0 + 180.0) % 360.0 - 180.0
+    probe = {"type": "probe", "hdr": str(bundled_hdr_path(scene.hdr)), "convention": "blender",
+             "rotation_deg": rot, "strength": float(scene.hdr_strength)}
+    return probe, {"pitch_deg": -float(scene.pitch_deg), "roll_deg": 0.0}
+
+
+def _hdr_sources(case: dict):
+    from zcomp_cli.benchsuite.scenes import BenchScene
+    from zcomp_cli.renderers.physical.probe import load_probe
+    from zcomp_cli.worldframe import ground_frame, up_from_pitch_roll
+
+    probe, tilt = _probe_spec(case)
+    frame = ground_frame(up_from_pitch_roll(tilt["pitch_deg"], 0.0))
+    return load_probe(probe["hdr"], frame, convention="blender", rotation_deg=probe["rotation_deg"]).sources
+
+
+def write_oracle_jobs(bench_dir: Path, level: str) -> Path:
+    """OUT/jobs_oracle_<level>.yaml: jobs.yaml with each scene given the truth of
+    ``level`` (module docstring, Oracles)."""
+    import math
+
+    import numpy as np
     import yaml
 
+    if level not in ORACLE_LEVELS:
+        raise ValueError(f"unknown oracle level {level!r} (known: {', '.join(ORACLE_LEVELS)})")
     bench = json.loads((bench_dir / "benchmark.json").read_text())
     doc = yaml.safe_load((bench_dir / "jobs.yaml").read_text())
     for c in bench["cases"]:
-        if c["id"] in doc["scenes"]:
-            tl = [t for t in true_lights(c) if t["visible"]]
-            if not tl:
-                continue
-            top = [t for t in tl[:2] if t["floor_irradiance"] >= SECOND_TRUE_LIGHT_FRAC * tl[0]["floor_irradiance"]]
-            lights = [{"direction": [float(v) for v in t["direction"]], "strength": "auto"} for t in top]
-            doc["scenes"][c["id"]]["light"] = lights[0] if len(lights) == 1 else lights
-    path = bench_dir / "jobs_true_dir.yaml"
+        if c["id"] not in doc["scenes"]:
+            continue
+        scene = doc["scenes"][c["id"]]
+        if level == "full":
+            from zcomp_cli.benchsuite.scenes import BenchScene, lamps_for_blender
+
+            probe, tilt = _probe_spec(c)
+            lights = [probe]
+            for lp in lamps_for_blender(BenchScene.from_dict(c["scene"])):
+                travel = np.asarray(lp["direction"], np.float64)
+                if lp["kind"] == "SUN":
+                    lights.append({"type": "sun", "direction": [float(v) for v in -travel],
+                                   "angular_radius_deg": 0.5 * float(lp["angle_deg"]),
+                                   "irradiance": float(lp["strength"]), "color": [float(v) for v in lp["color"]]})
+                else:
+                    lights.append({"type": "lamp", "position": [float(v) for v in lp["position"]],
+                                   "radius_m": float(lp["size"]) / math.sqrt(math.pi), "power": float(lp["strength"]),
+                                   "facing": [float(v) for v in travel], "color": [float(v) for v in lp["color"]]})
+            scene["light"] = lights
+            scene.update(tilt)
+            continue
+        tl = [t for t in true_lights(c) if t["visible"]]
+        if not tl:
+            continue
+        top = [t for t in tl[:2] if t["floor_irradiance"] >= SECOND_TRUE_LIGHT_FRAC * tl[0]["floor_irradiance"]]
+        lights = []
+        for t in top:
+            if t["kind"] == "AREA":
+                lp = t["lamp"]
+                x = {"type": "lamp", "position": [float(v) for v in lp["position"]], "power": "auto",
+                     "facing": [float(v) for v in lp["direction"]]}
+                if level == "size":
+                    x["radius_m"] = float(lp["size"]) / math.sqrt(math.pi)
+            else:
+                x = {"direction": [float(v) for v in t["direction"]], "strength": "auto"}
+                if level == "size":
+                    x["angular_radius_deg"] = float(min(_true_radius_deg(t, c), 45.0))
+            lights.append(x)
+        scene["light"] = lights[0] if len(lights) == 1 else lights
+    path = bench_dir / f"jobs_oracle_{level}.yaml"
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
     return path
 
@@ -229,9 +337,9 @@ def main(argv=None) -> int:
     ap.add_argument("--extra", action="append", default=[], metavar="NAME=SRC",
                     help="also run the physical renderer of another source tree (repeatable)")
     ap.add_argument("--skip-composite", action="store_true", help="reuse results already in OUT/results")
-    ap.add_argument("--true-direction", action="store_true",
-                    help="also run physical-true-dir: each lamp-lit scene given its true light direction "
-                         "(manifest light, strength auto): what the estimate would reach with the direction right")
+    ap.add_argument("--true-direction", action="store_true", help="the same as --oracle direction")
+    ap.add_argument("--oracle", default="", metavar="LEVELS",
+                    help="comma-separated oracle levels to add as rows: direction, size, full (module docstring)")
     args = ap.parse_args(argv)
 
     out = Path(args.out)
@@ -249,14 +357,24 @@ def main(argv=None) -> int:
     for e in args.extra:
         name, _, src = e.partition("=")
         runs.append((name, "physical", src))
-    if args.true_direction:
-        runs.append(("physical-true-dir", "physical", None))
+    levels = [x.strip() for x in args.oracle.split(",") if x.strip()]
+    if args.true_direction and "direction" not in levels:
+        levels.insert(0, "direction")
+    for lv in levels:
+        if lv not in ORACLE_LEVELS:
+            ap.error(f"unknown oracle level {lv!r} (known: {', '.join(ORACLE_LEVELS)})")
+        runs.append((f"physical-oracle-{lv}", "physical", None))
     rows, case_rows = [], []
     truths = case_truths(out)
     for name, method, src in runs:
         res_dir = out / "results" / name
         if not args.skip_composite:
-            jf = write_true_direction_jobs(out) if name == "physical-true-dir" else jobs
+            import shutil
+
+            # a fresh folder: a failed job must not leave an older run's composite to score
+            shutil.rmtree(res_dir, ignore_errors=True)
+            jf = (write_oracle_jobs(out, name[len("physical-oracle-"):]) if name.startswith("physical-oracle-")
+                  else jobs)
             r = zcomp("composite", str(jf), "--out", str(res_dir), "--renderer", method, "--overwrite", src=src)
             if r.returncode not in (0, 1):
                 print(r.stdout, r.stderr, file=sys.stderr)
@@ -273,6 +391,7 @@ def main(argv=None) -> int:
             case_rows.append({"method": name, **c})
         import math
         near = [c["psnr_near"] for c in cases if math.isfinite(c["psnr_near"])]
+        obj = [c["psnr_object"] for c in cases if math.isfinite(c["psnr_object"])]
         errs = [c["light_dir_err_deg"] for c in cases
                 if c["lamp"] and c["shadow_in_frame"] and math.isfinite(c["light_dir_err_deg"])]
         dom = [c["dominant_err_deg"] for c in cases
@@ -287,6 +406,7 @@ def main(argv=None) -> int:
         shown = [c["shown_light_err_deg"] for c in cases if math.isfinite(c.get("shown_light_err_deg", math.nan))]
         rows.append({"method": name, **{c: means.get(c) for c in COLUMNS},
                      "psnr_near": statistics.mean(near) if near else None,
+                     "psnr_object": statistics.mean(obj) if obj else None,
                      "light_dir_err_deg": statistics.median(errs) if errs else None,
                      "dominant_light_err_deg": statistics.median(dom) if dom else None,
                      "shown_light_err_deg": (f"{statistics.median(shown):.1f} ({len(shown)})" if shown else None),
@@ -307,7 +427,8 @@ def main(argv=None) -> int:
         w.writeheader()
         w.writerows(rows)
     with open(out / "cases.csv", "w", newline="") as f:
-        keys = ["method", "case", "lamp", "lamp_blocked", "shadow_in_frame", "psnr_near", "light_dir_err_deg",
+        keys = ["method", "case", "lamp", "lamp_blocked", "shadow_in_frame", "psnr_near", "psnr_object",
+                "light_dir_err_deg",
                 "dominant_light", "dominant_err_deg", "cast_shadows_shown", "shown_light_err_deg", "fallback"]
         w = csv.DictWriter(f, fieldnames=keys, extrasaction="ignore")
         w.writeheader()

@@ -70,12 +70,13 @@ def test_composite_from_photo_casts_a_floor_shadow(tmp_path, photo_manifest):
     m = read_map(job / "debug" / "object_mask.exr") > 0
     lum = lambda x: x @ np.array([0.299, 0.587, 0.114])  # noqa: E731
     ratio = lum(out) / np.maximum(lum(bg), 1e-4)
-    # A bare table top gives no evidence of the light's direction, so the documented
-    # prior (from above, tilted toward the camera, soft) applies: the shadow falls
-    # behind the object, visible as a darkened band hugging its silhouette on the floor.
+    # The object darkens the table around it (a cast shadow or, where the photo does not
+    # fix the light's direction, a contact shadow), and the report says which.
     ring = binary_dilation(m, iterations=6) & ~m
     assert (ratio[ring] < 0.9).sum() >= 5
     far = ~binary_dilation(m, iterations=30)
     assert np.array_equal(out[far], bg[far])  # far pixels untouched
     rep = json.loads((job / "report.json").read_text())
-    assert "unconstrained" in (rep["renderer"]["info"]["light"]["fallback"] or "")
+    light = rep["renderer"]["info"]["light"]
+    assert light["shadow"] in ("cast shadow", "contact shadow only")
+    assert (light["fallback"] is None) == (light["shadow"] == "cast shadow")

@@ -105,12 +105,18 @@ def test_scene_light_parsed(scene_dir):
     p = scene_dir / "jobs.yaml"
     p.write_text(GOOD.replace("fov_deg: 50", "fov_deg: 50\n    light: {azimuth_deg: 135, elevation_deg: 40, "
                                               "angular_radius_deg: 2, strength: 3}"))
-    light = load_manifest(p).scenes["room"].light
+    light = load_manifest(p).scenes["room"].light["lights"][0]
     assert light["azimuth_deg"] == 135 and light["elevation_deg"] == 40 and light["strength"] == 3
-    assert light["angular_radius_deg"] == 2 and light["direction"] is None
+    assert light["angular_radius_deg"] == 2 and light["direction"] is None and light["type"] == "sun"
     p.write_text(GOOD.replace("fov_deg: 50", "fov_deg: 50\n    light: {direction: [0, 2, 0]}"))
-    light = load_manifest(p).scenes["room"].light
-    assert light["direction"] == [0.0, 1.0, 0.0] and light["strength"] == 2.0
+    light = load_manifest(p).scenes["room"].light["lights"][0]
+    # no strength: measured from the photo; no size: the Sun's
+    assert light["direction"] == [0.0, 1.0, 0.0] and light["strength"] == "auto"
+    assert light["angular_radius_deg"] is None
+    # the camera's tilt rides with the light context
+    p.write_text(GOOD.replace("fov_deg: 50", "fov_deg: 50\n    pitch_deg: -20\n    roll_deg: 4"))
+    ctx = load_manifest(p).scenes["room"].light
+    assert ctx == {"pitch_deg": -20.0, "roll_deg": 4.0}
 
 
 def test_scene_light_problems_name_field_and_line(scene_dir):
@@ -134,8 +140,8 @@ def test_scene_light_probe(scene_dir):
     p = scene_dir / "jobs.yaml"
     p.write_text(GOOD.replace("fov_deg: 50", "fov_deg: 50\n    light: {type: probe, hdr: scenes/probe.exr, "
                                               "rotation_deg: 30}"))
-    light = load_manifest(p).scenes["room"].light
-    assert light["type"] == "probe" and light["rotation_deg"] == 30
+    light = load_manifest(p).scenes["room"].light["lights"][0]
+    assert light["type"] == "probe" and light["rotation_deg"] == 30 and light["convention"] == "zcomp"
     assert light["hdr"] == str((scene_dir / "scenes/probe.exr").resolve())
     p.write_text(GOOD.replace("fov_deg: 50", "fov_deg: 50\n    light: {type: probe, hdr: scenes/nope.exr}"))
     with pytest.raises(ManifestError) as ei:
@@ -147,7 +153,7 @@ def test_scene_light_probe(scene_dir):
 def test_scene_light_strength_auto(scene_dir):
     p = scene_dir / "jobs.yaml"
     p.write_text(GOOD.replace("fov_deg: 50", "fov_deg: 50\n    light: {direction: [0, 1, 0], strength: auto}"))
-    light = load_manifest(p).scenes["room"].light
+    light = load_manifest(p).scenes["room"].light["lights"][0]
     assert light["strength"] == "auto" and light["angular_radius_deg"] is None
     p.write_text(GOOD.replace("fov_deg: 50", "fov_deg: 50\n    light: {direction: [0, 1, 0], strength: bright}"))
     with pytest.raises(ManifestError) as ei:
@@ -161,17 +167,17 @@ def test_scene_light_list(scene_dir):
                               "      - {azimuth_deg: 30, elevation_deg: 45, strength: 3}\n"
                               "      - {direction: [-1, 1, 0], strength: 1, angular_radius_deg: 4}"))
     light = load_manifest(p).scenes["room"].light
-    assert light["type"] == "lights" and len(light["lights"]) == 2
+    assert len(light["lights"]) == 2
     assert light["lights"][1]["angular_radius_deg"] == 4 and light["lights"][0]["strength"] == 3
     # one item is that light
     p.write_text(GOOD.replace("fov_deg: 50", "fov_deg: 50\n    light: [{direction: [0, 1, 0]}]"))
-    assert load_manifest(p).scenes["room"].light["type"] == "directional"
+    assert load_manifest(p).scenes["room"].light["lights"][0]["type"] == "sun"
     bad = {
-        "[{direction: [0, 1, 0], strength: auto}, {direction: [1, 1, 0], strength: 2}]":
-            ("scenes.room.light", "all numbers or all 'auto'"),
-        "[{direction: [0, 1, 0]}, {type: probe, hdr: x.exr}]": ("scenes.room.light[1].type", "directional lights only"),
+        "[{direction: [0, 1, 0]}, {type: lamp, position: [0, 1, -2], power: 50}, {direction: [1, 1, 0], strength: 2}]":
+            ("scenes.room.light", "cannot stand beside"),
+        "[{direction: [0, 1, 0]}, {type: spot}]": ("scenes.room.light[1].type", "unsupported light type"),
         "[{direction: [0, 1, 0]}, {direction: [0, 0, 0]}]": ("scenes.room.light[1].direction", "not all 0"),
-        "[]": ("scenes.room.light", "1 to 3"),
+        "[]": ("scenes.room.light", "at least one light"),
     }
     for text, (field, words) in bad.items():
         p.write_text(GOOD.replace("fov_deg: 50", f"fov_deg: 50\n    light: {text}"))

@@ -7,9 +7,9 @@ from zcomp_cli.errors import InputError, UsageError
 from zcomp_cli.renderers import get_renderer
 from zcomp_cli.maps import SceneMaps
 from zcomp_cli.renderers.base import RenderRequest
-from zcomp_cli.renderers.physical import PhysicalRenderer, estimate_lighting
+from zcomp_cli.renderers.physical import PhysicalRenderer
 from zcomp_cli.renderers.physical.visibility import march_visibility, sample_depth
-from zcomp_cli.testing import floor_scene, insert_bundle, sphere_object_bundle
+from zcomp_cli.testing import floor_scene, insert_bundle, light_context, sphere_object_bundle
 
 LIGHT = (0.7, 1.0, 0.2)  # world, toward the light: from the right, above
 
@@ -20,7 +20,8 @@ def _angle(a, b):
 
 @pytest.fixture(scope="module")
 def boxed():
-    return floor_scene(112, 84, with_box=True, light_dir=LIGHT, ambient=0.3, box_center=(-0.4, -3.2))
+    return floor_scene(112, 84, with_box=True, light_dir=LIGHT, ambient=0.3, box_center=(-0.4, -3.2),
+                       sky_occlusion=True)
 
 
 @pytest.fixture(scope="module")
@@ -51,59 +52,6 @@ def test_synthetic_scene_conventions(boxed):
     assert np.allclose(s.up_cam, [0, np.cos(np.deg2rad(25)), np.sin(np.deg2rad(25))])
     assert (s.visibility < 1).sum() > 20  # the box casts a shadow
     assert np.allclose(s.image, s.albedo * s.shading)
-
-
-def test_lighting_recovered_from_box_shadow(boxed):
-    s = boxed
-    e = estimate_lighting(s.depth, s.normals, s.shading, s.depth > 0, s.camera)
-    assert e.fallback is None
-    assert _angle(e.direction, s.light_dir_cam) < 8.0
-    cos = max(s.up_cam @ s.light_dir_cam, 0)
-    true_share = s.ambient / (s.ambient + s.light_intensity * cos)
-    # 0.1: the direction search down-weights too-dark residuals (unseen occluders), which
-    # costs a little share accuracy on a scene whose every shadow is visible.
-    assert abs(e.ambient_share - true_share) < 0.1
-    # the light's size is not measured: the documented key light's, whatever the scene
-    from zcomp_cli.renderers.physical.lighting import KEY_SOFTNESS_DEG
-
-    assert e.softness_deg == KEY_SOFTNESS_DEG
-    assert e.to_info()["lights"][0]["angular_radius_from"].startswith("not measured")
-    assert np.allclose(e.intensity, 1.0, atol=0.2)
-
-
-def test_direction_uncertainty_from_score_landscape():
-    from zcomp_cli.renderers.physical.lighting import (MAX_SOFTNESS_DEG, LightEstimate,
-                                                       direction_uncertainty_deg, fibonacci_sphere)
-
-    cands = fibonacci_sphere(400)
-    cands = cands[cands[:, 1] > 0.05]
-    best = cands[0]
-    ang = np.arccos(np.clip(cands @ best, -1, 1))
-    peaked = 1.0 + 50.0 * ang  # score rises fast away from the best direction
-    flat = 1.0 + 0.05 * ang  # every direction fits about as well
-    u_peak = direction_uncertainty_deg(cands, peaked, best)
-    u_flat = direction_uncertainty_deg(cands, flat, best)
-    assert 0 <= u_peak < 5.0 < 30.0 < u_flat
-    e = LightEstimate(best, np.ones(3), np.zeros((4, 3)), 0.3, 3.0, 0.0, 0.5, 0.0, None, u_flat)
-    # the uncertainty is reported but never widens the shadow (that made shadows faint)
-    assert e.cone_deg == 3.0
-    e.softness_deg = 90.0
-    assert e.cone_deg == MAX_SOFTNESS_DEG
-
-
-def test_bare_floor_triggers_fallback():
-    s = floor_scene(80, 60, light_dir=(0.3, 1.0, 0.4))
-    e = estimate_lighting(s.depth, s.normals, s.shading, s.depth > 0, s.camera)
-    assert e.fallback is not None and "unconstrained" in e.fallback
-    assert e.direction @ s.up_cam > 0.8  # the prior: from above
-    assert np.all(np.isfinite(e.intensity))
-
-
-def test_too_few_pixels_fallback():
-    s = floor_scene(40, 30)
-    known = np.zeros(s.depth.shape, bool)
-    e = estimate_lighting(s.depth, s.normals, s.shading, known, s.camera)
-    assert "too few" in e.fallback
 
 
 def test_render_outputs(inserted):
@@ -149,12 +97,12 @@ def test_object_shading_and_cast_shadow(inserted):
     ys, xs = np.nonzero(shadow)
     _, xo = np.nonzero(sel)
     assert xs.mean() < xo.mean()
-    # R ~ 1 where the object has (almost) no influence: far right of the mask (its
-    # ambient occlusion fades out within ~0.1 depth of the object)
+    # R ~ 1 where the object has little influence: far right of the mask, on the light's
+    # side (it hides a few percent of the sky there at most)
     cols = np.nonzero(inserted["mask"].any(0))[0]
     right = inserted["mask"].copy()
     right[:, : cols.max() - 3] = False
-    assert np.allclose(comp[right], bg[right], rtol=0.01)
+    assert np.allclose(comp[right], bg[right], rtol=0.03)
 
 
 @pytest.mark.slow
@@ -254,8 +202,8 @@ def test_long_shadow_grows_the_shading_mask():
     mask = np.zeros(sel.shape, bool)
     mask[ys.min() - 2:ys.max() + 4, xs.min() - 3:xs.max() + 4] = True  # tight: the shadow leaves it
     known = ~mask
-    spec = {"type": "directional", "direction": list(s.light_dir_cam), "azimuth_deg": None,
-            "elevation_deg": None, "angular_radius_deg": 1.0, "strength": 2.0}
+    spec = light_context({"direction": [float(v) for v in s.light_dir_cam], "angular_radius_deg": 1.0,
+                          "strength": 2.0})
     reqs = [RenderRequest(SceneMaps(s.depth, s.normals, s.albedo), s.shading, known, s.camera, light=spec),
             RenderRequest(SceneMaps(d, n, a), s.shading, known, s.camera, light=spec)]
     out = PhysicalRenderer().render(reqs, seed=1)

@@ -1,74 +1,21 @@
-"""The physical renderer's shadows on analytic scenes: light from a visible cast shadow
-(also with an unseen occluder's shadow in frame), one smooth penumbra, contact shadow."""
+"""The physical renderer's shadows on analytic scenes: one smooth penumbra, the object's
+shadow and sky occlusion from its posed mesh, degenerate meshes. (The light itself:
+test_light_estimate.py, test_known_light.py.)"""
 
 import numpy as np
 import pytest
 
 from zcomp_cli.maps import SceneMaps
 from zcomp_cli.renderers.base import RenderRequest
-from zcomp_cli.renderers.physical import PhysicalRenderer, estimate_lighting
+from zcomp_cli.renderers.physical import PhysicalRenderer
 from zcomp_cli.renderers.physical.softshadow import penumbra_filter
-from zcomp_cli.testing import floor_scene, insert_bundle, sphere_object_bundle
+from zcomp_cli.testing import floor_scene, insert_bundle, light_context, sphere_object_bundle
 
 SUN = (0.7, 1.0, 0.2)  # world, toward the light
-FAST = dict(n_candidates=128, march_steps=16, max_fit_pixels=2000)
 
 
 def _angle(a, b):
     return float(np.degrees(np.arccos(np.clip(a @ b / np.linalg.norm(a) / np.linalg.norm(b), -1, 1))))
-
-
-@pytest.mark.parametrize("off_frame", [False, True])
-def test_sun_recovered_from_visible_cast_shadow(off_frame):
-    # an off-frame box (not in the depth map) casts a big shadow across the lower right
-    occ = [((2.0, -1.4), (0.6, 2.0, 0.6))] if off_frame else []
-    s = floor_scene(112, 84, with_box=True, light_dir=SUN, ambient=0.3, box_center=(-0.4, -3.2),
-                    occluders=occ)
-    if off_frame:  # the unseen occluder's shadow is in frame, and larger than the box's
-        plain = floor_scene(112, 84, with_box=True, light_dir=SUN, ambient=0.3, box_center=(-0.4, -3.2))
-        assert (s.visibility < 1).sum() > 3 * (plain.visibility < 1).sum()
-    e = estimate_lighting(s.depth, s.normals, s.shading, s.depth > 0, s.camera, **FAST)
-    assert e.fallback is None
-    assert _angle(e.direction, s.light_dir_cam) < 10.0  # 2.4-9.6 deg: screen-space shadow shapes
-    true_share = s.ambient / (s.ambient + s.light_intensity * max(s.up_cam @ s.light_dir_cam, 0))
-    assert abs(e.ambient_share - true_share) < 0.03  # read from shadowed vs lit floor pixels
-
-
-@pytest.mark.parametrize("size", [(112, 84), (160, 120)])
-def test_shadow_at_the_base_confirms_the_shading_direction(size):
-    # a high sun: the box's shadow hugs its base, inside the crease band, too little
-    # evidence to pick the direction alone; counted for the darkness ambient occlusion
-    # does not explain, it confirms the shading's direction, the two independent
-    # estimates are averaged, and the shadow is cast, its darkness read from the photo
-    from zcomp_cli.renderers.physical.lighting import MIN_EVIDENCE_PX
-
-    s = floor_scene(*size, with_box=True, light_dir=(0.4, 1.6, 0.1), ambient=0.3, box_center=(-0.4, -3.2))
-    e = estimate_lighting(s.depth, s.normals, s.shading, s.depth > 0, s.camera, **FAST)
-    assert e.evidence_px < MIN_EVIDENCE_PX
-    assert e.fallback is None and "confirmed by cast shadows" in e.direction_source
-    assert "the two averaged" in e.direction_source
-    # 4.3 / 7.7 deg averaged (the shading's direction alone: 5.7 / 9.5)
-    assert _angle(e.direction, s.light_dir_cam) < 9.0
-    true_share = s.ambient / (s.ambient + s.light_intensity * max(s.up_cam @ s.light_dir_cam, 0))
-    assert e.share_source.startswith("cast shadows") and abs(e.ambient_share - true_share) < 0.05
-
-
-def test_a_shadow_at_the_base_decides_where_the_shading_is_misled():
-    """The high sun's box shadow hugs its base (crease-band evidence only, as above), and
-    a brightness ramp across the floor (a bright wall's bounce, a window's falloff)
-    pulls the shading's direction far off: the two disagree, and the band's evidence,
-    as much as a cast shadow needs away from a crease (MIN_EVIDENCE_PX), decides alone
-    (before: the contact shadow only, with a direction 48 deg off)."""
-    from zcomp_cli.renderers.physical.lighting import MIN_EVIDENCE_PX, RELAXED_AGREE_DEG
-
-    s = floor_scene(160, 120, with_box=True, light_dir=(0.4, 1.6, 0.1), ambient=0.3, box_center=(-0.4, -3.2))
-    ramp = 1.0 + 0.3 * np.linspace(-1.0, 1.0, s.depth.shape[1])[None, :, None]
-    e = estimate_lighting(s.depth, s.normals, (s.shading * ramp).astype(np.float32), s.depth > 0, s.camera, **FAST)
-    assert e.evidence_px < MIN_EVIDENCE_PX <= e.band_evidence_px
-    assert e.fallback is None and e.direction_source.startswith("cast shadows of visible geometry at their occluders")
-    agree = float(e.direction_source.split(" px with the crease band, ")[1].split(" deg")[0])
-    assert agree > RELAXED_AGREE_DEG  # the shading's direction was far off
-    assert _angle(e.direction, s.light_dir_cam) < 10.0  # 5.9 deg
 
 
 def test_penumbra_is_one_smooth_ramp():
@@ -181,99 +128,6 @@ def test_cast_shadow_has_no_bands():
     assert np.all(np.diff(ramp) >= -0.01)  # monotonic up to noise well below a band
 
 
-def test_contact_shadow_fallback_on_bare_floor():
-    s = floor_scene(112, 84, light_dir=SUN, ambient=0.3)
-    bg, comp, sel, mask = _insert(s, [0.0, 0.3, -2.6])
-    out = PhysicalRenderer().render([bg, comp], seed=1)
-    assert out.info["fallback"] and "contact" in out.info["shadow"]
-    ratio = out.images[1].mean(-1) / np.maximum(out.images[0].mean(-1), 1e-6)
-    ys, xs = np.nonzero(sel)
-    # just below the object (where it meets the floor) is darkened
-    under = np.zeros_like(sel)
-    under[ys.max() + 1: ys.max() + 3, xs.min() + 3: xs.max() - 3] = True
-    under &= ~sel
-    assert ratio[under].mean() < 0.8
-    # nothing far away: more than one object width from it, the ratio is 1
-    far = mask.copy()
-    far[:, xs.min() - (xs.max() - xs.min()): xs.max() + (xs.max() - xs.min())] = False
-    assert far.any() and np.allclose(ratio[far], 1.0, atol=1e-3)
-
-
-def test_known_light_gives_the_estimated_shadow():
-    s = floor_scene(112, 84, with_box=True, light_dir=SUN, ambient=0.3, box_center=(-0.4, -3.2))
-    bg, comp, sel, mask = _insert(s, [0.4, 0.3, -2.6])
-    est = PhysicalRenderer().render([bg, comp], seed=1)
-    light = {"type": "directional", "direction": list(s.light_dir_cam), "azimuth_deg": None,
-             "elevation_deg": None, "angular_radius_deg": 0.5, "strength": s.light_intensity / s.ambient}
-    import dataclasses
-
-    reqs = [dataclasses.replace(r, light=light) for r in (bg, comp)]
-    known = PhysicalRenderer().render(reqs, seed=1)
-    assert known.info["light"]["source"] == "manifest" and known.info["fallback"] is None
-    assert known.info["light"]["lights"][0]["direction_from"].startswith("manifest")
-    assert known.info["light"]["lights"][0]["angular_radius_from"] == "manifest: angular_radius_deg"
-    ratio = lambda o: o.images[1].mean(-1) / np.maximum(o.images[0].mean(-1), 1e-6)  # noqa: E731
-    r_est, r_known = ratio(est), ratio(known)
-    floor = mask & ~sel
-    assert (r_known[floor] < 0.7).sum() > 10  # a cast shadow
-    shadow_est, shadow_known = r_est[floor] < 0.8, r_known[floor] < 0.8
-    iou = (shadow_est & shadow_known).sum() / max((shadow_est | shadow_known).sum(), 1)
-    assert iou > 0.7
-    assert np.abs(r_est[floor] - r_known[floor]).mean() < 0.05
-
-
-def test_light_from_angles_matches_camera_direction():
-    from zcomp_cli.renderers.physical.known_light import direction_from_angles
-
-    up = np.array([0.0, np.cos(0.4), np.sin(0.4)])
-    d = direction_from_angles(0.0, 30.0, up)
-    assert d[0] > 0.8 and abs(d @ up - 0.5) < 1e-9  # image right, 30 deg up
-    d = direction_from_angles(90.0, 0.0, up)
-    assert d[2] < -0.9  # away from the camera
-
-
-def test_probe_splits_sun_and_sky():
-    from zcomp_cli.renderers.physical.known_light import probe_lights
-
-    h, w = 64, 128
-    hdr = np.full((h, w, 3), 0.2, np.float32)
-    # a bright spot at longitude 90 deg (camera +x), latitude 45 deg
-    v = int((0.5 - 45 / 180) * h)
-    u = int((0.5 + 90 / 360) * w)
-    hdr[v - 1:v + 1, u - 1:u + 1] = 500.0
-    l, e_sun, sky, radius = probe_lights(hdr)
-    assert _angle(l, np.array([np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0])) < 5.0
-    assert e_sun.min() > 1.0 and radius > 0
-    # the sky is uniform: irradiance ~ pi * 0.2 whatever the normal, tiny linear part
-    assert np.allclose(sky[0], np.pi * 0.2, rtol=0.15) and np.abs(sky[1:]).max() < 0.1
-    # turned by 90 deg about +y: the sun moves from +x to +z... or -z
-    l2, *_ = probe_lights(hdr, rotation_deg=90.0)
-    assert abs(l2[0]) < 0.2 and abs(abs(l2[2]) - np.cos(np.pi / 4)) < 0.1
-
-
-def test_probe_light_in_the_renderer(tmp_path):
-    import dataclasses
-
-    from zcomp_cli.imageio import write_exr
-
-    s = floor_scene(112, 84, with_box=True, light_dir=SUN, ambient=0.3, box_center=(-0.4, -3.2))
-    h, w = 64, 128
-    hdr = np.full((h, w, 3), 0.1, np.float32)
-    l = s.light_dir_cam
-    lat, lon = np.arcsin(l[1]), np.arctan2(l[0], -l[2])
-    v, u = int((0.5 - lat / np.pi) * h), int((0.5 + lon / (2 * np.pi)) * w)
-    hdr[v - 1:v + 1, u - 1:u + 1] = 300.0
-    write_exr(tmp_path / "probe.exr", hdr)
-    bg, comp, sel, mask = _insert(s, [0.4, 0.3, -2.6])
-    light = {"type": "probe", "hdr": str(tmp_path / "probe.exr"), "rotation_deg": 0.0}
-    out = PhysicalRenderer().render([dataclasses.replace(r, light=light) for r in (bg, comp)], seed=1)
-    info = out.info["light"]
-    assert info["source"] == "manifest" and "probe" in info["direction_source"]
-    assert _angle(np.asarray(info["direction"]), l) < 5.0
-    ratio = out.images[1].mean(-1) / np.maximum(out.images[0].mean(-1), 1e-6)
-    assert (ratio[mask & ~sel] < 0.7).sum() > 10  # the probe's sun casts the shadow
-
-
 def test_mesh_shadow_from_posed_mesh(tmp_path):
     import trimesh
 
@@ -299,203 +153,6 @@ def test_mesh_shadow_from_posed_mesh(tmp_path):
     assert mesh_shadow(mesh, face, np.array([[1.0, 0, 0]]), l)[0][0] == 1.0
     assert load_posed_mesh({}) is None
 
-
-def test_known_direction_with_auto_strength_measures_the_share():
-    """``strength: auto``: the direction is the manifest's, the shadow's darkness is read
-    from the photo (the box's cast shadow), as when the direction is estimated."""
-    s = floor_scene(112, 84, with_box=True, light_dir=SUN, ambient=0.3, box_center=(-0.4, -3.2))
-    bg, comp, sel, mask = _insert(s, [0.4, 0.3, -2.6])
-    light = {"type": "directional", "direction": list(s.light_dir_cam), "azimuth_deg": None,
-             "elevation_deg": None, "angular_radius_deg": None, "strength": "auto"}
-    import dataclasses
-
-    out = PhysicalRenderer().render([dataclasses.replace(r, light=light) for r in (bg, comp)], seed=1)
-    info = out.info["light"]
-    assert info["source"] == "manifest" and out.info["fallback"] is None
-    assert np.allclose(info["direction"], s.light_dir_cam)
-    assert info["share_source"].startswith("measured")
-    # the true share on the floor: ambient / (ambient + I cos)
-    cos = float(max(s.light_dir_cam @ s.up_cam, 0.0))
-    true_share = s.ambient / (s.ambient + s.light_intensity * cos)
-    assert abs(info["ambient_share"] - true_share) < 0.1
-
-
-def test_shadow_level_reads_the_dark_part_of_a_spilling_prediction():
-    """A screen-space shadow spills onto lit floor: the level is the dark pixels' (0.4),
-    not the median over the whole prediction (1.0, no shadow at all, before); too few
-    dark pixels measure nothing."""
-    from zcomp_cli.renderers.physical.evidence import DARK_LEVEL
-    from zcomp_cli.renderers.physical.lighting import MIN_SHADOW_PIXELS, shadow_level
-
-    e = np.concatenate([np.full(30, 0.6), np.zeros(70), np.full(50, 0.9)])
-    predicted = np.r_[np.ones(100, bool), np.zeros(50, bool)]  # the last 50: unpredicted
-    assert shadow_level(e, predicted) == pytest.approx(0.4)
-    assert np.median(1.0 - e[predicted]) == pytest.approx(1.0)
-    few = e.copy()
-    few[MIN_SHADOW_PIXELS - 1:30] = 0.0
-    assert shadow_level(few, predicted) is None
-    # penumbra darker than DARK_LEVEL counts; lighter does not
-    e2 = np.r_[np.full(20, DARK_LEVEL + 0.05), np.full(20, DARK_LEVEL - 0.05)]
-    assert shadow_level(e2, np.ones(40, bool)) == pytest.approx(1.0 - DARK_LEVEL - 0.05)
-
-
-def test_known_direction_with_auto_strength_on_a_bare_floor_says_the_share_is_not_measured():
-    """No shadow in the photo to read the darkness from (a bare floor): the share comes
-    from the shading fit alone, and the report says it was not measured."""
-    s = floor_scene(112, 84, with_box=False, light_dir=SUN, ambient=0.3)
-    bg, comp, sel, mask = _insert(s, [0.4, 0.3, -2.6])
-    light = {"type": "directional", "direction": list(s.light_dir_cam), "azimuth_deg": None,
-             "elevation_deg": None, "angular_radius_deg": None, "strength": "auto"}
-    import dataclasses
-
-    out = PhysicalRenderer().render([dataclasses.replace(r, light=light) for r in (bg, comp)], seed=1)
-    info = out.info["light"]
-    assert info["share_source"].startswith("not measured"), info["share_source"]
-    assert 0.0 < info["ambient_share"] <= 1.0
-
-
-LAMP2 = (-0.8, 1.0, 0.3)  # world, toward a second, fainter light on the other side
-
-
-def _two_light_scene():
-    return floor_scene(112, 84, with_box=True, light_dir=SUN, ambient=0.3, box_center=(-0.4, -3.2),
-                       extra_lights=[(LAMP2, 0.7)])
-
-
-def _true_ratios(s):
-    """Shadow / lit level on the floor where only light 1, only light 2 is blocked."""
-    up = s.up_cam
-    c1 = max(up @ s.light_dir_cam, 0.0)
-    c2 = max(up @ np.asarray(s.meta["extra_lights_cam"][0]), 0.0)
-    lit = s.ambient + s.light_intensity * c1 + 0.7 * c2
-    return (s.ambient + 0.7 * c2) / lit, (s.ambient + s.light_intensity * c1) / lit
-
-
-def test_second_light_from_a_second_shadow():
-    # one box, two lights: two shadows; the second light is the one that explains
-    # the darkness the first one leaves
-    s = _two_light_scene()
-    e = estimate_lighting(s.depth, s.normals, s.shading, s.depth > 0, s.camera, **FAST)
-    assert e.fallback is None and len(e.extra_lights) == 1
-    x = e.extra_lights[0]
-    assert _angle(e.direction, s.light_dir_cam) < 10.0  # 8.3 deg
-    assert _angle(x.direction, s.meta["extra_lights_cam"][0]) < 15.0  # 11.5 deg
-    r1, r2 = _true_ratios(s)
-    assert abs(x.shadow_ratio - r2) < 0.1  # 0.74 vs 0.68
-    info = e.to_info()
-    assert [lt["kind"] for lt in info["lights"]] == ["directional", "directional", "ambient (sky, order-1 SH)"]
-    # a single light does not split in two (the off-frame occluder's shadow lines up
-    # with the box for a light from the other side, but is darker than a second light
-    # could make it)
-    one = floor_scene(112, 84, with_box=True, light_dir=SUN, ambient=0.3, box_center=(-0.4, -3.2),
-                      occluders=[((2.0, -1.4), (0.6, 2.0, 0.6))])
-    e1 = estimate_lighting(one.depth, one.normals, one.shading, one.depth > 0, one.camera, **FAST)
-    assert e1.extra_lights == ()
-
-
-def _sides(ratio, sel, mask):
-    """Mean composite/background ratio on the floor left and right of the object."""
-    ys, xs = np.nonzero(sel)
-    floor = mask & ~sel
-    cx = (xs.min() + xs.max()) // 2
-    left, right = floor.copy(), floor.copy()
-    left[:, cx:] = False
-    right[:, :cx] = False
-    return float(ratio[left].mean()), float(ratio[right].mean())
-
-
-def test_two_known_lights_cast_two_shadows():
-    """A manifest list of two lights: each casts the object's shadow, on its far side."""
-    import dataclasses
-
-    s = floor_scene(112, 84, ambient=0.3)  # a bare floor: nothing to estimate from
-    bg, comp, sel, mask = _insert(s, [0.0, 0.3, -2.6])
-    right = {"type": "directional", "azimuth_deg": 0.0, "elevation_deg": 35.0,
-             "direction": None, "angular_radius_deg": 1.0, "strength": 3.0}
-    left = {**right, "azimuth_deg": 180.0}
-    ratio = lambda o: o.images[1].mean(-1) / np.maximum(o.images[0].mean(-1), 1e-6)  # noqa: E731
-    outs = {}
-    for name, light in {"right": right, "left": left,
-                        "both": {"type": "lights", "lights": [right, left]}}.items():
-        o = PhysicalRenderer().render([dataclasses.replace(r, light=light) for r in (bg, comp)], seed=1)
-        assert o.info["fallback"] is None
-        outs[name] = _sides(ratio(o), sel, mask)
-    # a light on the right throws the shadow to the left, and the other way round
-    assert outs["right"][0] < outs["right"][1] - 0.05 and outs["left"][1] < outs["left"][0] - 0.05
-    # both: a shadow on each side, each fainter than its light's alone (the other
-    # light reaches into it)
-    assert outs["both"][0] < 0.97 and outs["both"][1] < 0.97
-    assert outs["both"][0] > outs["right"][0] and outs["both"][1] > outs["left"][1]
-
-
-def test_two_known_directions_with_auto_strength_measure_each_shadow():
-    s = _two_light_scene()
-    bg, comp, sel, mask = _insert(s, [0.4, 0.3, -2.6])
-    mk = lambda d: {"type": "directional", "direction": list(d), "azimuth_deg": None,  # noqa: E731
-                    "elevation_deg": None, "angular_radius_deg": None, "strength": "auto"}
-    light = {"type": "lights", "lights": [mk(s.light_dir_cam), mk(s.meta["extra_lights_cam"][0])]}
-    import dataclasses
-
-    out = PhysicalRenderer().render([dataclasses.replace(r, light=light) for r in (bg, comp)], seed=1)
-    lights = out.info["light"]["lights"]
-    assert len(lights) == 3 and all(lt["direction_from"].startswith("manifest") for lt in lights[:2])
-    r1, r2 = _true_ratios(s)
-    assert abs(lights[1]["shadow_ratio"] - r2) < 0.1
-    # the ambient is what neither light brings: ambient / lit level on the floor
-    true_amb = r1 + r2 - 1.0
-    assert abs(out.info["light"]["ambient_share"] - true_amb) < 0.1
-
-
-def test_known_direction_stays_when_the_photo_shows_no_light_along_it():
-    """``strength: auto`` on a photo lit by its ambient alone (the fit finds no light
-    along the given direction): the manifest's direction is kept, not replaced by the
-    prior's, and its shadow is cast at the documented minimum ambient share."""
-    import dataclasses
-
-    from zcomp_cli.renderers.physical.lighting import MIN_CAST_AMBIENT_SHARE
-
-    s = floor_scene(112, 84, with_wall=True, wall_distance=4.5, light_intensity=0.0, ambient=0.5)
-    given = np.array([0.6, 1.0, 0.3]) / np.linalg.norm([0.6, 1.0, 0.3]) @ s.cam_to_world  # camera frame
-    bg, comp, sel, mask = _insert(s, [0.4, 0.3, -2.6])
-    light = {"type": "directional", "direction": list(given), "azimuth_deg": None,
-             "elevation_deg": None, "angular_radius_deg": None, "strength": "auto"}
-    out = PhysicalRenderer().render([dataclasses.replace(r, light=light) for r in (bg, comp)], seed=1)
-    info = out.info["light"]
-    assert out.info["fallback"] is None
-    assert np.allclose(info["direction"], given)
-    assert info["ambient_share"] == pytest.approx(MIN_CAST_AMBIENT_SHARE)
-    assert "no light along the given direction" in info["share_source"]
-    # the object's cast shadow is drawn: the composite is darker than the background
-    # somewhere off the object, by about 1 - share on the floor
-    ratio = out.images[1][..., 1] / np.maximum(out.images[0][..., 1], 1e-6)
-    off = mask & ~sel & (s.depth > 0)
-    assert ratio[off].min() < 1.0 - 0.8 * (1.0 - MIN_CAST_AMBIENT_SHARE)
-
-
-
-def test_unmeasured_known_lights_share_one_lights_direct_light():
-    """Two ``strength: auto`` lights, neither shadow in the photo: together they bring
-    the direct light one such light would, so the ambient keeps the single light's
-    share (each taken as bright as the single light left 0.2, shadows twice too dark)."""
-    import dataclasses
-
-    from zcomp_cli.renderers.physical.lighting import MIN_CAST_AMBIENT_SHARE
-
-    s = floor_scene(112, 84, with_wall=True, wall_distance=4.5, light_intensity=0.0, ambient=0.5)
-    mk = lambda v: {"type": "directional", "direction": list(np.asarray(v) / np.linalg.norm(v) @ s.cam_to_world),  # noqa: E731
-                    "azimuth_deg": None, "elevation_deg": None, "angular_radius_deg": None, "strength": "auto"}
-    bg, comp, sel, mask = _insert(s, [0.4, 0.3, -2.6])
-    light = {"type": "lights", "lights": [mk([0.6, 1.0, 0.3]), mk([-0.6, 1.0, 0.3])]}
-    out = PhysicalRenderer().render([dataclasses.replace(r, light=light) for r in (bg, comp)], seed=1)
-    info = out.info["light"]
-    assert info["ambient_share"] == pytest.approx(MIN_CAST_AMBIENT_SHARE)
-    extra = info["lights"][1]
-    assert extra["shadow_ratio"] == pytest.approx(1.0 - (1.0 - MIN_CAST_AMBIENT_SHARE) / 2)
-    assert "none measured" in extra["shadow_ratio_from"]
-    # the shadows are drawn
-    ratio = out.images[1][..., 1] / np.maximum(out.images[0][..., 1], 1e-6)
-    off = mask & ~sel & (s.depth > 0)
-    assert ratio[off].min() < 1.0 - 0.5 * (1.0 - MIN_CAST_AMBIENT_SHARE) / 2
 
 def _sphere_mesh(centre_cam, radius):
     import trimesh
@@ -561,8 +218,8 @@ def test_a_thin_objects_shadow_comes_from_its_mesh_not_a_thick_depth_shell():
     bg, comp, sel, mask = _insert(s, centre_w, radius=r)
     c = s.world_to_camera(centre_w)
     req = [bg, dataclasses.replace(comp, occluder=_sphere_mesh(c, r))]
-    known = {"type": "directional", "direction": list(s.light_dir_cam), "azimuth_deg": None,
-             "elevation_deg": None, "angular_radius_deg": 0.5, "strength": 2.0}
+    known = light_context({"direction": [float(v) for v in s.light_dir_cam], "angular_radius_deg": 0.5,
+                           "strength": 2.0})
     out = PhysicalRenderer().render([dataclasses.replace(q, light=known) for q in req], seed=1)
     ratio = out.images[1].mean(-1) / np.maximum(out.images[0].mean(-1), 1e-6)
     # exact: the floor point's ray toward the light misses the sphere by a margin
@@ -576,25 +233,6 @@ def test_a_thin_objects_shadow_comes_from_its_mesh_not_a_thick_depth_shell():
     assert lit.sum() > 100 and shadowed.sum() > 10
     assert np.percentile(ratio[lit], 1) > 0.8  # lit stays lit (ambient occlusion aside)
     assert np.median(ratio[shadowed]) < 0.7  # the real shadow is drawn
-
-
-def test_a_lifted_direction_keeps_its_light_when_the_fit_finds_none_along_it():
-    # a light grazing the floor from behind the camera lights the wall more than the
-    # floor: the shading's direction is grazing, lifted to MIN_FIT_ELEVATION_DEG, and
-    # along the lifted direction the fit finds no light. It keeps the lifted direction
-    # (its azimuth was measured) with the minimum ambient share; it used to fall to the
-    # prior's direction and its 0.4 share ("no directional component found").
-    from zcomp_cli.renderers.physical.lighting import MIN_FIT_AMBIENT_SHARE, MIN_FIT_ELEVATION_DEG
-
-    s = floor_scene(112, 84, light_dir=(0.0, 0.2, 1.0), ambient=0.3, with_wall=True, wall_distance=4.0)
-    e = estimate_lighting(s.depth, s.normals, s.shading, s.depth > 0, s.camera, **FAST)
-    assert e.direction_source == "shading vs surface orientation" and e.fallback is not None
-    assert "no light along the lifted direction" in e.share_source
-    assert e.ambient_share == pytest.approx(MIN_FIT_AMBIENT_SHARE)
-    assert np.degrees(np.arcsin(e.direction @ s.up_cam)) == pytest.approx(MIN_FIT_ELEVATION_DEG, abs=1.0)
-    assert _angle(e.direction - (e.direction @ s.up_cam) * s.up_cam,
-                  s.light_dir_cam - (s.light_dir_cam @ s.up_cam) * s.up_cam) < 30.0  # 21 deg: the shading's own
-    assert float(np.min(e.intensity)) > 0
 
 
 def test_mesh_occlusion_known_values():
@@ -730,52 +368,6 @@ def test_mesh_silhouette_has_no_holes_where_faces_overlap(shape):
     assert inner.sum() > 200 and not (inner & ~sil).any()
 
 
-def test_a_narrow_shading_fit_casts_its_shadow():
-    """The light behind the camera hides the box's shadow behind it (no cast-shadow
-    evidence), but the box's lit and unlit faces pin the direction: its plausible
-    directions lie within MAX_TRUSTED_SPREAD_DEG, so the shadow is cast, not only the
-    contact shadow; a bare floor's stay unconstrained."""
-    from zcomp_cli.renderers.physical.lighting import MAX_TRUSTED_SPREAD_DEG
-
-    s = floor_scene(160, 120, with_box=True, light_dir=(-0.3, 1.2, 1.0), ambient=0.3, box_center=(0.6, -2.8))
-    est = estimate_lighting(s.depth, s.normals, s.shading, s.depth > 0, s.camera, **FAST)
-    assert est.evidence_px < 1.0  # nothing to read from a cast shadow
-    assert est.fallback is None and "plausible directions within" in est.direction_source
-    assert est.direction_uncertainty_deg <= MAX_TRUSTED_SPREAD_DEG
-    assert _angle(est.direction, s.light_dir_cam) < 10.0
-    bare = floor_scene(160, 120, light_dir=(-0.3, 1.2, 1.0), ambient=0.3)
-    est = estimate_lighting(bare.depth, bare.normals, bare.shading, bare.depth > 0, bare.camera, **FAST)
-    assert est.fallback is not None
-
-
-def test_the_shipped_examples_box_shadow_confirms_the_shading_within_the_relaxed_agreement():
-    """The shipped room: the box's shadow hugs its base (crease-band evidence only), 3 deg
-    from the true sun, the shading's direction ~12 deg from it: more than AGREE_DEG,
-    within RELAXED_AGREE_DEG for a compact occluder's few band pixels. The two are
-    averaged, and the cast shadow is drawn (the contact shadow alone cost job 0 1.4 dB)."""
-    import json
-    from pathlib import Path
-
-    from zcomp_cli.benchsuite.scenes import BenchScene, lights_at
-    from zcomp_cli.camera import Camera
-    from zcomp_cli.imageio import read_image, read_map
-    from zcomp_cli.renderers.physical.lighting import AGREE_DEG, RELAXED_AGREE_DEG
-
-    room = Path(__file__).resolve().parents[1] / "examples" / "scenes" / "room"
-    desc = json.loads((room / "scene.json").read_text())
-    img = read_image(room / "image.png")
-    depth, normals, albedo = (read_map(room / f) for f in ("depth.exr", "normals.exr", "albedo.exr"))
-    cam = Camera(np.asarray(desc["K"], np.float64), img.shape[1], img.shape[0])
-    shading = img / np.maximum(albedo, 1e-3)
-    est = estimate_lighting(depth, normals, shading, depth > 0, cam, albedo=albedo, **FAST)
-    assert est.fallback is None and "the two averaged" in est.direction_source
-    sc = BenchScene.from_dict(desc["scene"])
-    base = cam.unproject(depth)[300, 256]  # a floor point; a sun is the same from any
-    sun = next(li for li in lights_at(sc, base, with_hdr=False) if li["kind"] == "SUN")["direction"]
-    assert AGREE_DEG < RELAXED_AGREE_DEG
-    assert _angle(est.direction, sun) < 8.0
-
-
 def test_a_degenerate_or_non_finite_occluder_mesh_hides_nothing_and_stays_finite():
     """A posed mesh without area (all its triangles collapsed) or with a non-finite
     vertex: the composite stays finite, and the collapsed one changes nothing."""
@@ -790,8 +382,8 @@ def test_a_degenerate_or_non_finite_occluder_mesh_hides_nothing_and_stays_finite
     bad = _sphere_mesh(c, 0.3)
     bad.vertices[0] = np.nan
     base = PhysicalRenderer().render([bg, comp], seed=1).images[1]
-    known = {"type": "directional", "direction": list(s.light_dir_cam), "azimuth_deg": None,
-             "elevation_deg": None, "angular_radius_deg": 2.0, "strength": 2.0}
+    known = light_context({"direction": [float(v) for v in s.light_dir_cam], "angular_radius_deg": 2.0,
+                           "strength": 2.0})
     for occ in (flat, bad):
         img = PhysicalRenderer().render([bg, dataclasses.replace(comp, occluder=occ)], seed=1).images[1]
         assert np.all(np.isfinite(img))

@@ -65,6 +65,12 @@ def _rot_x(deg: float) -> np.ndarray:
     return np.array([[1, 0, 0], [0, c, -s], [0, s, c]], dtype=np.float64)
 
 
+def _rot_z(deg: float) -> np.ndarray:
+    a = np.deg2rad(deg)
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]], dtype=np.float64)
+
+
 def _ray_box(o, d, lo, hi):
     """Slab test. o, d: (N, 3). Returns (t_hit (N,), normal (N, 3)); t = inf on miss."""
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -84,13 +90,37 @@ def _ray_box(o, d, lo, hi):
     return t, n
 
 
+# Directions over which the sky's and a soft light's visibility are averaged.
+SKY_SAMPLES = 64
+SUN_SAMPLES = 32
+
+
+def _sky_visibility(normals, blocked) -> np.ndarray:
+    """(n,) cosine-weighted share of the sky seen along SKY_SAMPLES directions (a
+    Fibonacci spiral on the unit disc lifted onto the hemisphere of each normal)."""
+    k = np.arange(SKY_SAMPLES) + 0.5
+    r = np.sqrt(k / SKY_SAMPLES)
+    ph = k * np.pi * (3 - np.sqrt(5))
+    n = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+    a = np.where(np.abs(n[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
+    u = np.cross(n, a)
+    u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-12)
+    v = np.cross(n, u)
+    acc = np.zeros(len(n))
+    for ri, pi in zip(r, ph):
+        d = np.sqrt(max(1 - ri * ri, 0.0)) * n + ri * (np.cos(pi) * u + np.sin(pi) * v)
+        acc += ~blocked(d)
+    return acc / SKY_SAMPLES
+
+
 def floor_scene(width: int = 128, height: int = 96, *, fov_deg: float = 50.0,
                 camera_height: float = 1.2, pitch_deg: float = -25.0,
                 light_dir=(0.5, 1.0, 0.3), light_intensity: float = 1.0,
                 ambient: float = 0.3, albedo=(0.6, 0.6, 0.6), with_box: bool = False,
                 box_center=(0.0, -3.0), box_size=(0.6, 0.8, 0.6),
                 box_albedo=(0.5, 0.4, 0.3), with_wall: bool = False,
-                wall_distance: float = 6.0, occluders=(), extra_lights=(), lamp=None) -> SyntheticScene:
+                wall_distance: float = 6.0, occluders=(), extra_lights=(), lamp=None,
+                sky_occlusion: bool = False, sun_radius_deg: float = 0.0, roll_deg: float = 0.0) -> SyntheticScene:
     """Ray cast a ground plane (+ optional axis-aligned box and back wall).
 
     Args:
@@ -98,6 +128,8 @@ def floor_scene(width: int = 128, height: int = 96, *, fov_deg: float = 50.0,
         fov_deg: horizontal field of view.
         camera_height: camera height above the floor (m).
         pitch_deg: camera pitch; negative looks down.
+        roll_deg: camera roll about its optical axis (positive turns the camera
+            counter-clockwise: the horizon drops on the right).
         light_dir: world-frame direction toward the directional light (normalised here).
         light_intensity, ambient: shading = ambient + intensity * max(0, n.l) * V (grey).
         albedo: floor (and wall) linear RGB albedo.
@@ -113,13 +145,20 @@ def floor_scene(width: int = 128, height: int = 96, *, fov_deg: float = 50.0,
         lamp: a point lamp ``(world position (3,), intensity)``: it adds
             ``intensity * max(0, n . (p - x)) / |p - x|^3`` with exact shadows
             (``meta["lamp_cam"]``: its camera-frame position).
+        sky_occlusion: the ambient is a uniform sky that the boxes and the wall hide
+            (``ambient`` times the cosine-weighted share of the sky each point sees,
+            ray cast over SKY_SAMPLES directions), as a path tracer renders it; False:
+            the ambient reaches everywhere.
+        sun_radius_deg: the light's angular radius: its visibility is averaged over
+            SUN_SAMPLES directions of that cone (a penumbra); 0: a point light, a
+            hard shadow.
     Returns:
         SyntheticScene; sky pixels have depth 0, normals 0, albedo 0, shading 0.
     """
     if width < 1 or height < 1:
         raise InputError(f"image size must be positive, got {width}x{height}")
     cam = Camera.from_fov(fov_deg, width, height)
-    R = _rot_x(pitch_deg)
+    R = _rot_x(pitch_deg) @ _rot_z(roll_deg)
     origin = np.array([0.0, camera_height, 0.0])
     rays_cam = cam.pixel_rays().reshape(-1, 3)
     d = rays_cam @ R.T
@@ -150,18 +189,38 @@ def floor_scene(width: int = 128, height: int = 96, *, fov_deg: float = 50.0,
         box = boxes[0]
     hit = np.isfinite(t_best)
     P = o + d * np.where(hit, t_best, 0.0)[:, None]
+    def blocked(dirs):
+        """(n_pix,) bool: rays from the surface along dirs (n_pix, 3) meet a box or the wall."""
+        ps = P + n_best * 1e-4
+        out = np.zeros(n_pix, bool)
+        for bb in boxes:
+            t_sh, _ = _ray_box(ps, np.ascontiguousarray(dirs), *bb)
+            out |= np.isfinite(t_sh)
+        if with_wall:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                tw = np.where(dirs[:, 2] < -1e-12, (-wall_distance - ps[:, 2]) / dirs[:, 2], np.inf)
+            out |= np.isfinite(tw) & (tw > 1e-6) & (ps[:, 2] > -wall_distance + 1e-6)
+        return out
+
     def lit(l):
         l = np.asarray(l, dtype=np.float64)
         l = l / np.linalg.norm(l)
-        vis = np.ones(n_pix)
-        for bb in boxes:
-            ps = P + n_best * 1e-4
-            t_sh, _ = _ray_box(ps, np.broadcast_to(l, ps.shape).copy(), *bb)
-            vis = np.where(np.isfinite(t_sh), 0.0, vis)
-        return l, vis, np.maximum(0.0, n_best @ l)
+        if sun_radius_deg > 0:
+            from zcomp_cli.renderers.physical.sampling import cone_directions
+
+            cone = cone_directions(l, sun_radius_deg, SUN_SAMPLES, seed=0)
+        else:
+            cone = l[None]
+        vis = np.zeros(n_pix)
+        for c in cone:
+            vis += ~blocked(np.broadcast_to(c, (n_pix, 3)))
+        return l, vis / len(cone), np.maximum(0.0, n_best @ l)
 
     l, vis, ndotl = lit(light_dir)
-    shade = ambient + light_intensity * ndotl * vis
+    sky_vis = np.ones(n_pix)
+    if sky_occlusion:
+        sky_vis = _sky_visibility(n_best, blocked)
+    shade = ambient * sky_vis + light_intensity * ndotl * vis
     extra_cam = []
     for le, ie in extra_lights:
         le, vis_e, ndl_e = lit(le)
@@ -320,3 +379,20 @@ def write_floor_batch(folder, n_jobs: int, *, n_scenes: int = 3, size=(96, 72), 
     path = folder / "jobs.yaml"
     path.write_text(yaml.safe_dump(manifest, sort_keys=False))
     return path
+
+
+def light_context(*lights, pitch_deg=None, roll_deg=None) -> dict:
+    """The renderer's light context (``RenderRequest.light``) of manifest light mappings
+    (``pipeline/lightspec.py``), validated as the manifest validates them; raises
+    ``InputError`` with the problems."""
+    from zcomp_cli.pipeline.lightspec import parse_light
+
+    probs = []
+    value = list(lights) if len(lights) != 1 else lights[0]
+    out = parse_light(value, "light", lambda c, k, w, m: probs.append(f"{w}: {m}"))
+    if out is None:
+        raise InputError("; ".join(probs))
+    if pitch_deg is not None:
+        out["pitch_deg"] = float(pitch_deg)
+        out["roll_deg"] = float(roll_deg or 0.0)
+    return out

@@ -137,12 +137,13 @@ def prepare_job(
     # the 2.5D depth alone
     occluder = None
     try:
-        from zcomp_cli.renderers.physical.meshshadow import load_posed_mesh
+        from zcomp_cli.posed_mesh import load_posed_mesh
 
         occluder = load_posed_mesh(bundle.meta or {}, {"a": alignment.a, "b": alignment.b})
     except Exception as exc:  # an unreadable mesh must not fail the job: 2.5D shadows
         notes.append(f"object mesh not used for shadows: {type(exc).__name__}: {exc}")
-    requests = [RenderRequest(maps=bg, **common), RenderRequest(maps=comp, **common, occluder=occluder)]
+    requests = [RenderRequest(maps=bg, **common),
+                RenderRequest(maps=comp, **common, occluder=occluder, coverage=m)]
     x0, y0, x1, y1 = roi
     report = {
         "alignment": alignment.to_dict(),

@@ -1,43 +1,57 @@
-"""A scene's known lighting, from the manifest's ``light:`` (then nothing is estimated).
+"""A scene's known light, from the manifest's ``light:`` (then it is not estimated).
 
     scenes:
       kitchen:
         image: kitchen.png
-        light:                          # a directional light (a sun, a distant lamp)
-          direction: [0.4, 0.8, 0.3]    # camera frame, toward the light (x right, y up, z to the viewer)
-          # or, relative to the support plane and the image axes:
-          # azimuth_deg: 135            # in the support plane: 0 = image right, 90 = away from the camera
-          # elevation_deg: 40           # above the support plane
-          angular_radius_deg: 2         # half the light's angular size (penumbra); default 1
-          strength: 3.0                 # direct / ambient irradiance on a surface facing the light; default 2;
-                                        # "auto": measured from the photo's shadows (and
-                                        # the angular radius too, unless given)
+        pitch_deg: -30        # optional: the camera's pitch (negative = looking down) and
+        roll_deg: 0           # roll; else world up is read off the scene's support plane
+        light:                # one light, or a list: up to 3 suns and lamps, and one probe
+          - type: probe                  # an equirectangular HDR probe (EXR/HDR), up = gravity
+            hdr: set_probe.exr
+            rotation_deg: 90             # its yaw about up (see convention)
+            convention: zcomp            # zcomp | skylibs | blender | mirrored (docs/lights.md)
+            strength: 1.0                # radiance multiplier (Blender's Background strength)
+          - type: sun                    # a distant light ("directional" is the same)
+            azimuth_deg: 135             # on the ground: 0 = the camera's right, 90 = forward
+            elevation_deg: 40            # above the ground; or direction: [x, y, z] (camera frame)
+            angular_radius_deg: 0.27     # its angular radius (default: the Sun's, 0.27)
+            strength: auto               # auto: fitted to the photo; a number: direct over sky
+                                         # irradiance on a surface facing it (no probe then)
+            # irradiance: 3.0            # or W/m^2 (Blender's Sun strength), beside a probe or lamps
+          - type: lamp                   # a light at a place
+            position: [0.5, 1.2, -2.0]   # camera frame, metres (x right, y up, z to the viewer)
+            radius_m: 0.03               # its radius (a sphere; default 0.03, a bulb)
+            power: 60                    # watts (Blender's point lamp Power), or auto
+            # facing: [0, -1, 0]         # a one-sided panel (Blender's area lamp) facing there
+            # color: [1.0, 0.9, 0.8]     # linear RGB multiplier of a sun's or lamp's strength
 
-        light:                          # or several directional lights (two lamps), each
-          - {azimuth_deg: 30, elevation_deg: 45, strength: 3}   # with its own shadow;
-          - {azimuth_deg: 150, elevation_deg: 60, strength: 1}  # strengths all numbers or all "auto"
+Strengths: a probe's ``strength``, a sun's ``irradiance`` and a lamp's ``power`` are in
+the physical units Blender uses, so they hold relative to each other, and one exposure
+is fitted to the photograph for all of them together; ``auto`` fits that light's own
+strength (and colour); a sun's number ``strength`` (the older form) fixes its share
+against the fitted sky: shadow / lit = 1 / (1 + strength * cos).
 
-        light:                          # or an HDR light probe
-          type: probe
-          hdr: studio.exr               # equirectangular, linear (EXR/HDR); +Y up, the
-          rotation_deg: 90              # centre column looks along the camera's -z; turned
-                                        # about the vertical by rotation_deg
-
-The overall level is fitted to the photograph's known shading; the strength fixes how
-dark the shadows are (shadow / lit = 1 / (1 + strength * cos)). Validation problems are
-reported with the field and the manifest line.
+Validation problems are reported with the field and the manifest line. The result of
+``parse_light`` is ``{"lights": [light, ...]}`` with every key filled (``None`` where not
+given); ``parse_tilt`` reads the scene's ``pitch_deg``/``roll_deg``.
 """
 
 from __future__ import annotations
 
 import math
 
-LIGHT_KEYS = {"type", "direction", "azimuth_deg", "elevation_deg", "angular_radius_deg", "strength"}
-PROBE_KEYS = {"type", "hdr", "rotation_deg"}
+SUN_KEYS = {"type", "direction", "azimuth_deg", "elevation_deg", "angular_radius_deg", "strength",
+            "irradiance", "color"}
+PROBE_KEYS = {"type", "hdr", "rotation_deg", "convention", "strength"}
+LAMP_KEYS = {"type", "position", "radius_m", "power", "facing", "color"}
 PROBE_EXTS = {".exr", ".hdr"}
-DEFAULT_ANGULAR_RADIUS_DEG = 1.0
-DEFAULT_STRENGTH = 2.0
 MAX_LIGHTS = 3
+# The Sun's angular radius (its mean apparent diameter is 0.53 deg): a directional light
+# given without its size is taken to be the Sun.
+SUN_RADIUS_DEG = 0.265
+# A lamp given without its size: a household bulb (an A19 bulb is 6 cm across).
+LAMP_RADIUS_M = 0.03
+MAX_ANGULAR_RADIUS_DEG = 45.0
 
 
 def _num(v):
@@ -50,105 +64,70 @@ def _num(v):
     return f if math.isfinite(f) else None
 
 
-def _parse_probe(value, where, add, resolve) -> dict | None:
+def _vector(value, key, where, add, *, nonzero: bool) -> list | None:
+    v = value.get(key)
+    vals = [_num(x) for x in v] if isinstance(v, (list, tuple)) else []
+    if len(vals) != 3 or any(x is None for x in vals) or (nonzero and math.hypot(*vals) < 1e-9):
+        add(value, key, f"{where}.{key}", f"expected 3 finite numbers{', not all 0' if nonzero else ''}, got {v!r}")
+        return None
+    if nonzero:
+        n = math.sqrt(sum(x * x for x in vals))
+        return [x / n for x in vals]
+    return vals
+
+
+def _number(value, key, where, add, lo, hi, *, auto=False):
+    """The number at ``key`` within [lo, hi] (or "auto" when allowed); None when absent
+    or invalid (a problem is added for invalid)."""
+    if key not in value:
+        return None
+    v = value[key]
+    if auto and v == "auto":
+        return "auto"
+    f = _num(v)
+    if f is None or not (lo <= f <= hi):
+        add(value, key, f"{where}.{key}", f"expected a number in [{lo:g}, {hi:g}]"
+            + (" or 'auto'" if auto else "") + f", got {v!r}")
+        raise _Bad
+    return f
+
+
+class _Bad(Exception):
+    pass
+
+
+def _unknown_keys(value, allowed, where, add, kind) -> bool:
     ok = True
     for k in value:
-        if k not in PROBE_KEYS:
-            add(value, k, f"{where}.{k}", f"unknown key {k!r} for a probe (known: {', '.join(sorted(PROBE_KEYS))})")
+        if k not in allowed:
+            add(value, k, f"{where}.{k}", f"unknown key {k!r} for a {kind} (known: {', '.join(sorted(allowed))})")
             ok = False
-    out = {"type": "probe", "hdr": None, "rotation_deg": 0.0}
-    if "hdr" not in value:
-        add(value, None, where, "a probe needs 'hdr' (an equirectangular EXR/HDR file)")
-        ok = False
-    elif resolve is not None:
-        p = resolve(value, "hdr", f"{where}.hdr")
-        ok = ok and p is not None
-        out["hdr"] = None if p is None else str(p)
-    else:
-        out["hdr"] = str(value["hdr"])
-    if "rotation_deg" in value:
-        v = _num(value["rotation_deg"])
-        if v is None or not (-360.0 <= v <= 360.0):
-            add(value, "rotation_deg", f"{where}.rotation_deg", f"expected degrees in [-360, 360], got {value['rotation_deg']!r}")
-            ok = False
-        else:
-            out["rotation_deg"] = v
-    return out if ok else None
+    return ok
 
 
-def _parse_list(value, where, add, resolve) -> dict | None:
-    if not 1 <= len(value) <= MAX_LIGHTS:
-        add(None, None, where, f"expected 1 to {MAX_LIGHTS} directional lights, got {len(value)}")
+def _color(value, where, add):
+    if "color" not in value:
         return None
-    items = []
-    for i, v in enumerate(value):
-        if isinstance(v, list):  # no nesting: parse_light would read it as another list
-            add(None, None, f"{where}[{i}]", "expected a mapping, got a list")
-            items.append(None)
-        elif isinstance(v, dict) and v.get("type") == "probe":
-            add(v, "type", f"{where}[{i}].type", "a list of lights holds directional lights only "
-                                                 "(a probe is the scene's whole light)")
-            items.append(None)
-        else:
-            items.append(parse_light(v, f"{where}[{i}]", add, resolve))
-    if any(x is None for x in items):
-        return None
-    autos = [x["strength"] == "auto" for x in items]
-    if any(autos) and not all(autos):
-        add(None, None, where, "strengths must be all numbers or all 'auto' (measured from the photo)")
-        return None
-    return items[0] if len(items) == 1 else {"type": "lights", "lights": items}
+    c = value["color"]
+    vals = [_num(x) for x in c] if isinstance(c, (list, tuple)) else []
+    if len(vals) != 3 or any(x is None or x < 0 for x in vals) or not any(vals):
+        add(value, "color", f"{where}.color", f"expected 3 non-negative numbers, not all 0, got {c!r}")
+        raise _Bad
+    return vals
 
 
-def parse_light(value, where: str, add, resolve=None) -> dict | None:
-    """Validate a scene's ``light`` mapping.
-
-    Args:
-        value: the YAML value.
-        where: its location for messages (``scenes.kitchen.light``).
-        add: ``add(container, key, where, message)`` records a problem (the manifest's
-            located-problem collector: it adds the file and line).
-        resolve: ``resolve(container, key, where) -> Path | None`` checks a file field
-            (the probe's ``hdr``) relative to the manifest.
-    Returns:
-        ``{"type": "directional", "direction": [x, y, z] | None, "azimuth_deg",
-        "elevation_deg", "angular_radius_deg", "strength"}``, ``{"type": "probe", ...}``,
-        ``{"type": "lights", "lights": [directional, ...]}`` for a list of two or more,
-        or None when invalid.
-    """
-    if isinstance(value, list):
-        return _parse_list(value, where, add, resolve)
-    if not isinstance(value, dict):
-        add(None, None, where, f"expected a mapping (direction or azimuth_deg/elevation_deg, "
-                               f"angular_radius_deg, strength), got {type(value).__name__}")
-        return None
-    if value.get("type") == "probe":
-        return _parse_probe(value, where, add, resolve)
-    ok = True
-    for k in value:
-        if k not in LIGHT_KEYS:
-            add(value, k, f"{where}.{k}", f"unknown key {k!r} (known: {', '.join(sorted(LIGHT_KEYS))})")
-            ok = False
-    kind = value.get("type", "directional")
-    if kind != "directional":
-        add(value, "type", f"{where}.type", f"unsupported light type {kind!r} (supported: directional, probe)")
-        ok = False
-    out = {"type": "directional", "direction": None, "azimuth_deg": None, "elevation_deg": None,
-           "angular_radius_deg": DEFAULT_ANGULAR_RADIUS_DEG, "strength": DEFAULT_STRENGTH}
+def _parse_sun(value, where, add) -> dict | None:
+    ok = _unknown_keys(value, SUN_KEYS, where, add, "sun")
+    out = {"type": "sun", "direction": None, "azimuth_deg": None, "elevation_deg": None,
+           "angular_radius_deg": None, "strength": None, "irradiance": None, "color": None}
     has_dir = "direction" in value
     has_angles = "azimuth_deg" in value or "elevation_deg" in value
     if has_dir == has_angles:
         add(value, None, where, "give either 'direction' or both 'azimuth_deg' and 'elevation_deg'")
         ok = False
     if has_dir:
-        d = value["direction"]
-        vals = [_num(x) for x in d] if isinstance(d, (list, tuple)) else []
-        if len(vals) != 3 or any(v is None for v in vals) or math.hypot(*vals) < 1e-9:
-            add(value, "direction", f"{where}.direction", f"expected 3 finite numbers, not all 0, got {d!r}")
-            ok = False
-        else:
-            n = math.sqrt(sum(v * v for v in vals))
-            out["direction"] = [v / n for v in vals]
+        out["direction"] = _vector(value, "direction", where, add, nonzero=True)
+        ok = ok and out["direction"] is not None
     if has_angles:
         for k, lo, hi in (("azimuth_deg", -360.0, 360.0), ("elevation_deg", 0.0, 90.0)):
             v = _num(value.get(k))
@@ -158,16 +137,154 @@ def parse_light(value, where: str, add, resolve=None) -> dict | None:
                 ok = False
             else:
                 out[k] = v
-    if value.get("strength") == "auto":
+    try:
+        out["angular_radius_deg"] = _number(value, "angular_radius_deg", where, add, 0.0, MAX_ANGULAR_RADIUS_DEG)
+        out["strength"] = _number(value, "strength", where, add, 0.0, 1e3, auto=True)
+        out["irradiance"] = _number(value, "irradiance", where, add, 0.0, 1e9)
+        out["color"] = _color(value, where, add)
+    except _Bad:
+        ok = False
+    if out["strength"] is not None and out["irradiance"] is not None:
+        add(value, "irradiance", f"{where}.irradiance", "give strength or irradiance, not both")
+        ok = False
+    if out["strength"] is None and out["irradiance"] is None:
         out["strength"] = "auto"
-        out["angular_radius_deg"] = None  # measured too, unless given
-    for k, lo, hi in (("angular_radius_deg", 0.0, 45.0), ("strength", 0.0, 1e3)):
-        if k in value and value[k] != "auto":
-            v = _num(value[k])
+    return out if ok else None
+
+
+def _parse_probe(value, where, add, resolve) -> dict | None:
+    from zcomp_cli.equirect import CONVENTIONS, DEFAULT_CONVENTION
+
+    ok = _unknown_keys(value, PROBE_KEYS, where, add, "probe")
+    out = {"type": "probe", "hdr": None, "rotation_deg": 0.0, "convention": DEFAULT_CONVENTION, "strength": 1.0}
+    if "hdr" not in value:
+        add(value, None, where, "a probe needs 'hdr' (an equirectangular EXR/HDR file)")
+        ok = False
+    elif resolve is not None:
+        p = resolve(value, "hdr", f"{where}.hdr")
+        ok = ok and p is not None
+        out["hdr"] = None if p is None else str(p)
+    else:
+        out["hdr"] = str(value["hdr"])
+    try:
+        r = _number(value, "rotation_deg", where, add, -360.0, 360.0)
+        out["rotation_deg"] = 0.0 if r is None else r
+        s = _number(value, "strength", where, add, 0.0, 1e9)
+        out["strength"] = 1.0 if s is None else s
+    except _Bad:
+        ok = False
+    if "convention" in value:
+        c = value["convention"]
+        if c not in CONVENTIONS:
+            add(value, "convention", f"{where}.convention",
+                f"unknown probe convention {c!r} (known: {', '.join(CONVENTIONS)})")
+            ok = False
+        else:
+            out["convention"] = c
+    return out if ok else None
+
+
+def _parse_lamp(value, where, add) -> dict | None:
+    ok = _unknown_keys(value, LAMP_KEYS, where, add, "lamp")
+    out = {"type": "lamp", "position": None, "radius_m": None, "power": "auto", "facing": None, "color": None}
+    if "position" not in value:
+        add(value, None, where, "a lamp needs 'position' ([x, y, z] in the camera frame, metres)")
+        ok = False
+    else:
+        out["position"] = _vector(value, "position", where, add, nonzero=False)
+        ok = ok and out["position"] is not None
+    if "facing" in value:
+        out["facing"] = _vector(value, "facing", where, add, nonzero=True)
+        ok = ok and out["facing"] is not None
+    try:
+        out["radius_m"] = _number(value, "radius_m", where, add, 0.0, 1e3)
+        p = _number(value, "power", where, add, 0.0, 1e9, auto=True)
+        out["power"] = "auto" if p is None else p
+        out["color"] = _color(value, where, add)
+    except _Bad:
+        ok = False
+    return out if ok else None
+
+
+def _parse_one(value, where, add, resolve) -> dict | None:
+    if not isinstance(value, dict):
+        add(None, None, where, f"expected a mapping (a sun, a lamp or a probe), got {type(value).__name__}")
+        return None
+    kind = value.get("type", "sun")
+    if kind in ("sun", "directional"):
+        return _parse_sun(value, where, add)
+    if kind == "probe":
+        return _parse_probe(value, where, add, resolve)
+    if kind == "lamp":
+        return _parse_lamp(value, where, add)
+    add(value, "type", f"{where}.type", f"unsupported light type {kind!r} (supported: sun, directional, lamp, probe)")
+    return None
+
+
+def parse_light(value, where: str, add, resolve=None) -> dict | None:
+    """Validate a scene's ``light`` (one mapping or a list of them).
+
+    Args:
+        value: the YAML value.
+        where: its location for messages (``scenes.kitchen.light``).
+        add: ``add(container, key, where, message)`` records a problem (the manifest's
+            located-problem collector: it adds the file and line).
+        resolve: ``resolve(container, key, where) -> Path | None`` checks a file field
+            (the probe's ``hdr``) relative to the manifest.
+    Returns:
+        ``{"lights": [...]}``, each light a dict with every key of its type (module
+        docstring; ``None`` where not given), or None when invalid.
+    """
+    items = value if isinstance(value, list) else [value]
+    if isinstance(value, list) and not value:
+        add(None, None, where, "expected at least one light")
+        return None
+    out, ok = [], True
+    for i, v in enumerate(items):
+        w = f"{where}[{i}]" if isinstance(value, list) else where
+        if isinstance(v, list):
+            add(None, None, w, "expected a mapping, got a list")
+            ok = False
+            continue
+        x = _parse_one(v, w, add, resolve)
+        ok = ok and x is not None
+        out.append(x)
+    if not ok:
+        return None
+    probes = [x for x in out if x["type"] == "probe"]
+    direct = [x for x in out if x["type"] != "probe"]
+    if len(probes) > 1:
+        add(None, None, where, f"at most one probe, got {len(probes)}")
+        return None
+    if len(direct) > MAX_LIGHTS:
+        add(None, None, where, f"at most {MAX_LIGHTS} suns and lamps (besides a probe), got {len(direct)}")
+        return None
+    ratio = [x for x in direct if x["type"] == "sun" and isinstance(x["strength"], float)]
+    absolute = probes + [x for x in direct if x.get("irradiance") is not None
+                         or (x["type"] == "lamp" and x["power"] != "auto")]
+    if ratio and absolute:
+        add(None, None, where, "a sun's number 'strength' is its share against the fitted sky: it cannot stand "
+                               "beside a probe, an irradiance or a lamp's power (give 'irradiance' in W/m^2, "
+                               "or strength: auto)")
+        return None
+    return {"lights": out}
+
+
+def parse_tilt(scene: dict, where: str, add) -> dict:
+    """The scene's ``pitch_deg``/``roll_deg`` (the camera's; negative pitch looks down):
+    ``{"pitch_deg": p, "roll_deg": r}``, empty when not given. A roll needs a pitch."""
+    out = {}
+    for k, lo, hi in (("pitch_deg", -89.0, 89.0), ("roll_deg", -180.0, 180.0)):
+        if k in scene:
+            v = _num(scene[k])
             if v is None or not (lo <= v <= hi):
-                add(value, k, f"{where}.{k}", f"expected a number in [{lo:g}, {hi:g}]"
-                    + (" or 'auto'" if k == "strength" else "") + f", got {value[k]!r}")
-                ok = False
+                add(scene, k, f"{where}.{k}", f"expected degrees in [{lo:g}, {hi:g}], got {scene[k]!r}")
             else:
                 out[k] = v
-    return out if ok else None
+    if "roll_deg" in out and "pitch_deg" not in out:
+        add(scene, "roll_deg", f"{where}.roll_deg", "give pitch_deg with roll_deg (world up needs both)")
+        out.pop("roll_deg")
+    return out
+
+
+__all__ = ["parse_light", "parse_tilt", "SUN_RADIUS_DEG", "LAMP_RADIUS_M", "MAX_LIGHTS", "PROBE_EXTS"]

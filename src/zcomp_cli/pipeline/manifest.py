@@ -327,7 +327,8 @@ def _named_entries(d, parent, section: str, what: str, expected: str, probs):
 def _parse_scenes(d, parent, root, probs, check_files, defaults) -> dict[str, SceneSpec]:
     out: dict[str, SceneSpec] = {}
     for name, s, where in _named_entries(d, parent, "scenes", "scene", "at least 'image'", probs):
-        _check_keys(s, {"image", "fov_deg", "K", "light", *MAP_CHANNELS}, where, probs, required=("image",))
+        _check_keys(s, {"image", "fov_deg", "K", "light", "pitch_deg", "roll_deg", *MAP_CHANNELS}, where, probs,
+                    required=("image",))
         if "fov_deg" in s and "K" in s:
             probs.add(s, "K", where, "give fov_deg or K, not both")
         for m in MAP_CHANNELS:
@@ -361,8 +362,7 @@ def _parse_scenes(d, parent, root, probs, check_files, defaults) -> dict[str, Sc
                 spec.fov_deg = v
         if "K" in s:
             spec.K = _parse_K(s["K"], s, "K", f"{where}.K", probs)
-        if "light" in s:
-            spec.light = _parse_scene_light(s, where, probs, root)
+        spec.light = _parse_scene_light(s, where, probs, root)
         for m, ch in MAP_CHANNELS.items():
             if m not in s:
                 continue
@@ -402,7 +402,10 @@ def _parse_scenes(d, parent, root, probs, check_files, defaults) -> dict[str, Sc
 
 
 def _parse_scene_light(s, where, probs, root) -> dict | None:
-    from zcomp_cli.pipeline.lightspec import PROBE_EXTS, parse_light
+    """The scene's light context for the renderer: ``{"lights": [...]}`` from ``light``
+    and ``pitch_deg``/``roll_deg`` when given (``pipeline/lightspec.py``); None when the
+    scene has neither (the light is estimated, world up read off the support)."""
+    from zcomp_cli.pipeline.lightspec import PROBE_EXTS, parse_light, parse_tilt
 
     def add(container, key, w, msg):  # problems without a container sit on 'light'
         probs.add(s if container is None else container, "light" if container is None else key, w, msg)
@@ -410,7 +413,12 @@ def _parse_scene_light(s, where, probs, root) -> dict | None:
     def resolve(container, key, w):  # a light probe file, relative to the manifest
         return _file(root, container[key], container, key, w, probs, PROBE_EXTS)
 
-    return parse_light(s["light"], f"{where}.light", add, resolve)
+    ctx = parse_tilt(s, where, lambda c, k, w, m: probs.add(c, k, w, m))
+    if "light" in s:
+        parsed = parse_light(s["light"], f"{where}.light", add, resolve)
+        if parsed is not None:
+            ctx.update(parsed)
+    return ctx or None
 
 
 def _parse_objects(d, parent, root, probs, check_files) -> dict[str, ObjectSpec]:

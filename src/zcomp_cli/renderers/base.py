@@ -34,10 +34,15 @@ class RenderRequest:
         image: H x W x 3 linear background photograph (x_bg) for context, optional.
         scene_key: a key identifying the background scene (same key = same background),
             so a renderer may cache per-scene work such as lighting estimation.
-        light: the scene's known lighting from the manifest (``pipeline/lightspec.py``),
-            or None: a renderer that models light uses it instead of estimating one.
-        occluder: the object's posed mesh (``renderers.physical.meshshadow.PosedMesh``)
-            on the composite request when the bundle references one, else None.
+        light: the scene's light context from the manifest (``pipeline/lightspec.py``):
+            ``{"lights": [...]}`` when the light is given (a renderer that models light
+            uses it instead of estimating one) and the camera's ``pitch_deg``/``roll_deg``
+            when given; None when the manifest says neither.
+        occluder: the object's posed mesh (``zcomp_cli.posed_mesh.PosedMesh``) on the
+            composite request when the bundle references one, else None.
+        coverage: H x W float in [0, 1], the inserted object's visible coverage on the
+            composite request (None on the background's): where its own material
+            (roughness, metallic) applies.
     """
 
     maps: SceneMaps
@@ -49,6 +54,7 @@ class RenderRequest:
     scene_key: str | None = None
     light: dict | None = None
     occluder: object | None = None
+    coverage: np.ndarray | None = None
 
 
 @dataclass

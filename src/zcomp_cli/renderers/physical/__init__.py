@@ -1,7 +1,8 @@
-"""The embedded ``physical`` renderer (DESIGN.md section 5): light estimation from the known
-shading, screen-space shadow rays, shading synthesis for the masked pixels."""
+"""The embedded ``physical`` renderer (DESIGN.md sections 5 and 8): the scene's light
+(given in the manifest or fitted to the known shading, ``lightmodel``), screen-space
+shadow rays, shading synthesis for the masked pixels."""
 
-from zcomp_cli.renderers.physical.lighting import LightEstimate, estimate_lighting
+from zcomp_cli.renderers.physical.lightmodel import LightModel
 from zcomp_cli.renderers.physical.renderer import PhysicalRenderer
 
-__all__ = ["PhysicalRenderer", "LightEstimate", "estimate_lighting"]
+__all__ = ["PhysicalRenderer", "LightModel"]

@@ -1,186 +1,275 @@
-"""A known light from the manifest (``pipeline/lightspec.py``) as the renderer's light
-model: nothing is estimated but the overall level, read off the photograph.
+"""The manifest's light (``pipeline/lightspec.py``) frozen in the light fit.
 
-The direction is given in the camera frame, or as azimuth/elevation relative to the
-support plane (the dominant surface of the known geometry) and the image axes: azimuth
-0 is the image's right, 90 away from the camera, elevation above the plane. The strength
-is direct / ambient irradiance on a surface facing the light, so the shadow level is
-``1 / (1 + strength * cos)`` of the lit level on the support (cos: light vs its normal).
+Each given light becomes atoms of the same solver as the estimate (``estimate``,
+``solver``) with its parameters fixed:
+
+* the lights with physical strengths -- a probe (its sources and its sky), suns with an
+  ``irradiance``, lamps with a ``power`` -- add up to **one** coloured atom: their
+  strengths hold relative to each other, and its one weight is the photograph's
+  exposure;
+* a light with ``strength``/``power: auto`` is its own grey atom: its strength and colour
+  are fitted; a sun's size, when not given, is chosen among ``estimate.RADII_DEG`` by the
+  held-out pixels (the default when they cannot tell);
+* a sun's number ``strength`` (direct over sky, the older form) ties it to a uniform sky
+  in one grey atom;
+* without a probe the sky is fitted (the estimate's sky lobes).
+
+Units (Blender's, so a scene lit in Blender can be given as it is; checked against
+Cycles in the tests): a probe's radiance is shading as it is (a uniform sky of radiance
+L shades a surface with L); a sun of irradiance E (W/m^2, Blender's Sun strength) gives
+``E / pi`` on a surface facing it; a point lamp of power P (W) gives ``P / (4 pi^2 r^2)``
+at distance r.
 """
 
 from __future__ import annotations
 
-import dataclasses
+import math
 from pathlib import Path
 
 import numpy as np
 
 from zcomp_cli.camera import Camera
-from zcomp_cli.conventions import REC601
-from zcomp_cli.renderers.physical.lighting import ExtraLight, LightEstimate, _downsample, dominant_normal, fibonacci_sphere
-from zcomp_cli.renderers.physical.visibility import march_visibility
+from zcomp_cli.renderers.physical import atoms as at
+from zcomp_cli.renderers.physical import sh
+from zcomp_cli.renderers.physical.estimate import (PRIOR_RIDGE, RADII_DEG, _Light, _loss_blocks, _model, _prior,
+                                                   _sky_from_weights, _temper, prepare, sky_atoms)
+from zcomp_cli.renderers.physical.lightmodel import FitSummary, Lamp, LightModel, Origin, ShadowKind, Sky, Sun
+from zcomp_cli.renderers.physical.settings import DEFAULTS, PhysicalSettings
+from zcomp_cli.renderers.physical.solver import Atom, base_sigma, fit, score_candidates
+
+SUN_SHADING_PER_IRRADIANCE = 1.0 / math.pi
+LAMP_SHADING_PER_WATT = 1.0 / (4.0 * math.pi ** 2)
 
 
-# Where a manifest light's radius came from, when it gives ``angular_radius_deg``.
-MANIFEST_RADIUS_SOURCE = "manifest: angular_radius_deg"
+def light_direction(spec: dict, frame) -> np.ndarray:
+    """Camera-frame unit direction toward a sun spec (``direction``, or azimuth and
+    elevation on the ground of ``frame``'s up)."""
+    from zcomp_cli.worldframe import direction_from_angles
 
-
-def direction_from_angles(azimuth_deg: float, elevation_deg: float, up: np.ndarray) -> np.ndarray:
-    """Camera-frame unit vector toward a light at ``azimuth_deg`` (0 = image right, 90 =
-    away from the camera, in the support plane of normal ``up``) and ``elevation_deg``
-    above that plane."""
-    up = np.asarray(up, np.float64) / np.linalg.norm(up)
-    ex = np.array([1.0, 0.0, 0.0]) - up * up[0]
-    ex /= np.linalg.norm(ex)
-    ey = np.cross(up, ex)  # in the plane, 90 deg from ex: away from the camera (-z) for up ~ +y
-    if ey[2] > 0:
-        ey = -ey
-    a, e = np.deg2rad(azimuth_deg), np.deg2rad(elevation_deg)
-    d = np.cos(e) * (np.cos(a) * ex + np.sin(a) * ey) + np.sin(e) * up
-    return d / np.linalg.norm(d)
-
-
-# The probe's brightest pixels covering this solid angle are its "sun"; the rest is sky.
-SUN_SOLID_ANGLE_SR = 0.02  # ~ a disc of 4.6 deg radius
-
-
-def probe_lights(hdr: np.ndarray, rotation_deg: float = 0.0, up=(0.0, 1.0, 0.0)):
-    """Split an equirectangular probe (H, W, 3 linear; +Y up, centre column toward the
-    camera's -z, turned by ``rotation_deg`` about +Y) into a sun and a sky.
-
-    Returns:
-        (sun direction (3,), sun irradiance on a surface facing it (3,), sky irradiance
-        order-1 coefficients (4, 3): E(n) ~ c0 + c . n, sun angular radius in degrees).
-    """
-    import cv2
-
-    img = np.nan_to_num(np.asarray(hdr, np.float64), nan=0.0, posinf=0.0)
-    img = np.maximum(img, 0.0)
-    img = cv2.resize(img.astype(np.float32), (128, 64), interpolation=cv2.INTER_AREA).astype(np.float64)
-    h, w = img.shape[:2]
-    v, u = np.mgrid[0:h, 0:w]
-    lat = (0.5 - (v + 0.5) / h) * np.pi
-    lon = ((u + 0.5) / w - 0.5) * 2 * np.pi + np.deg2rad(rotation_deg)
-    dirs = np.stack([np.sin(lon) * np.cos(lat), np.sin(lat), -np.cos(lon) * np.cos(lat)], -1).reshape(-1, 3)
-    d_omega = ((2 * np.pi / w) * (np.pi / h) * np.cos(lat)).reshape(-1)
-    L = img.reshape(-1, 3)
-    power = (L @ np.array([0.299, 0.587, 0.114])) * d_omega
-    order = np.argsort(-(L @ np.array([0.299, 0.587, 0.114])))
-    area = np.cumsum(d_omega[order])
-    sun = np.zeros(len(L), bool)
-    sun[order[: max(1, int(np.searchsorted(area, SUN_SOLID_ANGLE_SR)) + 1)]] = True
-    sdir = (dirs[sun] * power[sun, None]).sum(0)
-    sdir = sdir / max(np.linalg.norm(sdir), 1e-12)
-    e_sun = (L[sun] * d_omega[sun, None]).sum(0)
-    # sky irradiance for a set of normals, fitted by c0 + c . n
-    ns = fibonacci_sphere(64)
-    sky = ~sun
-    E = np.maximum(ns @ dirs[sky].T, 0.0) @ (L[sky] * d_omega[sky, None])  # (64, 3)
-    X = np.concatenate([np.ones((len(ns), 1)), ns], 1)
-    coef, *_ = np.linalg.lstsq(X, E, rcond=None)
-    radius = float(np.degrees(np.sqrt(d_omega[sun].sum() / np.pi)))
-    return sdir, e_sun, coef, radius
-
-
-def light_from_spec(spec: dict, depth, normals, shading, known, camera: Camera, *,
-                    max_resolution: int = 160, march_steps: int = 16, albedo=None) -> LightEstimate:
-    """LightEstimate of a manifest light; the ambient level is the lit level of the
-    support (its known pixels the light reaches) over ``1 + strength * cos``.
-    ``albedo`` (H, W, 3) serves ``strength: auto`` (``estimate_lighting``)."""
-    d, n, sh, k, cam = _downsample(depth, normals, shading, known, camera, max_resolution)
-    nn = np.linalg.norm(n, axis=-1)
-    valid = k & (d > 0) & (np.abs(nn - 1) < 0.2) & np.all(np.isfinite(sh), -1) & np.all(sh > 0, -1)
-    idx = np.flatnonzero(valid.ravel())
-    if len(idx) > 4000:
-        idx = idx[np.linspace(0, len(idx) - 1, 4000).astype(np.int64)]
-    N = n.reshape(-1, 3)[idx].astype(np.float64)
-    N /= np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-12)
-    S = sh.reshape(-1, 3)[idx].astype(np.float64)
-    P = cam.unproject(d).reshape(-1, 3)[idx].astype(np.float64)
-    up = dominant_normal(N)
-    if spec.get("type") == "probe":
-        return _probe_estimate(spec, N, S, P, up, d, cam, march_steps)
-    specs = spec["lights"] if spec.get("type") == "lights" else [spec]
-    dirs, hows = zip(*(_spec_direction(x, up) for x in specs))
-    radii = [x.get("angular_radius_deg") for x in specs]
-    if specs[0].get("strength") == "auto":
-        # directions known, the rest measured from the photo as for estimated ones
-        from zcomp_cli.renderers.physical.lighting import estimate_lighting
-
-        est = estimate_lighting(depth, normals, shading, known, camera, max_resolution=max_resolution,
-                                march_steps=march_steps, direction=np.stack(dirs), albedo=albedo,
-                                softness_deg=None if radii[0] is None else float(radii[0]))
-        est.source = "manifest"
-        if radii[0] is not None:
-            est.softness_source = MANIFEST_RADIUS_SOURCE
-        est.direction_source = f"manifest: {hows[0]}"
-        # read from a shadow, or only fitted to the shading (a bare floor: the regression
-        # then splits the light from the ambient as it can, which the report must say)
-        est.share_source = (f"not measured (no shadow of the light in the photo): {est.share_source}"
-                            if est.share_source.startswith("fit") else f"measured ({est.share_source})")
-        est.extra_lights = tuple(
-            dataclasses.replace(x, direction_source=f"manifest: {how}",
-                                softness_deg=x.softness_deg if r is None else float(r))
-            for x, how, r in zip(est.extra_lights, hows[1:], radii[1:]))
-        return est
-    strengths = [float(x.get("strength", 2.0)) for x in specs]
-    coss = [float(max(l @ up, 0.05)) for l in dirs]
-    on = N @ up > np.cos(np.deg2rad(15))
-    lit = on.copy()
-    for l in dirs:  # the support where every light reaches
-        if len(P):
-            lit &= (march_visibility(P, N, l, d, cam, steps=march_steps) > 0.5) & (N @ l > 0)
-    pick = lit if lit.sum() >= 15 else (on if on.sum() >= 15 else np.ones(len(S), bool))
-    level = np.median(S[pick], 0) if len(S) else np.full(3, 0.5)
-    total = 1.0 + sum(s_ * c for s_, c in zip(strengths, coss))
-    amb = level / total
-    sh_c = np.zeros((4, 3))
-    sh_c[0] = amb
-    radius = lambda r: 1.0 if r is None else float(r)
-    extras = tuple(ExtraLight(l, s_ * amb, radius(r), float((total - s_ * c) / total), f"manifest: {how}",
-                              "manifest strength")
-                   for l, s_, c, r, how in zip(dirs[1:], strengths[1:], coss[1:], radii[1:], hows[1:]))
-    return LightEstimate(dirs[0], strengths[0] * amb, sh_c, float(1.0 / total), radius(radii[0]),
-                         float("nan"), float("nan"), 0.0, None, 0.0, "manifest strength", "manifest",
-                         0.0, f"manifest: {hows[0]}", extra_lights=extras,
-                         softness_source=(MANIFEST_RADIUS_SOURCE if radii[0] is not None
-                                          else "manifest default: 1 deg"))
-
-
-def _spec_direction(spec: dict, up: np.ndarray):
-    """(camera-frame unit direction toward the light, how it was given) of a
-    directional light spec."""
     if spec.get("direction") is not None:
-        l = np.asarray(spec["direction"], np.float64)
-        return l / np.linalg.norm(l), "direction (camera frame)"
-    l = direction_from_angles(spec["azimuth_deg"], spec["elevation_deg"], up)
-    return l, f"azimuth {spec['azimuth_deg']:g} deg, elevation {spec['elevation_deg']:g} deg"
+        d = np.asarray(spec["direction"], np.float64)
+        return d / np.linalg.norm(d)
+    return direction_from_angles(spec["azimuth_deg"], spec["elevation_deg"], np.asarray(frame)[1])
 
 
-def _probe_estimate(spec, N, S, P, up, d, cam, march_steps) -> LightEstimate:
-    """A probe's sun + sky, scaled so the lit support matches the photograph."""
-    from zcomp_cli.imageio import read_image
-    from zcomp_cli.renderers.physical.shading import sh_basis
-
-    hdr = read_image(spec["hdr"])
-    l, e_sun, sky, radius = probe_lights(hdr, float(spec.get("rotation_deg", 0.0)))
-    cos = float(max(l @ up, 0.0))
-    on = N @ up > np.cos(np.deg2rad(15))
-    lit = on.copy()
-    if len(P) and cos > 0:
-        lit &= (march_visibility(P, N, l, d, cam, steps=march_steps) > 0.5)
-    pick = lit if lit.sum() >= 15 else (on if on.sum() >= 15 else np.ones(len(S), bool))
-    level = np.median(S[pick], 0) if len(S) else np.full(3, 0.5)
-    model_up = (sh_basis(up[None]) @ sky)[0] + e_sun * cos
-    scale = level / np.maximum(model_up, 1e-9)
-    sky_s = sky * scale[None]
-    amb_up = float(np.maximum(sh_basis(up[None]) @ sky_s, 0).mean())
-    share = amb_up / max(amb_up + float((e_sun * scale).mean()) * cos, 1e-12)
-    name = Path(spec["hdr"]).name
-    return LightEstimate(l, e_sun * scale, sky_s, float(share), radius, float("nan"), float("nan"), 0.0,
-                         None, 0.0, "manifest probe", "manifest",
-                         0.0, f"manifest: probe {name}, rotation {float(spec.get('rotation_deg', 0.0)):g} deg",
-                         softness_source=f"manifest: probe {name}, its brightest area")
+def _colour(spec) -> np.ndarray:
+    c = spec.get("color")
+    return np.ones(3) if c is None else np.asarray(c, np.float64)
 
 
-__all__ = ["light_from_spec", "direction_from_angles", "dominant_normal", "REC601"]
+def fit_known(specs: list, depth, normals, shading, known, albedo, camera: Camera, *, up, up_from: Origin,
+              settings: PhysicalSettings = DEFAULTS, seed: int = 0) -> LightModel:
+    """LightModel of the manifest's lights ``specs`` (``parse_light``'s ``lights``),
+    their free parameters fitted to the photograph's known shading (module docstring)."""
+    from zcomp_cli.renderers.physical.probe import load_probe
+
+    up = np.asarray(up, np.float64)
+    pp = prepare(depth, normals, shading, known, albedo, camera, up, settings)
+    fp = pp.fp
+    steps = settings.estimate_march_steps
+    n_fit = len(fp)
+    fixed = np.zeros((n_fit, 3))
+    fixed_parts = []  # (kind, spec, extra) to rebuild the lights once the exposure is known
+    probe = None
+    autos: list[tuple[dict, _Light]] = []
+    ratio_specs = []
+    for spec in specs:
+        t = spec["type"]
+        if t == "probe":
+            probe = load_probe(spec["hdr"], pp.frame, convention=spec["convention"], rotation_deg=spec["rotation_deg"])
+            k = float(spec["strength"])
+            if n_fit:
+                fixed += k * at.sky_atom_values(fp, probe.sky_radiance_sh, pp.sky_vis)
+                for src in probe.sources:
+                    col = at.sun_column(fp, src.direction, src.radius_deg, steps=steps,
+                                        cone_samples=settings.cone_samples, seed=seed)
+                    fixed += k * col[:, None] * src.power[None] * SUN_SHADING_PER_IRRADIANCE
+            fixed_parts.append(("probe", spec, probe))
+        elif t == "sun":
+            d = light_direction(spec, pp.frame)
+            radius = spec["angular_radius_deg"]
+            if settings.shadow_softness is not None:
+                radius = float(settings.shadow_softness)
+            if spec.get("irradiance") is not None:
+                r = radius if radius is not None else _default_sun_radius()
+                if n_fit:
+                    col = at.sun_column(fp, d, r, steps=steps, cone_samples=settings.cone_samples, seed=seed)
+                    fixed += (spec["irradiance"] * SUN_SHADING_PER_IRRADIANCE) * col[:, None] * _colour(spec)[None]
+                fixed_parts.append(("sun", spec, (d, r)))
+            elif spec["strength"] == "auto":
+                autos.append((spec, _Light("sun", d, -1.0 if radius is None else float(radius), np.zeros(n_fit),
+                                           Origin.FIT if radius is None else Origin.MANIFEST)))
+            else:
+                ratio_specs.append((spec, d, radius if radius is not None else _default_sun_radius()))
+        else:  # lamp
+            q = np.asarray(spec["position"], np.float64)
+            rm = spec["radius_m"] if spec["radius_m"] is not None else _default_lamp_radius()
+            facing = None if spec.get("facing") is None else np.asarray(spec["facing"], np.float64)
+            if spec["power"] != "auto":
+                if n_fit:
+                    col = _lamp_column(fp, q, rm, facing, steps, settings.cone_samples, seed)
+                    fixed += (spec["power"] * LAMP_SHADING_PER_WATT) * col[:, None] * _colour(spec)[None]
+                fixed_parts.append(("lamp", spec, (q, rm, facing)))
+            else:
+                light = _Light("lamp", q, float(rm), _lamp_column(fp, q, rm, facing, steps, settings.cone_samples, seed)
+                               if n_fit else np.zeros(0),
+                               Origin.MANIFEST if spec["radius_m"] is not None else Origin.DEFAULT)
+                light.facing = facing
+                autos.append((spec, light))
+    note = ""
+    if n_fit < 3:
+        return _unfitted(pp, specs, fixed_parts, autos, ratio_specs, up, up_from,
+                         f"too few known pixels with geometry ({n_fit}) to fit the light's strength")
+    # a probe is the whole sky; without one the sky is fitted
+    atoms = [] if probe is not None else sky_atoms(pp)
+    if ratio_specs:
+        # the older form: sun / sky fixed, one grey atom with a uniform sky
+        lobe = dict(at.sky_lobes(pp.frame))["sky"]
+        unit_sky = at.sky_atom_values(fp, lobe, pp.sky_vis)
+        unit_up = max(float(sh.evaluate(sh.shading_coeffs(lobe[:, None]), up[None])[0, 0]), 1e-9)
+        comp = unit_sky / unit_up
+        for spec, d, r in ratio_specs:
+            comp = comp + float(spec["strength"]) * at.sun_column(fp, d, r, steps=steps,
+                                                                  cone_samples=settings.cone_samples, seed=seed)
+        atoms = [a for a in atoms if not a.name.startswith("sky")] + [Atom("ratio", comp)]
+    if fixed_parts:
+        atoms.append(Atom("fixed", fixed))
+    # the auto lights: their size among RADII_DEG where not given, by the held-out pixels
+    names = []
+    for i, (spec, light) in enumerate(autos):
+        if light.kind == "sun":
+            _fit_radius(pp, light, [a.values for a in atoms] + [x.column for _, x in autos[:i]], settings, seed)
+        atoms.append(Atom(f"light{i}", light.column))
+        names.append(f"light{i}")
+    res = fit(atoms, pp.shading, train=fp.train, prior=_prior(atoms, pp, names), ridge=PRIOR_RIDGE,
+              direct=names + (["fixed"] if fixed_parts else []) + (["ratio"] if ratio_specs else []))
+    k = float(np.mean(res.weights.get("fixed", np.zeros(3)))) if fixed_parts else 1.0
+    summary = FitSummary(residual=float(res.loss_train), pixels=n_fit, note=note,
+                         exposure=k if fixed_parts else float("nan"))
+    model = _model(pp, res, [x for _, x in autos], names, up, up_from, summary, origin=Origin.MANIFEST,
+                   source="manifest")
+    suns = list(model.suns)
+    facings = [getattr(x, "facing", None) for _, x in autos if x.kind == "lamp"]
+    lamps = [_with_facing(lp, f) for lp, f in zip(model.lamps, facings)]
+    extra_sh = np.zeros((sh.N_COEFFS, 3))
+    gloss_probe = None
+    for kind, spec, extra in fixed_parts:
+        if kind == "probe":
+            s = k * float(spec["strength"])
+            extra_sh += s * extra.sky_radiance_sh
+            for src in extra.sources:
+                suns.append(Sun(direction=src.direction, radius_deg=src.radius_deg,
+                                irradiance=s * src.power * SUN_SHADING_PER_IRRADIANCE,
+                                direction_from=Origin.PROBE, radius_from=Origin.PROBE, strength_from=Origin.PROBE))
+            gloss_probe = extra.gloss.scaled(s)
+        elif kind == "sun":
+            d, r = extra
+            suns.append(Sun(direction=d, radius_deg=r, irradiance=k * spec["irradiance"] * SUN_SHADING_PER_IRRADIANCE
+                            * _colour(spec), direction_from=Origin.MANIFEST,
+                            radius_from=Origin.MANIFEST if spec["angular_radius_deg"] is not None else Origin.DEFAULT,
+                            strength_from=Origin.MANIFEST))
+        else:
+            q, rm, facing = extra
+            lamps.append(Lamp(position=q, radius_m=rm, intensity=k * spec["power"] * LAMP_SHADING_PER_WATT
+                              * _colour(spec), facing=facing, position_from=Origin.MANIFEST,
+                              radius_from=Origin.MANIFEST if spec["radius_m"] is not None else Origin.DEFAULT,
+                              strength_from=Origin.MANIFEST))
+    sky_sh = model.sky.radiance_sh + extra_sh
+    if ratio_specs:
+        w = np.asarray(res.weights["ratio"])
+        lobe = dict(at.sky_lobes(pp.frame))["sky"]
+        unit_up = max(float(sh.evaluate(sh.shading_coeffs(lobe[:, None]), up[None])[0, 0]), 1e-9)
+        sky_sh = sky_sh + lobe[:, None] * (w / unit_up)[None]
+        for spec, d, r in ratio_specs:
+            suns.append(Sun(direction=d, radius_deg=r, irradiance=w * float(spec["strength"]),
+                            direction_from=Origin.MANIFEST,
+                            radius_from=Origin.MANIFEST if spec["angular_radius_deg"] is not None else Origin.DEFAULT,
+                            strength_from=Origin.MANIFEST))
+    sky = Sky(radiance_sh=sky_sh, ground=pp.ground, up=up,
+              strength_from=Origin.PROBE if probe is not None else Origin.FIT)
+    return LightModel(suns=tuple(suns), lamps=tuple(lamps), sky=sky, shadows=ShadowKind.CAST, source="manifest",
+                      up_from=up_from, albedo_offset=pp.albedo_offset, probe=gloss_probe, walls=fp.walls,
+                      fit=summary)
+
+
+def _with_facing(lamp: Lamp, facing) -> Lamp:
+    import dataclasses
+
+    return lamp if facing is None else dataclasses.replace(lamp, facing=facing)
+
+
+def _default_sun_radius() -> float:
+    from zcomp_cli.pipeline.lightspec import SUN_RADIUS_DEG
+
+    return SUN_RADIUS_DEG
+
+
+def _default_lamp_radius() -> float:
+    from zcomp_cli.pipeline.lightspec import LAMP_RADIUS_M
+
+    return LAMP_RADIUS_M
+
+
+def _lamp_column(fp, q, radius_m, facing, steps, cone_samples, seed) -> np.ndarray:
+    col = at.lamp_columns(fp, q[None], steps=steps, radius_m=radius_m, cone_samples=cone_samples, seed=seed)[:, 0]
+    if facing is not None:
+        v = q[None] - fp.points
+        d = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-9)
+        col = col * 4.0 * np.maximum(-(d @ facing), 0.0)
+    return col
+
+
+def _fit_radius(pp, light: _Light, base_cols: list, settings: PhysicalSettings, seed: int) -> None:
+    """Choose a sun's angular radius among RADII_DEG by the held-out pixels (in place);
+    the default radius where they cannot tell (a likelihood under one held-out block's
+    worth of evidence)."""
+    fp = pp.fp
+    steps = settings.estimate_march_steps
+    if light.radius >= 0:
+        light.column = at.sun_column(fp, light.param, light.radius, steps=steps,
+                                     cone_samples=settings.cone_samples, seed=seed)
+        return
+    radii = (_default_sun_radius(),) + tuple(RADII_DEG)
+    cols = [at.sun_column(fp, light.param, r, steps=steps, cone_samples=settings.cone_samples, seed=seed)
+            for r in radii]
+    y = pp.lum
+    B = np.stack(base_cols, 1) if base_cols else np.zeros((len(y), 0))
+    if B.shape[1] == 0:
+        B = np.ones((len(y), 1))
+    scale = max(float(np.median(np.abs(y[fp.train]))), 1e-12)
+    sig = base_sigma(B[fp.train], y[fp.train], scale=scale)
+    lh, _ = score_candidates(B, np.stack(cols, 1), y, fp.train, sigma=sig)
+    w = _temper(lh, (sig / scale) ** 2, _loss_blocks(fp))
+    i = int(np.argmin(lh))
+    if w[0] > np.exp(-1.0):  # the default is within one unit of log-likelihood of the best
+        i = 0
+    light.radius, light.column = radii[i], cols[i]
+    light.radius_from = Origin.DEFAULT if i == 0 else Origin.FIT
+
+
+def _unfitted(pp, specs, fixed_parts, autos, ratio_specs, up, up_from, note) -> LightModel:
+    """The manifest's lights where nothing can be fitted: directions kept, strengths from
+    the prior split of a mid-grey level."""
+    from zcomp_cli.renderers.physical.estimate import prior_model
+
+    base = prior_model(pp, up, up_from, note)
+    level = float(base.sky.shading(up[None])[0].mean())
+    suns, lamps = [], []
+    for s in specs:
+        if s["type"] == "sun":
+            d = light_direction(s, pp.frame)
+            suns.append(Sun(direction=d, radius_deg=s["angular_radius_deg"] or _default_sun_radius(),
+                            irradiance=np.full(3, level), direction_from=Origin.MANIFEST,
+                            strength_from=Origin.PRIOR))
+        elif s["type"] == "lamp":
+            q = np.asarray(s["position"], np.float64)
+            lamps.append(Lamp(position=q, radius_m=s["radius_m"] or _default_lamp_radius(),
+                              intensity=np.full(3, level * float(q @ q)), position_from=Origin.MANIFEST,
+                              strength_from=Origin.PRIOR))
+    import dataclasses
+
+    return dataclasses.replace(base, suns=tuple(suns), lamps=tuple(lamps), source="manifest",
+                               shadows=ShadowKind.CAST)
+
+
+__all__ = ["fit_known", "light_direction", "SUN_SHADING_PER_IRRADIANCE", "LAMP_SHADING_PER_WATT"]

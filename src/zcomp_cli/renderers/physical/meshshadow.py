@@ -16,52 +16,14 @@ The sky the object hides (``mesh_occlusion``) is summed over area elements of th
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
+
+from zcomp_cli.posed_mesh import PosedMesh, load_posed_mesh  # noqa: F401  (geometry lives below)
 
 # Shadow-map samples of the mesh's surface: per cell's area of it, and at most.
 MESH_SAMPLE_DENSITY = 8.0
 MAX_SAMPLES = 200_000
-
-
-@dataclass
-class PosedMesh:
-    """Triangles of the object in the camera frame: vertices (N, 3), faces (M, 3)."""
-
-    vertices: np.ndarray
-    faces: np.ndarray
-
-
-def load_posed_mesh(meta: dict, alignment: dict | None = None) -> PosedMesh | None:
-    """The bundle's mesh posed in the camera frame, or None when the bundle has none.
-
-    ``alignment`` (``{"a", "b"}``, the job's depth alignment ``z' = a z + b``) moves each
-    vertex along its viewing ray like the object's depth map."""
-    path = meta.get("mesh")
-    M = meta.get("object_to_camera")
-    if not path or M is None or not Path(path).is_file():
-        return None
-    import trimesh
-
-    scene = trimesh.load(str(path), force="scene")
-    vs, fs, off = [], [], 0
-    for m in scene.dump(concatenate=False):
-        if not hasattr(m, "faces") or len(m.faces) == 0:
-            continue
-        vs.append(np.asarray(m.vertices, np.float64))
-        fs.append(np.asarray(m.faces, np.int64) + off)
-        off += len(m.vertices)
-    if not vs:
-        return None
-    M = np.asarray(M, np.float64)
-    V = np.concatenate(vs) @ M[:3, :3].T + M[:3, 3]
-    if alignment:
-        a, b = float(alignment.get("a", 1.0)), float(alignment.get("b", 0.0))
-        z = -V[:, 2]
-        scale = np.where(z > 1e-9, (a * z + b) / np.maximum(z, 1e-9), 1.0)
-        V = V * scale[:, None]
-    return PosedMesh(V, np.concatenate(fs))
 
 
 def mesh_silhouette(mesh: PosedMesh, camera, shape) -> np.ndarray:
@@ -136,6 +98,37 @@ def _basis(l):
     return u, np.cross(l, u)
 
 
+def _splat(su, sv, sh, cell):
+    """Max-splat samples (u, v, height toward the light) into a grid of ``cell``, the
+    gaps between samples closed by a 3x3 max filter: (grid (H, W), u0, v0)."""
+    from scipy.ndimage import maximum_filter
+
+    u0, v0 = su.min() - 2 * cell, sv.min() - 2 * cell
+    W = int(np.ceil((su.max() - u0) / cell)) + 3
+    H = int(np.ceil((sv.max() - v0) / cell)) + 3
+    grid = np.full((H, W), -np.inf)
+    iu = np.clip(((su - u0) / cell).astype(np.int64), 0, W - 1)
+    iv = np.clip(((sv - v0) / cell).astype(np.int64), 0, H - 1)
+    np.maximum.at(grid, (iv, iu), sh)
+    return maximum_filter(grid, size=3, mode="constant", cval=-np.inf), u0, v0
+
+
+def _lookup(grid, u0, v0, cell, pu, pv):
+    H, W = grid.shape
+    ju = np.floor((pu - u0) / cell).astype(np.int64)
+    jv = np.floor((pv - v0) / cell).astype(np.int64)
+    inside = (ju >= 0) & (ju < W) & (jv >= 0) & (jv < H)
+    out = np.full(len(pu), -np.inf)
+    out[inside] = grid[jv[inside], ju[inside]]
+    return out
+
+
+def _samples(mesh: PosedMesh, ext: float, cell: float):
+    tri, _, area, _ = _area_triangles(mesh)
+    n_s = int(min(MAX_SAMPLES, max(2000, MESH_SAMPLE_DENSITY * area.sum() / cell ** 2)))
+    return _sample_triangles(tri, area / max(area.sum(), 1e-12), n_s)[1]
+
+
 def mesh_shadow(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, light_dir, *,
                 cell: float | None = None, bias_rel: float = 0.01):
     """Visibility of camera-frame ``points`` (N, 3) toward ``light_dir`` past the mesh.
@@ -148,7 +141,7 @@ def mesh_shadow(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, light_
     u, v = _basis(l)
     # a non-finite corner drops its triangle (as the silhouette and the sky's elements
     # do); a mesh left without area shadows nothing (sampling it raised a ValueError)
-    tri, _, area, _ = _area_triangles(mesh)
+    _, _, area, _ = _area_triangles(mesh)
     P = np.asarray(points, np.float64)
     if not area.sum() > 0:
         return np.ones(len(P)), np.full(len(P), np.inf)
@@ -156,32 +149,67 @@ def mesh_shadow(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, light_
     ext = np.ptp(V @ np.stack([u, v], 1), axis=0).max() + 1e-9
     if cell is None:
         cell = ext / 256.0
-    n_s = int(min(MAX_SAMPLES, max(2000, MESH_SAMPLE_DENSITY * area.sum() / cell ** 2)))
-    _, smp = _sample_triangles(tri, area / max(area.sum(), 1e-12), n_s)
-    su, sv, sh = smp @ u, smp @ v, smp @ l
-    u0, v0 = su.min() - 2 * cell, sv.min() - 2 * cell
-    W = int(np.ceil((su.max() - u0) / cell)) + 3
-    H = int(np.ceil((sv.max() - v0) / cell)) + 3
-    grid = np.full((H, W), -np.inf)
-    iu = np.clip(((su - u0) / cell).astype(np.int64), 0, W - 1)
-    iv = np.clip(((sv - v0) / cell).astype(np.int64), 0, H - 1)
-    np.maximum.at(grid, (iv, iu), sh)
-    # close the gaps between samples: 3x3 max filter
-    from scipy.ndimage import maximum_filter
-
-    grid = maximum_filter(grid, size=3, mode="constant", cval=-np.inf)
-    pu, pv, ph = P @ u, P @ v, P @ l
-    ju = np.floor((pu - u0) / cell).astype(np.int64)
-    jv = np.floor((pv - v0) / cell).astype(np.int64)
-    inside = (ju >= 0) & (ju < W) & (jv >= 0) & (jv < H)
-    occ_h = np.full(len(P), -np.inf)
-    occ_h[inside] = grid[jv[inside], ju[inside]]
+    smp = _samples(mesh, ext, cell)
+    grid, u0, v0 = _splat(smp @ u, smp @ v, smp @ l, cell)
+    ph = P @ l
+    occ_h = _lookup(grid, u0, v0, cell, P @ u, P @ v)
     ndl = np.clip(np.asarray(normals, np.float64) @ l, 0.2, 1.0)
     # slope-scaled: a surface at a grazing angle to the light rises across a cell
     bias = bias_rel * np.maximum(-P[:, 2], 1e-6) + 1.5 * cell + 2 * cell * np.sqrt(1 - ndl ** 2) / ndl
     blocked = occ_h > ph + bias
     vis = (~blocked).astype(np.float64)
     t_hit = np.where(blocked, occ_h - ph, np.inf)
+    return vis, t_hit
+
+
+def mesh_shadow_point(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, position, *,
+                      bias_rel: float = 0.01):
+    """Visibility of camera-frame ``points`` (N, 3) toward a lamp at ``position`` (3,)
+    past the mesh: a perspective shadow map from the lamp (the mesh's samples splatted
+    by their direction from it, keeping the nearest to it per cell).
+
+    Returns:
+        (vis (N,) in {0, 1}, t_hit (N,) distance to the occluder, inf where lit).
+    """
+    q = np.asarray(position, np.float64)
+    P = np.asarray(points, np.float64)
+    _, _, area, _ = _area_triangles(mesh)
+    if not area.sum() > 0:
+        return np.ones(len(P)), np.full(len(P), np.inf)
+    V = mesh.vertices[np.all(np.isfinite(mesh.vertices), axis=1)]
+    axis = V.mean(0) - q
+    dist_c = float(np.linalg.norm(axis))
+    if dist_c < 1e-9:
+        return np.ones(len(P)), np.full(len(P), np.inf)
+    axis /= dist_c
+    u, v = _basis(axis)
+    fwd = (V - q) @ axis
+    if not (fwd > 1e-6).any():
+        return np.ones(len(P)), np.full(len(P), np.inf)
+    # the gnomonic projection (tangents) of the mesh's vertices in front of the lamp
+    vf = V[fwd > 1e-6] - q
+    tu, tv = (vf @ u) / (vf @ axis), (vf @ v) / (vf @ axis)
+    ext = max(float(np.ptp(tu)), float(np.ptp(tv))) + 1e-9
+    cell = ext / 256.0
+    smp = _samples(mesh, ext * dist_c, cell * dist_c) - q
+    sf = smp @ axis
+    keep = sf > 1e-6
+    smp, sf = smp[keep], sf[keep]
+    # heights toward the light: minus the distance from it (the nearest sample wins)
+    grid, u0, v0 = _splat((smp @ u) / sf, (smp @ v) / sf, -np.linalg.norm(smp, axis=1), cell)
+    d = P - q
+    df = d @ axis
+    front = df > 1e-6
+    occ = np.full(len(P), -np.inf)
+    occ[front] = _lookup(grid, u0, v0, cell, (d[front] @ u) / df[front], (d[front] @ v) / df[front])
+    r = np.linalg.norm(d, axis=1)
+    l = -d / np.maximum(r, 1e-12)[:, None]
+    ndl = np.clip(np.sum(np.asarray(normals, np.float64) * l, axis=1), 0.2, 1.0)
+    cell_m = cell * r  # a cell's size at the point's distance
+    bias = bias_rel * np.maximum(-P[:, 2], 1e-6) + 1.5 * cell_m + 2 * cell_m * np.sqrt(1 - ndl ** 2) / ndl
+    blocked = -occ < r - bias
+    vis = (~blocked).astype(np.float64)
+    t_hit = np.where(blocked, r + occ, np.inf)
     return vis, t_hit
 
 
@@ -236,10 +264,13 @@ def mesh_discs(mesh: PosedMesh, n: int = AO_DISCS) -> MeshDiscs:
 
 def mesh_occlusion(discs: MeshDiscs, points: np.ndarray, normals: np.ndarray, *,
                    mesh: PosedMesh | None = None, refine: np.ndarray | None = None,
-                   chunk: int = 2048, return_distance: bool = False):
+                   chunk: int = 2048, return_distance: bool = False, radiance_sh: np.ndarray | None = None):
     """Share of the cosine-weighted hemisphere of each point (N, 3) with unit normal
     (N, 3) that the mesh hides: (N,) in [0, 1]; with ``return_distance`` also (N,) the
-    distance (metres) to the nearest area element.
+    distance (metres) to the nearest area element. With ``radiance_sh`` (9, C), the
+    share of the irradiance of a sky of that SH radiance instead, (N, C): each element
+    hides its form factor times the sky's radiance behind it (a low bright sky's
+    shadow is cast away from it).
 
     Each disc (area ``A`` at distance ``r`` along ``w``) hides its form factor
     ``A max(0, n . w) max(0, -n_j . w) / (pi r^2 + A)`` (the ``+ A`` keeps a disc
@@ -262,14 +293,17 @@ def mesh_occlusion(discs: MeshDiscs, points: np.ndarray, normals: np.ndarray, *,
     """
     P = np.asarray(points, np.float64)
     Nn = np.asarray(normals, np.float64)
-    out = np.zeros(len(P))
+    C = 1 if radiance_sh is None else np.asarray(radiance_sh).reshape(9, -1).shape[1]
+    out = np.zeros((len(P), C))
     dmin = np.full(len(P), np.inf)
     if len(P) == 0 or len(discs.areas) == 0:
+        out = out[:, 0] if radiance_sh is None else out
         return (out, dmin) if return_distance else out
+    weigh = _radiance_weights(radiance_sh, Nn)
     rho2 = NEAR_SPACINGS ** 2 * float(discs.areas.mean()) if mesh is not None else 0.0
     for i in range(0, len(P), chunk):
         f, r2 = _form_factors(discs, P[i:i + chunk], Nn[i:i + chunk])
-        out[i:i + chunk] = f.sum(1)
+        out[i:i + chunk] = weigh(f, discs.centres[None] - P[i:i + chunk, None], slice(i, i + chunk))
         dmin[i:i + chunk] = np.sqrt(r2.min(1))
     if mesh is not None:
         idx = np.flatnonzero((dmin ** 2 < rho2) & (True if refine is None else np.asarray(refine, bool)))
@@ -277,8 +311,8 @@ def mesh_occlusion(discs: MeshDiscs, points: np.ndarray, normals: np.ndarray, *,
             # the discs' share within the radius, which the triangles replace (few
             # points: computed again for them rather than kept for all)
             f, r2 = _form_factors(discs, P[idx], Nn[idx])
-            part = np.zeros(len(P))
-            part[idx] = (f * (r2 < rho2)).sum(1)
+            part = np.zeros((len(P), C))
+            part[idx] = weigh(f * (r2 < rho2), discs.centres[None] - P[idx, None], idx)
             whole = _area_triangles(mesh)
             near_mesh = _near_field_mesh(mesh, np.sqrt(rho2), area=whole[2])
             tri, _, _, inside_out = whole if near_mesh is mesh else _area_triangles(near_mesh)
@@ -299,9 +333,42 @@ def mesh_occlusion(discs: MeshDiscs, points: np.ndarray, normals: np.ndarray, *,
                 ff = _triangle_form_factors(tri[ti], P[j][pi], Nn[j][pi])
                 # a triangle counts where its centre is within the radius, as a disc did
                 ff *= dc[pi, ti] < np.sqrt(rho2)
-                out[j] += np.bincount(pi, ff, minlength=len(j)) - part[j]
+                fw = weigh.pairs(ff, cen[ti] - P[j][pi], j[pi])
+                out[j] += np.stack([np.bincount(pi, fw[:, c], minlength=len(j)) for c in range(C)], 1) - part[j]
     out = np.clip(out, 0.0, 1.0)
+    out = out[:, 0] if radiance_sh is None else out
     return (out, dmin) if return_distance else out
+
+
+class _radiance_weights:
+    """Form factors (n, M) of elements at offsets (n, M, 3) from their points, summed
+    per point: plainly (a uniform sky), or weighted by a sky of SH radiance behind each
+    element over the point's whole sky shading (a share of that sky's irradiance)."""
+
+    def __init__(self, radiance_sh, normals):
+        self.c = None if radiance_sh is None else np.asarray(radiance_sh, np.float64).reshape(9, -1)
+        if self.c is not None:
+            from zcomp_cli.renderers.physical import sh
+
+            self.total = np.maximum(sh.evaluate(sh.shading_coeffs(self.c), normals), 1e-9)
+
+    def _L(self, offsets):
+        from zcomp_cli.renderers.physical import sh
+
+        w = offsets.reshape(-1, 3)
+        w = w / np.maximum(np.linalg.norm(w, axis=1, keepdims=True), 1e-12)
+        return np.maximum(sh.basis(w) @ self.c, 0.0)
+
+    def __call__(self, f, offsets, rows):
+        if self.c is None:
+            return f.sum(1)[:, None]
+        L = self._L(offsets).reshape(f.shape + (-1,))
+        return np.einsum("nm,nmc->nc", f.astype(np.float64), L) / self.total[rows]
+
+    def pairs(self, ff, offsets, rows):
+        if self.c is None:
+            return ff[:, None]
+        return ff[:, None] * self._L(offsets) / self.total[rows]
 
 
 # Triangles a point's near field (a disc of NEAR_SPACINGS disc spacings) may hold before

@@ -35,10 +35,11 @@ MAX_PENUMBRA_PX = LEVEL_RADII[-1]
 # kernel (3 sigma, sigma = r / 2) and the blocker search.
 WINDOW_MARGIN_PX = 48
 BLOCKER_SEARCH_PX = 24
-# Ambient occlusion: directions, samples per ray, ray length (fraction of depth).
+# The sky's visibility: directions, samples per ray, ray length (fraction of depth: as
+# far as a shadow ray goes, so that a wall metres away hides the sky behind it).
 AO_DIRECTIONS = 8
-AO_STEPS = 8
-AO_RANGE_REL = 0.1
+AO_STEPS = 12
+AO_RANGE_REL = 0.8
 AO_BLUR_PX = 3.0
 # Share of the mean scene albedo that occluded ambient directions still receive
 # (light bounced off the occluder): pure ambient occlusion makes objects standing on a
@@ -117,7 +118,8 @@ def penumbra_filter(vis: np.ndarray, t_hit: np.ndarray, z: np.ndarray, classes: 
         z: (H, W) positive z-depth of each pixel (m).
         classes: (H, W) int labels; the blur never mixes labels (object vs scene).
         valid: (H, W) bool, pixels with geometry.
-        focal_px: focal length in pixels; tan_radius: tan of the light's angular radius.
+        focal_px: focal length in pixels; tan_radius: tan of the light's angular radius,
+            a number or (H, W) per pixel (a lamp: its radius over its distance).
         box: (y0, x0, y1, x1), the pixels whose result is needed (None: all). Each blur
             then reads only the context its kernel reaches around the box: the result
             there is the same as on the whole frame, for a fraction of the work when the
@@ -136,7 +138,10 @@ def penumbra_filter(vis: np.ndarray, t_hit: np.ndarray, z: np.ndarray, classes: 
         return (slice(y0 - sl[0].start, y1 - sl[0].start), slice(x0 - sl[1].start, x1 - sl[1].start))
 
     vis = np.where(valid, vis, 1.0).astype(np.float64)
-    if tan_radius <= 0 or not (vis < 1).any():
+    tan_b = np.asarray(tan_radius, np.float64)
+    if tan_b.ndim == 2:
+        tan_b = tan_b[y0:y1, x0:x1]
+    if not np.any(tan_b > 0) or not (vis < 1).any():
         return vis[y0:y1, x0:x1]
     # 2. blocker search: mean occluder distance of the shadowed pixels nearby
     sl = around(blur_reach(BLOCKER_SEARCH_PX))
@@ -146,7 +151,7 @@ def penumbra_filter(vis: np.ndarray, t_hit: np.ndarray, z: np.ndarray, classes: 
     has = normalized_blur(shadowed.astype(np.float64), ok_c, BLOCKER_SEARCH_PX)[inner(sl)] > 1e-3
     # 3. penumbra half-width in pixels
     ok_b = valid[y0:y1, x0:x1]
-    r = np.where(has & ok_b, tb * tan_radius * focal_px / np.maximum(z[y0:y1, x0:x1], 1e-6), 0.0)
+    r = np.where(has & ok_b, tb * np.maximum(tan_b, 0.0) * focal_px / np.maximum(z[y0:y1, x0:x1], 1e-6), 0.0)
     r = np.clip(np.nan_to_num(r), 0.0, MAX_PENUMBRA_PX)
     # 4. interpolate between blur levels (linear in log2(1 + r): continuous, monotone)
     # only the levels up to the widest penumbra present, each over the context it reads
@@ -184,20 +189,45 @@ def _hemisphere_dirs(normals: np.ndarray, jitter: np.ndarray, k: int) -> list[np
     return out
 
 
+def sky_samples(points: np.ndarray, normals: np.ndarray, ys: np.ndarray, xs: np.ndarray,
+                depth: np.ndarray, camera: Camera, *, k: int = AO_DIRECTIONS, steps: int = AO_STEPS,
+                range_rel: float = AO_RANGE_REL, occluder_mask: np.ndarray | None = None, walls=()):
+    """The sky seen from (N,) camera-frame points over the depth map (screen space, like
+    the direct shadow), in ``k`` cosine-distributed directions turned per pixel:
+    (directions (k, N, 3), visibility (k, N) in {0, 1}). ``occluder_mask``: (H, W) bool,
+    the texels that may occlude (None: all); ``walls`` (``planes.Wall``) beyond the frame
+    occlude at any distance. Noisy by design: filter what is made of it."""
+    if len(points) == 0:
+        return np.zeros((k, 0, 3)), np.zeros((k, 0))
+    jit = pixel_jitter(ys, xs, salt=1)
+    dirs = _hemisphere_dirs(normals, jit, k)
+    vis = [march_visibility(points, normals, d, depth, camera, steps=steps, max_distance_rel=range_rel,
+                            jitter=pixel_jitter(ys, xs, salt=i + 2), nearest=True, occluder_mask=occluder_mask,
+                            walls=walls)
+           for i, d in enumerate(dirs)]
+    return np.stack(dirs), np.stack(vis)
+
+
+def weighted_visibility(dirs: np.ndarray, vis: np.ndarray, radiance_sh: np.ndarray) -> np.ndarray:
+    """The visible share of a sky of SH radiance ``radiance_sh`` (9, C) from the samples
+    of ``sky_samples``: sum_k L(w_k) V_k / sum_k L(w_k) (cosine-distributed samples, so
+    this is the irradiance's share): (N, C) in [0, 1]; 1 where the sky sends nothing."""
+    from zcomp_cli.renderers.physical import sh
+
+    K, N = vis.shape
+    L = np.maximum(sh.basis(dirs.reshape(-1, 3)) @ np.asarray(radiance_sh, np.float64), 0.0).reshape(K, N, -1)
+    num = (L * vis[..., None]).sum(0)
+    den = L.sum(0)
+    return np.where(den > 1e-12, num / np.maximum(den, 1e-300), 1.0)
+
+
 def ambient_occlusion(points: np.ndarray, normals: np.ndarray, ys: np.ndarray, xs: np.ndarray,
                       depth: np.ndarray, camera: Camera, *, k: int = AO_DIRECTIONS,
                       steps: int = AO_STEPS, range_rel: float = AO_RANGE_REL,
                       occluder_mask: np.ndarray | None = None) -> np.ndarray:
-    """Cosine-weighted ambient visibility in [0, 1] of (N,) camera-frame points over the
-    depth map (screen space, like the direct shadow); ``occluder_mask``: (H, W) bool, the
-    texels that may occlude (None: all). Unfiltered: noisy by design (the directions
-    turn per pixel), filter it."""
+    """Cosine-weighted ambient visibility in [0, 1] of (N,) points (``sky_samples``
+    averaged: a uniform sky's visible share). Unfiltered: filter it."""
     if len(points) == 0:
         return np.zeros(0)
-    jit = pixel_jitter(ys, xs, salt=1)
-    acc = np.zeros(len(points))
-    for i, d in enumerate(_hemisphere_dirs(normals, jit, k)):
-        acc += march_visibility(points, normals, d, depth, camera, steps=steps,
-                                max_distance_rel=range_rel, jitter=pixel_jitter(ys, xs, salt=i + 2),
-                                nearest=True, occluder_mask=occluder_mask)
-    return acc / k
+    return sky_samples(points, normals, ys, xs, depth, camera, k=k, steps=steps, range_rel=range_rel,
+                       occluder_mask=occluder_mask)[1].mean(0)

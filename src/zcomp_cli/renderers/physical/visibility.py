@@ -38,7 +38,7 @@ def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndar
                      max_distance_rel: float = 0.8, bias_rel: float = 0.01,
                      thickness_rel: float = 0.15, jitter: np.ndarray | None = None,
                      return_distance: bool = False, nearest: bool = False,
-                     occluder_mask: np.ndarray | None = None):
+                     occluder_mask: np.ndarray | None = None, max_distance=None, walls=()):
     """Binary visibility of points toward directional light(s).
 
     Args:
@@ -56,7 +56,12 @@ def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndar
         occluder_mask: optional (H, W) bool: only texels where it is True occlude (the
             shadow of one part of the frame, such as an inserted object).
         max_distance_rel, bias_rel, thickness_rel: ray length, occluder bias and
-            occluder thickness as fractions of the point's own depth (scale-free).
+            occluder thickness as fractions of the point's own depth (scale-free);
+            ``max_distance_rel`` None: no relative limit.
+        max_distance: optional (N,) or scalar ray length in metres (a lamp's distance:
+            nothing beyond the light occludes it); the shorter of the two limits holds.
+        walls: the scene's walls beyond the frame (``planes.Wall``): they occlude too,
+            at any distance up to ``max_distance``.
     Returns:
         (N,) float64 in {0, 1}; 1 = lit. A ray leaving the frame or passing behind the
         camera counts as unoccluded from there on. With ``return_distance``, also (N,)
@@ -77,7 +82,11 @@ def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndar
     occluded = np.zeros(N, bool)
     t_hit = np.full(N, np.inf)
     H, W = depth.shape
-    dmax = max_distance_rel * z0
+    dmax = np.full(N, np.inf) if max_distance_rel is None else max_distance_rel * z0
+    if max_distance is not None:
+        dmax = np.minimum(dmax, np.broadcast_to(np.asarray(max_distance, np.float64), (N,)))
+    if not np.all(np.isfinite(dmax)):
+        raise ValueError("march_visibility: give max_distance_rel or a finite max_distance")
     jit = 0.0 if jitter is None else np.asarray(jitter, np.float64) - 0.5
     for k in range(1, steps + 1):
         t = dmax * (np.minimum(np.maximum(k + jit, 0.25), steps) / steps) ** 2
@@ -100,5 +109,11 @@ def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndar
         if return_distance:
             t_hit = np.where(hit & ~occluded, t, t_hit)
         occluded |= hit
+    if walls:
+        from zcomp_cli.renderers.physical.planes import walls_block
+
+        wb, wt = walls_block(walls, p + n * (bias_rel * z0)[:, None], l, max_distance)
+        t_hit = np.minimum(t_hit, wt)
+        occluded |= wb
     vis = (~occluded).astype(np.float64)
     return (vis, t_hit) if return_distance else vis

@@ -1,0 +1,52 @@
+"""The inserted object's mesh, posed in the camera frame: geometry both the pipeline
+(which poses it from the bundle's ``meta.json``) and the renderers (its shadow and the
+sky it hides) use, so it lives below both."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass
+class PosedMesh:
+    """Triangles of the object in the camera frame: vertices (N, 3), faces (M, 3)."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+
+
+def load_posed_mesh(meta: dict, alignment: dict | None = None) -> PosedMesh | None:
+    """The bundle's mesh posed in the camera frame, or None when the bundle has none.
+
+    ``alignment`` (``{"a", "b"}``, the job's depth alignment ``z' = a z + b``) moves each
+    vertex along its viewing ray like the object's depth map."""
+    path = meta.get("mesh")
+    M = meta.get("object_to_camera")
+    if not path or M is None or not Path(path).is_file():
+        return None
+    import trimesh
+
+    scene = trimesh.load(str(path), force="scene")
+    vs, fs, off = [], [], 0
+    for m in scene.dump(concatenate=False):
+        if not hasattr(m, "faces") or len(m.faces) == 0:
+            continue
+        vs.append(np.asarray(m.vertices, np.float64))
+        fs.append(np.asarray(m.faces, np.int64) + off)
+        off += len(m.vertices)
+    if not vs:
+        return None
+    M = np.asarray(M, np.float64)
+    V = np.concatenate(vs) @ M[:3, :3].T + M[:3, 3]
+    if alignment:
+        a, b = float(alignment.get("a", 1.0)), float(alignment.get("b", 0.0))
+        z = -V[:, 2]
+        scale = np.where(z > 1e-9, (a * z + b) / np.maximum(z, 1e-9), 1.0)
+        V = V * scale[:, None]
+    return PosedMesh(V, np.concatenate(fs))
+
+
+__all__ = ["PosedMesh", "load_posed_mesh"]

@@ -1,0 +1,303 @@
+"""The dictionary of the light fit: what each kind of light adds to the known shading.
+
+Each atom is a column over the fit pixels (``FitPixels``) of a light of unit strength,
+rendered with the same transport the renderer synthesises with (``lightmodel``):
+
+* ``sky_atoms``: non-negative radiance lobes over the upper hemisphere (a uniform sky,
+  cosine lobes toward the four ground directions and the zenith), each as SH shading
+  times its visible share (``softshadow.weighted_visibility``: the screen-space
+  occlusion of each direction weighted by the lobe's radiance there, so a wall hides
+  the bright sky behind it and not the dark one);
+* ``sun_column(s)``: ``max(0, n.l) V(p, l)`` averaged over a cone of the light's
+  angular radius;
+* ``lamp_column(s)``: ``max(0, n.(q - p)) / |q - p|^3 V(p, q)`` (a sphere of radius r: its
+  cone from each point has half-angle ``asin(r / |q - p|)``);
+The support's bounce (``bounce``) is no atom: it is measured on the photograph (the
+support's own image radiance) and subtracted.
+
+**The albedo's offset.** A surface's specular layer reflects a share of its irradiance
+whatever its albedo (Blender's Principled BSDF: about 4 % at normal incidence, more at
+grazing), so the image is ``E (albedo + g)``, not ``E albedo``: on a checker floor,
+image / albedo is brighter on the dark tiles, and a shadow darkens both alike.
+``albedo_offset`` measures ``g`` (the offset that best explains the known shading with
+the sky alone, among ``ALBEDO_OFFSETS``; 0 where nothing tells it, such as one albedo),
+and the fit's shading is ``image / (albedo + g)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from zcomp_cli.camera import Camera
+from zcomp_cli.conventions import REC601
+from zcomp_cli.renderers.physical import sh
+from zcomp_cli.renderers.physical.lightmodel import ground_view
+from zcomp_cli.renderers.physical.sampling import fibonacci_sphere, orthonormal
+from zcomp_cli.renderers.physical.softshadow import pixel_jitter, sky_samples, weighted_visibility
+from zcomp_cli.renderers.physical.visibility import march_visibility
+
+# A pixel is on the support when its normal is within this of up (the support's
+# pixels give the ground's radiance, ``bounce``).
+SUPPORT_DEG = 15.0
+# Offsets of the albedo tried (``albedo_offset``); an offset must explain the shading at
+# least OFFSET_MIN_GAIN better than the next smaller one (a held-out gain) to be taken.
+ALBEDO_OFFSETS = (0.0, 0.01, 0.02, 0.04, 0.08, 0.16)
+OFFSET_MIN_GAIN = 0.01
+
+
+@dataclass(frozen=True)
+class FitPixels:
+    """The pixels the light is fitted on, at the working copy's resolution.
+
+    ``points`` (N, 3) camera frame, ``normals`` (N, 3) unit, ``ys``/``xs`` (N,) their
+    pixels in the copy; ``albedo`` (N, 3) linear; ``train`` (N,) the pixels the weights
+    are fitted on (the others are held out: whole blocks of the frame, so that held-out
+    pixels are not the neighbours of fitted ones); ``support`` (N,) on the support;
+    ``depth`` (h, w) and ``camera`` of the copy; ``up`` (3,); ``walls`` the scene's walls
+    beyond the frame (``planes``), which occlude every light's rays."""
+
+    points: np.ndarray
+    normals: np.ndarray
+    ys: np.ndarray
+    xs: np.ndarray
+    albedo: np.ndarray
+    train: np.ndarray
+    support: np.ndarray
+    depth: np.ndarray
+    camera: Camera
+    up: np.ndarray
+    walls: tuple = ()
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+
+# The frame is cut into HOLDOUT_BLOCKS x HOLDOUT_BLOCKS blocks (of its long side), in a
+# checkerboard of fitted and held-out ones: a fraction of the frame, at any resolution.
+HOLDOUT_BLOCKS = 12
+
+
+def working_copy(depth, normals, shading, known, albedo, camera: Camera, max_res: int):
+    """The maps at a copy whose long side is at most ``max_res``: depth and normals
+    nearest (no blending across edges), shading and albedo area-averaged, a pixel known
+    only if all of its footprint is. Returns (d, n, shading, known, albedo, camera)."""
+    import cv2
+
+    H, W = depth.shape
+    s = min(1.0, max_res / max(H, W))
+    if s >= 1.0:
+        return depth, normals, shading, known, albedo, camera
+    w, h = max(1, round(W * s)), max(1, round(H * s))
+    d = cv2.resize(depth.astype(np.float32), (w, h), interpolation=cv2.INTER_NEAREST)
+    n = cv2.resize(normals.astype(np.float32), (w, h), interpolation=cv2.INTER_NEAREST)
+    shc = cv2.resize(shading.astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
+    a = cv2.resize(albedo.astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
+    k = cv2.resize((~known).astype(np.float32), (w, h), interpolation=cv2.INTER_AREA) <= 0
+    return d, n, shc, k, a, camera.resized(w, h)
+
+
+def fit_pixels(depth, normals, shading, known, albedo, camera: Camera, up, *, max_fit_pixels: int):
+    """(FitPixels, shading (N, 3)) of the valid known pixels (finite positive shading,
+    depth and unit normals), a deterministic stride subsample of at most
+    ``max_fit_pixels``."""
+    nn = np.linalg.norm(normals, axis=-1)
+    valid = (known & (depth > 0) & (np.abs(nn - 1) < 0.2) & np.all(np.isfinite(shading), -1)
+             & np.all(shading > 0, -1))
+    idx = np.flatnonzero(valid.ravel())
+    if len(idx) > max_fit_pixels:
+        idx = idx[np.linspace(0, len(idx) - 1, max_fit_pixels).astype(np.int64)]
+    h, w = depth.shape
+    ys, xs = np.divmod(idx, w)
+    P = camera.unproject(depth).reshape(-1, 3)[idx].astype(np.float64)
+    N = normals.reshape(-1, 3)[idx].astype(np.float64)
+    N /= np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-12)
+    S = shading.reshape(-1, 3)[idx].astype(np.float64)
+    A = np.clip(np.nan_to_num(albedo.reshape(-1, 3)[idx].astype(np.float64)), 0.0, 1.0)
+    blk = max(h, w) / HOLDOUT_BLOCKS
+    train = ((ys // blk).astype(int) + (xs // blk).astype(int)) % 2 == 0
+    up = np.asarray(up, np.float64)
+    support = N @ up > np.cos(np.deg2rad(SUPPORT_DEG))
+    from zcomp_cli.renderers.physical.planes import find_walls
+
+    geo = (depth > 0) & (np.abs(nn - 1) < 0.2)
+    nrm = normals / np.maximum(nn, 1e-12)[..., None]
+    walls = find_walls(camera.unproject(depth), nrm, geo, up)
+    fp = FitPixels(points=P, normals=N, ys=ys, xs=xs, albedo=A, train=train, support=support,
+                   depth=np.asarray(depth, np.float32), camera=camera, up=up, walls=walls)
+    return fp, S
+
+
+def ground_radiance(fp: FitPixels, shading: np.ndarray) -> np.ndarray:
+    """(3,) the support's image radiance (albedo x shading, median over its pixels): what
+    a surface facing down sees of it. Zero without support pixels."""
+    if fp.support.sum() < 1:
+        return np.zeros(3)
+    return np.median(fp.albedo[fp.support] * shading[fp.support], axis=0)
+
+
+def bounce(fp: FitPixels, ground: np.ndarray) -> np.ndarray:
+    """(N, 3) shading the support's bounce adds at the fit pixels."""
+    return ground_view(fp.normals, fp.up)[:, None] * np.asarray(ground, np.float64)[None]
+
+
+def sky_visibility(fp: FitPixels):
+    """The sky seen from each fit pixel: ``softshadow.sky_samples`` (directions (K, N, 3),
+    visibility (K, N))."""
+    return sky_samples(fp.points, fp.normals, fp.ys, fp.xs, fp.depth, fp.camera, walls=fp.walls)
+
+
+def sky_lobes(frame) -> list[tuple[str, np.ndarray]]:
+    """Non-negative sky radiance lobes above the ground (``frame`` rows right, up,
+    forward): the uniform sky, ``max(0, w . a)`` toward each of the four ground
+    directions and the zenith. Returns (name, radiance SH (9,)) each, unit radiance
+    scale (the uniform sky: radiance 1)."""
+    right, up, fwd = np.asarray(frame, np.float64)
+    d = fibonacci_sphere(4096)
+    om = np.full(len(d), 4 * np.pi / len(d))
+    above = (d @ up) > 0
+    out = [("sky", sh.project(d[above], np.ones(above.sum()), om[above])[:, 0])]
+    for name, a in (("sky_right", right), ("sky_forward", fwd), ("sky_left", -right), ("sky_back", -fwd),
+                    ("sky_zenith", up)):
+        L = np.maximum(d[above] @ a, 0.0)
+        out.append((name, sh.project(d[above], L, om[above])[:, 0]))
+    return out
+
+
+def sky_atom_values(fp: FitPixels, radiance_sh: np.ndarray, samples) -> np.ndarray:
+    """The shading a sky of SH radiance ``radiance_sh`` ((9,) grey: (N,); (9, 3): (N, 3))
+    gives the fit pixels, times its visible share through ``samples``
+    (``sky_visibility``)."""
+    c = np.asarray(radiance_sh, np.float64)
+    grey = c.ndim == 1
+    c = c.reshape(9, -1)
+    s = np.maximum(sh.evaluate(sh.shading_coeffs(c), fp.normals), 0.0) * weighted_visibility(*samples, c)
+    return s[:, 0] if grey else s
+
+
+def albedo_offset(fp: FitPixels, shading: np.ndarray, base: np.ndarray) -> float:
+    """The albedo offset ``g`` (module docstring): among ALBEDO_OFFSETS, the one whose
+    shading ``image / (albedo + g)`` (luminance) the grey columns ``base`` (N, B) fit
+    best on the held-out pixels, each larger one kept only when it explains them at
+    least OFFSET_MIN_GAIN better (relative losses, so the shading's scale does not
+    count)."""
+    from zcomp_cli.renderers.physical.solver import score_candidates
+
+    a = fp.albedo @ REC601
+    ok = a > 1e-3
+    img = (shading @ REC601) * a
+    best_g, best_l = 0.0, None
+    for g in ALBEDO_OFFSETS:
+        y = np.where(ok, img / np.maximum(a + g, 1e-6), 0.0)
+        lh, _ = score_candidates(base, np.zeros((len(y), 1)), y, fp.train & ok)
+        loss = float(lh[0])
+        if best_l is None or (best_l - loss) / (loss + 1e-12) >= OFFSET_MIN_GAIN:
+            best_g, best_l = g, loss if best_l is None or loss < best_l else best_l
+    return best_g
+
+
+def offset_shading(fp: FitPixels, shading: np.ndarray, g: float) -> np.ndarray:
+    """(N, 3) ``image / (albedo + g)`` of the fit pixels (``shading`` = image / albedo)."""
+    if g <= 0:
+        return shading
+    return shading * fp.albedo / np.maximum(fp.albedo + g, 1e-6)
+
+
+def sun_columns(fp: FitPixels, dirs: np.ndarray, *, steps: int, chunk: int = 32) -> np.ndarray:
+    """(N, K) hard-shadowed ``max(0, n.l) V(p, l)`` of K directions (K, 3): one
+    vectorised march per chunk of directions."""
+    D = np.asarray(dirs, np.float64).reshape(-1, 3)
+    out = np.zeros((len(fp), len(D)))
+    P, Nr = fp.points, fp.normals
+    for c0 in range(0, len(D), chunk):
+        Dc = D[c0:c0 + chunk]
+        C = len(Dc)
+        ndl = np.maximum(Nr @ Dc.T, 0.0)  # (N, C)
+        live = ndl.T.reshape(-1) > 0
+        v = np.zeros(C * len(P))
+        if live.any():
+            Pr = np.tile(P, (C, 1))[live]
+            Nn = np.tile(Nr, (C, 1))[live]
+            Lr = np.repeat(Dc, len(P), 0)[live]
+            v[live] = march_visibility(Pr, Nn, Lr, fp.depth, fp.camera, steps=steps, walls=fp.walls)
+        out[:, c0:c0 + C] = ndl * v.reshape(C, -1).T
+    return out
+
+
+def _cone_offsets(k: int, seed: int):
+    """Unit-radius cone samples: (fractions of the radius in solid angle (k,), phases)."""
+    rng = np.random.default_rng(seed)
+    i = np.arange(k) + 0.5
+    return i / k, rng.uniform(0, 2 * np.pi) + i * np.pi * (3 - np.sqrt(5))
+
+
+def sun_column(fp: FitPixels, direction, radius_deg: float, *, steps: int, cone_samples: int,
+               seed: int = 0) -> np.ndarray:
+    """(N,) ``max(0, n.l) V(p, l)`` averaged over the cone of ``radius_deg`` around
+    ``direction`` (``cone_samples`` directions uniform in solid angle)."""
+    from zcomp_cli.renderers.physical.sampling import cone_directions
+
+    k = cone_samples if radius_deg > 0 else 1
+    dirs = cone_directions(direction, radius_deg, k, seed=seed)
+    return sun_columns(fp, dirs, steps=steps).mean(1)
+
+
+def lamp_columns(fp: FitPixels, positions: np.ndarray, *, steps: int | None = None,
+                 radius_m: float = 0.0, cone_samples: int = 1, seed: int = 0) -> np.ndarray:
+    """(N, K) ``max(0, n.(q - p)) / |q - p|^3`` of K lamp positions (K, 3), times the
+    visibility of the lamp (its sphere of ``radius_m`` sampled by ``cone_samples``
+    directions from each point) when ``steps`` is given; unshadowed otherwise."""
+    Q = np.asarray(positions, np.float64).reshape(-1, 3)
+    P, Nr = fp.points, fp.normals
+    out = np.zeros((len(fp), len(Q)))
+    fr, ph = _cone_offsets(max(1, cone_samples), seed)
+    for j, q in enumerate(Q):
+        v = q[None] - P
+        r = np.maximum(np.linalg.norm(v, axis=1), 1e-6)
+        l = v / r[:, None]
+        g = np.maximum((Nr * l).sum(1), 0.0) / (r * r)
+        if steps is None or not (g > 0).any():
+            out[:, j] = g
+            continue
+        live = g > 0
+        sin_a = np.clip(radius_m / r[live], 0.0, 0.99)
+        cos_max = np.sqrt(1 - sin_a ** 2)
+        acc = np.zeros(live.sum())
+        u = np.stack([orthonormal(x)[0] for x in l[live]]) if cone_samples > 1 and radius_m > 0 else None
+        for s in range(max(1, cone_samples) if u is not None else 1):
+            if u is None:
+                d = l[live]
+            else:
+                w = np.cross(l[live], u)
+                cz = 1 - (1 - cos_max) * fr[s]
+                sz = np.sqrt(np.maximum(0, 1 - cz * cz))
+                d = cz[:, None] * l[live] + sz[:, None] * (np.cos(ph[s]) * u + np.sin(ph[s]) * w)
+                d /= np.linalg.norm(d, axis=1, keepdims=True)
+            # the march ends at the lamp: nothing beyond it occludes
+            acc += march_visibility(P[live], Nr[live], d, fp.depth, fp.camera, steps=steps,
+                                    max_distance=r[live], walls=fp.walls)
+        out[live, j] = g[live] * acc / (max(1, cone_samples) if u is not None else 1)
+    return out
+
+
+def lamp_candidates(fp: FitPixels, n_directions: int, distances_rel) -> np.ndarray:
+    """(K, 3) lamp positions to try: above the support's centre, in ``n_directions``
+    directions above the ground, at ``distances_rel`` times the support's median
+    distance from the camera (a relative depth map gives the same candidates)."""
+    pts = fp.points[fp.support] if fp.support.sum() >= 3 else fp.points
+    aim = np.median(pts, 0)
+    scale = float(np.median(np.linalg.norm(pts, axis=1)))
+    W = fibonacci_sphere(2 * int(n_directions))
+    W = W[W @ fp.up > 0.1]
+    R = scale * np.asarray(distances_rel, np.float64)
+    return (aim[None, None] + R[None, :, None] * W[:, None, :]).reshape(-1, 3)
+
+
+def jitter_for(fp: FitPixels, salt: int = 0) -> np.ndarray:
+    return pixel_jitter(fp.ys, fp.xs, salt=salt)
+
+
+__all__ = ["FitPixels", "working_copy", "fit_pixels", "ground_radiance", "bounce", "sky_visibility",
+           "sky_lobes", "sky_atom_values", "albedo_offset", "offset_shading", "sun_columns", "sun_column", "lamp_columns",
+           "lamp_candidates", "SUPPORT_DEG", "HOLDOUT_BLOCKS"]

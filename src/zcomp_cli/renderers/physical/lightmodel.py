@@ -1,0 +1,273 @@
+"""The physical renderer's light: suns, lamps and a sky (DESIGN.md section 8).
+
+Every quantity is in the camera frame (DESIGN.md section 3) and in **shading units**:
+zcomp's shading is ``image / albedo``, the irradiance over pi of a Lambertian surface, so
+a sun's ``irradiance`` is the shading it adds to a surface facing it, a lamp's
+``intensity`` the same at one metre, and the sky's coefficients give the shading of a
+surface of normal n.
+
+    shading(p) = sky(n) A(p) + ground(n) + sum_suns  E_s  max(0, n.l_s)  V_s(p)
+                                         + sum_lamps I_k max(0, n.l_k(p)) F_k(p) V_k(p) / r_k(p)^2
+
+``A`` is the sky's visibility (ambient occlusion, with the light bounced off the
+occluders), ``V`` a light's soft visibility (its angular size sets the penumbra), ``F``
+a lamp's emission profile (1 for a sphere, ``4 max(0, cos)`` for a one-sided Lambertian
+panel of the same power: its on-axis intensity is P / pi, a sphere's P / 4 pi), ``ground(n)`` the support's bounce (its image
+radiance over the lower hemisphere: measured on the photo, not fitted).
+
+Where each value came from is an enum (``Origin``), turned into words only in the report
+(``to_info``).
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from zcomp_cli.renderers.physical import sh
+
+
+class Origin(str, enum.Enum):
+    """Where a light's parameter came from (the report's words)."""
+
+    MANIFEST = "given in the manifest"
+    PROBE = "measured on the manifest's probe"
+    FIT = "fitted to the photograph's shading"
+    DEFAULT = "not measured: the documented default"
+    PRIOR = "not fixed by the photograph: the prior"
+    SUPPORT = "read off the support plane"
+
+    def __str__(self) -> str:  # the report's words
+        return self.value
+
+
+class ShadowKind(str, enum.Enum):
+    """How the lights' shadows are drawn: each light's own cast shadow, or only the
+    contact shadow (the sky the object hides) where the photograph does not fix the
+    lights' direction."""
+
+    CAST = "cast shadow"
+    CONTACT = "contact shadow only"
+
+    def __str__(self) -> str:
+        return self.value
+
+
+def _vec(a, n=3) -> np.ndarray:
+    v = np.asarray(a, np.float64).reshape(n)
+    v.setflags(write=False)
+    return v
+
+
+@dataclass(frozen=True, kw_only=True)
+class Sun:
+    """A distant light: ``direction`` (3,) unit, toward it; ``radius_deg`` its angular
+    radius (the penumbra); ``irradiance`` (3,) RGB shading on a surface facing it."""
+
+    direction: np.ndarray
+    radius_deg: float
+    irradiance: np.ndarray
+    direction_from: Origin = Origin.FIT
+    radius_from: Origin = Origin.DEFAULT
+    strength_from: Origin = Origin.FIT
+
+    def __post_init__(self):
+        d = _vec(self.direction)
+        n = float(np.linalg.norm(d))
+        if not (n > 1e-9 and np.isfinite(n)):
+            raise ValueError(f"Sun.direction must be a finite non-zero vector, got {d.tolist()}")
+        object.__setattr__(self, "direction", _vec(d / n))
+        object.__setattr__(self, "irradiance", _vec(np.maximum(np.nan_to_num(self.irradiance), 0.0)))
+        object.__setattr__(self, "radius_deg", float(np.clip(self.radius_deg, 0.0, MAX_RADIUS_DEG)))
+
+    def to_info(self) -> dict:
+        return {"kind": "sun", "direction_camera": self.direction.tolist(),
+                "direction_from": str(self.direction_from), "angular_radius_deg": self.radius_deg,
+                "angular_radius_from": str(self.radius_from), "irradiance_rgb": self.irradiance.tolist(),
+                "strength_from": str(self.strength_from)}
+
+
+@dataclass(frozen=True, kw_only=True)
+class Lamp:
+    """A light at a place: ``position`` (3,) camera frame, metres; ``radius_m`` its
+    radius (a sphere; its angular size from a point is ``asin(radius / distance)``);
+    ``intensity`` (3,) RGB shading on a surface facing it at one metre, for a sphere
+    (emits alike in every direction); ``facing`` None (a sphere) or (3,) the normal of
+    a one-sided Lambertian panel of the same power (``intensity`` stays the sphere's:
+    the panel gives ``4 max(0, cos)`` times it)."""
+
+    position: np.ndarray
+    radius_m: float
+    intensity: np.ndarray
+    facing: np.ndarray | None = None
+    position_from: Origin = Origin.FIT
+    radius_from: Origin = Origin.DEFAULT
+    strength_from: Origin = Origin.FIT
+
+    def __post_init__(self):
+        p = _vec(self.position)
+        if not np.all(np.isfinite(p)):
+            raise ValueError(f"Lamp.position must be finite, got {p.tolist()}")
+        object.__setattr__(self, "position", p)
+        object.__setattr__(self, "intensity", _vec(np.maximum(np.nan_to_num(self.intensity), 0.0)))
+        object.__setattr__(self, "radius_m", float(max(self.radius_m, 0.0)))
+        if self.facing is not None:
+            f = _vec(self.facing)
+            object.__setattr__(self, "facing", _vec(f / max(float(np.linalg.norm(f)), 1e-12)))
+
+    def toward(self, points: np.ndarray):
+        """(unit directions (N, 3) from ``points`` to the lamp, distances (N,),
+        shading a facing surface gets (N, 3): intensity x profile / distance^2)."""
+        v = self.position[None] - np.asarray(points, np.float64)
+        r = np.maximum(np.linalg.norm(v, axis=1), 1e-6)
+        d = v / r[:, None]
+        prof = np.ones(len(d)) if self.facing is None else 4.0 * np.maximum(-(d @ self.facing), 0.0)
+        return d, r, (prof / (r * r))[:, None] * self.intensity[None]
+
+    def to_info(self) -> dict:
+        return {"kind": "lamp", "position_camera": self.position.tolist(),
+                "position_from": str(self.position_from), "radius_m": self.radius_m,
+                "radius_from": str(self.radius_from), "intensity_rgb_at_1m": self.intensity.tolist(),
+                "facing_camera": None if self.facing is None else self.facing.tolist(),
+                "strength_from": str(self.strength_from)}
+
+
+@dataclass(frozen=True, kw_only=True)
+class Sky:
+    """The light from everywhere else: ``radiance_sh`` (9, 3) SH coefficients of the
+    sky's radiance (camera frame; the lower hemisphere left out: the support's bounce is
+    ``ground``); ``ground`` (3,) the support's radiance seen from below its horizon
+    (shading units); ``up`` (3,) world up, camera frame."""
+
+    radiance_sh: np.ndarray
+    ground: np.ndarray
+    up: np.ndarray
+    strength_from: Origin = Origin.FIT
+
+    def __post_init__(self):
+        c = np.nan_to_num(np.asarray(self.radiance_sh, np.float64).reshape(sh.N_COEFFS, 3))
+        c.setflags(write=False)
+        object.__setattr__(self, "radiance_sh", c)
+        object.__setattr__(self, "ground", _vec(np.maximum(np.nan_to_num(self.ground), 0.0)))
+        u = _vec(self.up)
+        object.__setattr__(self, "up", _vec(u / max(float(np.linalg.norm(u)), 1e-12)))
+
+    def shading(self, normals: np.ndarray) -> np.ndarray:
+        """(N, 3) shading the sky and the ground's bounce give unit ``normals`` (N, 3),
+        unoccluded, clamped at 0 (order-2 SH rings slightly negative behind a bright
+        region)."""
+        n = np.asarray(normals, np.float64).reshape(-1, 3)
+        s = sh.evaluate(sh.shading_coeffs(self.radiance_sh), n)
+        return np.maximum(s, 0.0) + ground_view(n, self.up)[:, None] * self.ground[None]
+
+    def to_info(self) -> dict:
+        return {"kind": "sky", "radiance_sh_rgb": self.radiance_sh.tolist(),
+                "shading_up_rgb": self.shading(self.up[None])[0].tolist(),
+                "ground_radiance_rgb": self.ground.tolist(), "strength_from": str(self.strength_from)}
+
+
+def ground_view(normals: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """(N,) cosine-weighted share of an infinite support below a surface of normal n,
+    seen from just above it: ``(1 - n . up) / 2`` (0 facing up, 1 facing down)."""
+    return np.clip(0.5 * (1.0 - np.asarray(normals, np.float64) @ np.asarray(up, np.float64)), 0.0, 1.0)
+
+
+# The widest light a shadow is drawn for (a light wider than this is sky).
+MAX_RADIUS_DEG = 45.0
+
+
+@dataclass(frozen=True, kw_only=True)
+class FitSummary:
+    """What the fit of the light to the photograph's shading says about itself.
+
+    ``gain``: held-out loss of the sky alone over that of the fitted lights, minus 1
+    (how much better the lights explain pixels the fit did not see; 0 = not at all);
+    ``uncertainty_deg``: the spread of the light directions the held-out pixels allow
+    (RMS angle from the chosen one); ``residual``: the robust relative residual;
+    ``pixels``: fit pixels; ``exposure``: the one weight of the manifest's lights given
+    in physical units (the photograph's exposure; nan without such lights); ``note``:
+    what the fit could not do, in words."""
+
+    gain: float = float("nan")
+    uncertainty_deg: float = float("nan")
+    residual: float = float("nan")
+    pixels: int = 0
+    exposure: float = float("nan")
+    note: str = ""
+
+    def to_info(self) -> dict:
+        return {"held_out_gain": self.gain, "direction_uncertainty_deg": self.uncertainty_deg,
+                "residual": self.residual, "fit_pixels": self.pixels, "exposure": self.exposure, "note": self.note}
+
+
+@dataclass(frozen=True, kw_only=True)
+class LightModel:
+    """A scene's light: ``suns``, ``lamps``, ``sky``; ``shadows`` how the lights'
+    shadows are drawn; ``source`` "manifest" or "estimated"; ``up_from`` where world up
+    came from; ``albedo_offset`` the reflectance the scene's surfaces add to their albedo
+    (their specular layer: the image is irradiance x (albedo + offset), ``atoms``);
+    ``probe`` the manifest's
+    prefiltered probe for specular reflections (``probe.PrefilteredProbe``) or None;
+    ``walls`` the scene's walls beyond the frame (``planes.Wall``), found with the fit:
+    they hide the sky and the lights from what stands in front of them;
+    ``fit`` the fit's own account of itself."""
+
+    suns: tuple = ()
+    lamps: tuple = ()
+    sky: Sky
+    shadows: ShadowKind = ShadowKind.CAST
+    source: str = "estimated"
+    up_from: Origin = Origin.SUPPORT
+    albedo_offset: float = 0.0
+    probe: object | None = None
+    walls: tuple = ()
+    fit: FitSummary = field(default_factory=FitSummary)
+
+    def __post_init__(self):
+        object.__setattr__(self, "suns", tuple(self.suns))
+        object.__setattr__(self, "lamps", tuple(self.lamps))
+
+    @property
+    def up(self) -> np.ndarray:
+        return self.sky.up
+
+    @property
+    def key_direction(self) -> np.ndarray | None:
+        """(3,) toward the brightest light seen from the support's centre direction, or
+        None without a sun or lamp (the report's "light direction")."""
+        best, val = None, -1.0
+        for s in self.suns:
+            v = float(s.irradiance.mean())
+            if v > val:
+                best, val = s.direction, v
+        for lp in self.lamps:
+            v = float(lp.intensity.mean()) / max(float(lp.position @ lp.position), 1e-6)
+            if v > val:
+                best, val = lp.position / max(float(np.linalg.norm(lp.position)), 1e-12), v
+        return best
+
+    def ambient_share(self) -> float:
+        """Sky shading over all shading on a support facing up, unshadowed (the share a
+        full shadow keeps)."""
+        up = self.up
+        sky = float(self.sky.shading(up[None])[0].mean())
+        direct = sum(float(s.irradiance.mean()) * max(float(s.direction @ up), 0.0) for s in self.suns)
+        return sky / max(sky + direct, 1e-12)
+
+    def to_info(self) -> dict:
+        lights = [*(s.to_info() for s in self.suns), *(lp.to_info() for lp in self.lamps), self.sky.to_info()]
+        kd = self.key_direction
+        return {"source": self.source, "shadow": str(self.shadows), "up_camera": self.up.tolist(),
+                "up_from": str(self.up_from), "lights": lights,
+                "direction": None if kd is None else kd.tolist(),
+                "ambient_share": self.ambient_share(), "albedo_offset": self.albedo_offset,
+                "fallback": None if self.shadows is ShadowKind.CAST else (
+                    self.fit.note or "the photograph does not fix the light's direction"),
+                "fit": self.fit.to_info(), "probe": None if self.probe is None else str(self.probe),
+                "walls": [w.to_info() for w in self.walls]}
+
+
+__all__ = ["Origin", "ShadowKind", "Sun", "Lamp", "Sky", "FitSummary", "LightModel", "ground_view",
+           "MAX_RADIUS_DEG"]

@@ -1,0 +1,59 @@
+"""World up for a scene (DESIGN.md section 8): from the camera's pitch and roll when the
+manifest gives them, else read off the scene's support plane.
+
+The support plane is the most common upward orientation of the known geometry: the
+normals are binned on a sphere of directions (``SUPPORT_BINS``), only bins within
+``MAX_TILT_DEG`` of the camera's +y vote (a wall facing the camera is no support), and up
+is the mean of the normals within ``SUPPORT_DEG`` of the winning bin. Without such
+normals, the camera's +y (a level camera).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from zcomp_cli.renderers.physical.lightmodel import Origin
+from zcomp_cli.renderers.physical.sampling import fibonacci_sphere
+from zcomp_cli.worldframe import up_from_pitch_roll
+
+SUPPORT_BINS = 400
+SUPPORT_DEG = 15.0
+MAX_TILT_DEG = 60.0
+MIN_SUPPORT_NORMALS = 3
+
+
+def support_up(normals: np.ndarray) -> np.ndarray | None:
+    """(3,) the support's normal from unit ``normals`` (N, 3), or None when no normal
+    lies within MAX_TILT_DEG of the camera's +y."""
+    n = np.asarray(normals, np.float64).reshape(-1, 3)
+    n = n[np.all(np.isfinite(n), 1)]
+    n = n[np.abs(np.linalg.norm(n, axis=1) - 1) < 0.2]
+    cam_up = np.array([0.0, 1.0, 0.0])
+    n = n[n @ cam_up > np.cos(np.deg2rad(MAX_TILT_DEG))]
+    if len(n) < MIN_SUPPORT_NORMALS:
+        return None
+    bins = fibonacci_sphere(SUPPORT_BINS)
+    bins = bins[bins @ cam_up > np.cos(np.deg2rad(MAX_TILT_DEG + SUPPORT_DEG))]
+    near = n @ bins.T > np.cos(np.deg2rad(SUPPORT_DEG))
+    best = bins[int(near.sum(0).argmax())]
+    dom = n[n @ best > np.cos(np.deg2rad(SUPPORT_DEG))].mean(0)
+    return dom / max(float(np.linalg.norm(dom)), 1e-12)
+
+
+def scene_up(context: dict | None, normals: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, Origin]:
+    """(world up (3,), where it came from) for a scene: ``context`` the manifest's
+    scene light context (``pitch_deg``/``roll_deg`` when given), else the support plane
+    of the ``valid`` (H, W) pixels' ``normals`` (H, W, 3), else the camera's +y."""
+    ctx = context or {}
+    if ctx.get("pitch_deg") is not None:
+        return up_from_pitch_roll(float(ctx["pitch_deg"]), float(ctx.get("roll_deg") or 0.0)), Origin.MANIFEST
+    sel = np.asarray(normals)[np.asarray(valid, bool)]
+    if len(sel) > 20000:  # a deterministic stride subsample is plenty for a vote
+        sel = sel[np.linspace(0, len(sel) - 1, 20000).astype(np.int64)]
+    up = support_up(sel)
+    if up is None:
+        return np.array([0.0, 1.0, 0.0]), Origin.DEFAULT
+    return up, Origin.SUPPORT
+
+
+__all__ = ["support_up", "scene_up"]

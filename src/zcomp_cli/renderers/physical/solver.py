@@ -1,0 +1,310 @@
+"""Robust non-negative least squares: the light as weights of atoms (DESIGN.md section 8).
+
+The known shading is linear in the light: ``S(p) = sum_k w_k T_k(p)``, ``w_k >= 0``. An
+atom ``T_k`` is a column over the fit pixels: grey (N,), whose weight has one value per
+colour channel (the light's colour is fitted), or coloured (N, 3), with one weight for
+all three channels (a light whose colour is known, such as a probe's).
+
+The loss is Huber's (``c = 1.345 sigma``, 95 % efficiency under Gaussian noise), the
+scale ``sigma`` the median absolute residual (x 1.4826), at least ``SIGMA_FLOOR`` of the
+data's median (a render's noise; exact synthetic data has none). It is minimised by
+iteratively reweighted NNLS (``scipy.optimize.nnls``) with a ridge that pulls the
+weights toward a prior solution (``prior``, ``ridge``): where the pixels cannot tell two
+atoms apart (a bare floor shades alike under the sky and under a sun), the prior decides,
+and anywhere else the pixels do. Everything is relative to the data's scale: multiplying
+the shading by k multiplies the weights by k (exposure invariance).
+
+**Shadows the frame does not show.** Screen-space visibility can miss an occluder (one
+outside the frame, or hidden behind other surfaces) but never invent one: a pixel darker
+than the model may lie in the shadow of something unseen -- down to losing all of the
+lights' direct part ``d`` of its prediction -- while a pixel brighter than the model
+contradicts it. So a residual is drawn from a mixture: noise (Huber, scale sigma) with
+probability ``1 - pi``, or an unseen shadow, uniform on ``[-d, 0]``, with probability
+``pi``; each IRLS step weighs a pixel by the noise's responsibility for it and refits
+``pi`` to their mean (EM), capped at ``MAX_UNSEEN``. A pixel in an unseen shadow costs
+what a one-sigma residual does (``unseen_loss``), so fits are ranked by how much they
+explain of the rest. The atoms whose share an unseen occluder can take are named by
+``direct`` (the suns and lamps; not the sky).
+
+``score_candidates`` scores many one-atom extensions of a base dictionary at once (the
+light direction search): batched normal equations, the candidate's weight clamped at 0.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+HUBER_C = 1.345
+MAD_TO_SIGMA = 1.4826
+SIGMA_FLOOR = 0.02
+IRLS_ITERS = 4
+# The unseen shadows' share is at most half the pixels (beyond that the light's
+# contribution is not what the rest of the frame says it is: its weight must drop).
+MAX_UNSEEN = 0.5
+UNSEEN_INIT = 0.1
+
+
+def unseen_responsibility(r, d, sigma, pi):
+    """The noise's responsibility for residuals ``r`` under the mixture of the module
+    docstring (``d`` >= 0 the direct part of each prediction): in [0, 1], 1 outside
+    ``[-d, 0)``."""
+    r = np.asarray(r, np.float64)
+    d = np.asarray(d, np.float64)
+    sig = np.maximum(sigma, 1e-300)
+    c = HUBER_C * sig
+    a = np.abs(r)
+    # the noise's density (Huber's: Gaussian core, exponential tails)
+    hub = np.where(a <= c, 0.5 * (a / sig) ** 2, (c / sig) * (a / sig) - 0.5 * (c / sig) ** 2)
+    noise = (1.0 - pi) * np.exp(-hub) / (sig * np.sqrt(2 * np.pi))
+    unseen = np.where((r < 0) & (r >= -d) & (d > 1e-12), pi / np.maximum(d, 1e-300), 0.0)
+    return noise / np.maximum(noise + unseen, 1e-300)
+
+
+def unseen_loss(sigma):
+    """The cost of a pixel in an unseen shadow: a one-sigma residual's Huber loss."""
+    return 0.5 * np.asarray(sigma, np.float64) ** 2
+
+
+@dataclass(frozen=True)
+class Atom:
+    """One column of the dictionary: ``values`` (N,) grey or (N, 3) coloured; ``name``
+    for reports and lookups."""
+
+    name: str
+    values: np.ndarray
+
+    @property
+    def coloured(self) -> bool:
+        return np.ndim(self.values) == 2
+
+
+def huber_weights(r: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """IRLS weights and per-residual Huber loss of residuals ``r`` at scale ``sigma``."""
+    c = HUBER_C * sigma
+    a = np.abs(r)
+    w = np.where(a <= c, 1.0, c / np.maximum(a, 1e-300))
+    loss = np.where(a <= c, 0.5 * a * a, c * (a - 0.5 * c))
+    return w, loss
+
+
+def robust_scale(r: np.ndarray, data_scale: float) -> float:
+    return max(MAD_TO_SIGMA * float(np.median(np.abs(r))), SIGMA_FLOOR * data_scale, 1e-12)
+
+
+def _design(atoms, channels: int) -> tuple[np.ndarray, list[tuple[int, int]]]:
+    """Stack the atoms into a (N * C, P) design for C channels: a grey atom has C
+    columns (one per channel), a coloured one a single column. Returns (X, per atom the
+    (first column, number of columns))."""
+    N = len(np.atleast_1d(atoms[0].values))
+    cols, spans = [], []
+    for a in atoms:
+        v = np.asarray(a.values, np.float64)
+        if v.ndim == 2:
+            spans.append((sum(c.shape[1] for c in cols), 1))
+            cols.append(v[:, :channels].T.reshape(-1, 1) if channels > 1 else v[:, :1])
+        else:
+            block = np.zeros((N * channels, channels))
+            for c in range(channels):
+                block[c * N:(c + 1) * N, c] = v
+            spans.append((sum(c.shape[1] for c in cols), channels))
+            cols.append(block)
+    return np.concatenate(cols, 1), spans
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """``weights``: per atom name, (3,) RGB weight (a coloured atom's one weight
+    repeated); ``loss``: mean Huber loss per pixel over the data scale squared, on the
+    fit pixels (``train``) and the held-out ones (``held``); ``sigma`` the robust scale."""
+
+    weights: dict
+    loss_train: float
+    loss_held: float
+    sigma: float
+    residual: np.ndarray
+
+
+def fit(atoms, target: np.ndarray, *, train: np.ndarray | None = None, prior: dict | None = None,
+        ridge: float = 0.0, fixed_sigma: float | None = None, direct=()) -> FitResult:
+    """Robust NNLS of ``target`` (N, 3) RGB or (N,) grey on ``atoms``.
+
+    Args:
+        atoms: sequence of ``Atom`` over the same N pixels.
+        target: the shading to explain.
+        train: (N,) bool, the pixels the weights are fitted on (None: all); the others
+            are held out and only scored.
+        prior: per atom name the (C,) weight the ridge pulls toward (missing: 0).
+        ridge: the ridge's strength, per fit pixel, relative to the data's scale.
+        fixed_sigma: the Huber scale, instead of the residuals' own.
+        direct: names of the atoms an unseen occluder can hide (module docstring).
+    """
+    from scipy.optimize import nnls
+
+    y = np.asarray(target, np.float64)
+    C = 1 if y.ndim == 1 else y.shape[1]
+    N = len(y)
+    train = np.ones(N, bool) if train is None else np.asarray(train, bool)
+    if not train.any():
+        raise ValueError("solver.fit: no training pixels")
+    X, spans = _design(atoms, C)
+    yv = y.T.reshape(-1) if C > 1 else y.reshape(-1)
+    tr = np.tile(train, C)
+    scale = max(float(np.median(np.abs(yv[tr]))), 1e-12)
+    # the ridge's target: a weight vector in the design's columns
+    p0 = np.zeros(X.shape[1])
+    if prior:
+        for a, (c0, k) in zip(atoms, spans):
+            if a.name in prior:
+                p0[c0:c0 + k] = np.broadcast_to(np.asarray(prior[a.name], np.float64), (C,))[:k] \
+                    if k > 1 else float(np.mean(prior[a.name]))
+    col_scale = np.sqrt(np.maximum((X[tr] ** 2).mean(0), 1e-30))
+    lam = np.sqrt(max(ridge, 0.0) * tr.sum()) * col_scale
+    is_direct = np.zeros(X.shape[1], bool)
+    for a, (c0, k) in zip(atoms, spans):
+        is_direct[c0:c0 + k] = a.name in set(direct)
+    w = np.ones(tr.sum())
+    beta = np.zeros(X.shape[1])
+    sigma = fixed_sigma
+    pi = UNSEEN_INIT if is_direct.any() else 0.0
+    resp = np.ones(tr.sum())
+    if is_direct.any() and p0.any():
+        # the EM starts from the prior's light: from a fit with no light, every pixel of
+        # a shadow the frame does not show would be an outlier, and it would stay there
+        r0 = yv[tr] - X[tr] @ p0
+        s0 = robust_scale(r0, scale)
+        resp = unseen_responsibility(r0, X[tr][:, is_direct] @ p0[is_direct], s0, pi)
+        w = huber_weights(r0, s0)[0] * resp
+    for _ in range(IRLS_ITERS):
+        sw = np.sqrt(w)
+        A = np.concatenate([X[tr] * sw[:, None], np.diag(lam)], 0)
+        b = np.concatenate([yv[tr] * sw, lam * p0])
+        beta, _ = nnls(A, b, maxiter=50 * A.shape[1])
+        r = yv[tr] - X[tr] @ beta
+        sigma = robust_scale(r[resp > 0.5], scale) if fixed_sigma is None and (resp > 0.5).any() else (
+            fixed_sigma if fixed_sigma is not None else robust_scale(r, scale))
+        hw, _ = huber_weights(r, sigma)
+        if is_direct.any():
+            resp = unseen_responsibility(r, X[tr][:, is_direct] @ beta[is_direct], sigma, pi)
+            pi = float(np.clip(1.0 - resp.mean(), 1e-3, MAX_UNSEEN))
+        w = hw * resp
+    r_all = yv - X @ beta
+    _, loss = huber_weights(r_all, sigma)
+    if is_direct.any():
+        g = unseen_responsibility(r_all, X[:, is_direct] @ beta[is_direct], sigma, pi)
+        loss = g * loss + (1.0 - g) * unseen_loss(sigma)
+    loss = loss.reshape(C, N).mean(0) if C > 1 else loss
+    held = ~train
+    lt = float(loss[train].mean()) / scale ** 2
+    lh = float(loss[held].mean()) / scale ** 2 if held.any() else lt
+    weights = {}
+    for a, (c0, k) in zip(atoms, spans):
+        v = beta[c0:c0 + k]
+        weights[a.name] = np.repeat(v, 3) if k == 1 else (np.repeat(v, 3 // C) if C == 1 else v.copy())
+    res = r_all.reshape(C, N).T if C > 1 else r_all
+    return FitResult(weights=weights, loss_train=lt, loss_held=lh, sigma=float(sigma), residual=res)
+
+
+def score_candidates(base: np.ndarray, cands: np.ndarray, y: np.ndarray, train: np.ndarray, *,
+                     ridge_base: np.ndarray | None = None, sigma: float | None = None,
+                     iters: int = 4, unseen: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Held-out and training loss of ``y`` (N,) fitted on ``base`` (N, B) plus each
+    candidate column of ``cands`` (N, K), for K candidates at once.
+
+    The same IRLS as ``fit`` on the training pixels, by batched normal equations: Huber
+    weights and, with ``unseen``, the responsibilities of the unseen-shadow mixture, the
+    candidate being the direct light (module docstring), each candidate with its own
+    noise scale (from ``sigma``, None: the base's robust fit's) and share of unseen
+    shadows; without, every candidate at the scale ``sigma``, so that their losses
+    compare. (The mixture is off by default for the direction search: a direction whose shadow
+    misses the visible one could call the visible shadow unseen, and the shadows of the
+    visible geometry are what the search must follow.) A negative candidate weight is clamped to 0 (no negative light); a
+    negative base weight is left (the base's non-negativity is ``fit``'s business: here
+    only the ranking of candidates matters). ``ridge_base`` (B,): ridge per base
+    column, per pixel. The loss is the mixture's energy (``fit``), comparable across
+    candidates. Returns (held-out loss (K,), training loss (K,)), over the data scale
+    squared.
+    """
+    B = np.asarray(base, np.float64)
+    D = np.asarray(cands, np.float64)
+    y = np.asarray(y, np.float64)
+    tr = np.asarray(train, bool)
+    N, nb = B.shape
+    K = D.shape[1]
+    scale = max(float(np.median(np.abs(y[tr]))), 1e-12)
+    rb = np.zeros(nb) if ridge_base is None else np.asarray(ridge_base, np.float64)
+    Bt, Dt, yt = B[tr], D[tr], y[tr]
+    nt = len(yt)
+    BB = (Bt[:, :, None] * Bt[:, None, :]).reshape(nt, nb * nb)
+    By = Bt * yt[:, None]
+    if sigma is None:
+        sigma = base_sigma(Bt, yt, rb, scale)
+    sig = np.full(K, float(sigma))
+    pi = np.full(K, UNSEEN_INIT if unseen else 0.0)
+    w = np.ones((nt, K))
+    floor = SIGMA_FLOOR * scale
+    for _ in range(iters):
+        wd = w * Dt
+        A = np.empty((K, nb + 1, nb + 1))
+        A[:, :nb, :nb] = (BB.T @ w).T.reshape(K, nb, nb) + np.diag(rb * nt)[None]
+        bd = (Bt.T @ wd).T
+        A[:, :nb, nb] = bd
+        A[:, nb, :nb] = bd
+        A[:, nb, nb] = (wd * Dt).sum(0)
+        # a relative Tikhonov floor: collinear columns (sky lobes on one plane) and a
+        # candidate that lights no pixel leave the normal equations singular
+        diag = np.einsum("kii->ki", A).mean(1)
+        A += (1e-9 * np.maximum(diag, 1e-300))[:, None, None] * np.eye(nb + 1)[None]
+        rhs = np.empty((K, nb + 1))
+        rhs[:, :nb] = (By.T @ w).T
+        rhs[:, nb] = wd.T @ yt
+        coef = np.linalg.solve(A, rhs[..., None])[..., 0]
+        neg = coef[:, nb] < 0
+        if neg.any():  # refit those without the candidate
+            An = A[neg][:, :nb, :nb]
+            coef[neg, :nb] = np.linalg.solve(An, rhs[neg, :nb, None])[..., 0]  # (regularised above)
+            coef[neg, nb] = 0.0
+        r = yt[:, None] - Bt @ coef[:, :nb].T - Dt * coef[:, nb][None]
+        resp = np.ones_like(r)
+        if unseen:
+            resp = unseen_responsibility(r, Dt * coef[:, nb][None], sig[None], pi[None])
+            noise = np.where(resp > 0.5, np.abs(r), np.nan)
+            with np.errstate(all="ignore"):
+                med = np.nanmedian(noise, axis=0)
+            sig = np.maximum(np.where(np.isfinite(med), MAD_TO_SIGMA * med, sig), floor)
+            pi = np.clip(1.0 - resp.mean(0), 1e-3, MAX_UNSEEN)
+        c = HUBER_C * sig[None]
+        a = np.abs(r)
+        w = np.where(a <= c, 1.0, c / np.maximum(a, 1e-300)) * resp
+    r = y[:, None] - B @ coef[:, :nb].T - D * coef[:, nb][None]
+    g = unseen_responsibility(r, D * coef[:, nb][None], sig[None], pi[None]) if unseen else np.ones_like(r)
+    c = HUBER_C * sig[None]
+    a = np.abs(r)
+    loss = (g * np.where(a <= c, 0.5 * a * a, c * (a - 0.5 * c)) + (1.0 - g) * unseen_loss(sig)[None]) / scale ** 2
+    held = ~tr
+    lh = loss[held].mean(0) if held.any() else loss[tr].mean(0)
+    return lh, loss[tr].mean(0)
+
+
+def base_sigma(B: np.ndarray, y: np.ndarray, ridge: np.ndarray | None = None,
+               scale: float | None = None) -> float:
+    """Robust scale of ``y`` (N,) fitted on the columns ``B`` (N, P) alone (Huber IRLS,
+    unconstrained): the scale candidates are scored at."""
+    B = np.asarray(B, np.float64)
+    y = np.asarray(y, np.float64)
+    scale = max(float(np.median(np.abs(y))), 1e-12) if scale is None else scale
+    rb = np.zeros(B.shape[1]) if ridge is None else np.asarray(ridge, np.float64)
+    w = np.ones(len(y))
+    s = SIGMA_FLOOR * scale
+    for _ in range(IRLS_ITERS):
+        A = B.T @ (B * w[:, None]) + np.diag(rb * len(y))
+        coef = np.linalg.lstsq(A, B.T @ (w * y), rcond=None)[0]
+        r = y - B @ coef
+        s = robust_scale(r, scale)
+        w, _ = huber_weights(r, s)
+    return s
+
+
+__all__ = ["Atom", "base_sigma", "FitResult", "fit", "score_candidates", "huber_weights", "robust_scale",
+           "SIGMA_FLOOR", "HUBER_C"]
