@@ -64,38 +64,56 @@ def tiny_tokenizer(folder: Path):
                          model_max_length=77)
 
 
-def get_dummy_components(n_targets: int = 1, seed: int = 0, *, tokenizer_dir: Path):
+def get_dummy_components(n_targets: int = 1, seed: int = 0, *, tokenizer_dir: Path, full_size: bool = False):
     """Random UNet, VAE (4 blocks: the latent grid is 8 px, as SD's), text encoder,
-    tokenizer and DDIM scheduler, of SD 2's structure and tiny."""
+    tokenizer and DDIM scheduler, of SD 2's structure and tiny; ``full_size`` builds SD
+    2's UNet and VAE at their real size (the published models' cost, random weights) and
+    a 1-layer text encoder of SD 2's width (it runs once per load)."""
     import torch
     from diffusers import AutoencoderKL, DDIMScheduler, UNet2DConditionModel
     from transformers import CLIPTextConfig, CLIPTextModel
 
     torch.manual_seed(seed)
-    unet = UNet2DConditionModel(
-        block_out_channels=(8, 16), layers_per_block=1, sample_size=8, in_channels=4 * (n_targets + 1),
-        out_channels=4 * n_targets, down_block_types=("CrossAttnDownBlock2D", "DownBlock2D"),
-        up_block_types=("UpBlock2D", "CrossAttnUpBlock2D"), cross_attention_dim=16, attention_head_dim=2,
-        norm_num_groups=4, use_linear_projection=True)
-    vae = AutoencoderKL(block_out_channels=(8, 8, 8, 8), in_channels=3, out_channels=3,
-                        down_block_types=("DownEncoderBlock2D",) * 4, up_block_types=("UpDecoderBlock2D",) * 4,
-                        latent_channels=4, norm_num_groups=4, sample_size=32, layers_per_block=1,
-                        scaling_factor=0.18215)
-    te = CLIPTextModel(CLIPTextConfig(vocab_size=16, hidden_size=16, intermediate_size=16, num_attention_heads=2,
-                                      num_hidden_layers=1, max_position_embeddings=77, projection_dim=16,
-                                      bos_token_id=0, eos_token_id=1, pad_token_id=1))
+    if full_size:  # stabilityai/stable-diffusion-2(-1) unet/config.json and vae/config.json
+        unet = UNet2DConditionModel(
+            sample_size=96, in_channels=4 * (n_targets + 1), out_channels=4 * n_targets, layers_per_block=2,
+            block_out_channels=(320, 640, 1280, 1280), attention_head_dim=(5, 10, 20, 20),
+            cross_attention_dim=1024, use_linear_projection=True,
+            down_block_types=("CrossAttnDownBlock2D",) * 3 + ("DownBlock2D",),
+            up_block_types=("UpBlock2D",) + ("CrossAttnUpBlock2D",) * 3)
+        vae = AutoencoderKL(block_out_channels=(128, 256, 512, 512), latent_channels=4,
+                            down_block_types=("DownEncoderBlock2D",) * 4, up_block_types=("UpDecoderBlock2D",) * 4,
+                            layers_per_block=2, sample_size=768, scaling_factor=0.18215)
+        te_cfg = dict(vocab_size=16, hidden_size=1024, intermediate_size=4096, num_attention_heads=16,
+                      num_hidden_layers=1)
+    else:
+        unet = UNet2DConditionModel(
+            block_out_channels=(8, 16), layers_per_block=1, sample_size=8, in_channels=4 * (n_targets + 1),
+            out_channels=4 * n_targets, down_block_types=("CrossAttnDownBlock2D", "DownBlock2D"),
+            up_block_types=("UpBlock2D", "CrossAttnUpBlock2D"), cross_attention_dim=16, attention_head_dim=2,
+            norm_num_groups=4, use_linear_projection=True)
+        vae = AutoencoderKL(block_out_channels=(8, 8, 8, 8), in_channels=3, out_channels=3,
+                            down_block_types=("DownEncoderBlock2D",) * 4, up_block_types=("UpDecoderBlock2D",) * 4,
+                            latent_channels=4, norm_num_groups=4, sample_size=32, layers_per_block=1,
+                            scaling_factor=0.18215)
+        te_cfg = dict(vocab_size=16, hidden_size=16, intermediate_size=16, num_attention_heads=2,
+                      num_hidden_layers=1)
+    te = CLIPTextModel(CLIPTextConfig(max_position_embeddings=77, projection_dim=16, bos_token_id=0,
+                                      eos_token_id=1, pad_token_id=1, **te_cfg))
     return dict(unet=unet, vae=vae, text_encoder=te, tokenizer=tiny_tokenizer(tokenizer_dir),
                 scheduler=DDIMScheduler(**SCHEDULER))
 
 
-def save_pipeline(folder: Path, family: str = "marigold-normals-v1-1", *, seed: int = 0, **overrides) -> Path:
-    """Build a tiny pipeline of ``family`` (see FAMILIES), ``save_pretrained`` it into
-    ``folder`` and return the folder. ``overrides`` replace entries of its config."""
+def save_pipeline(folder: Path, family: str = "marigold-normals-v1-1", *, seed: int = 0, full_size: bool = False,
+                  **overrides) -> Path:
+    """Build a tiny (or ``full_size``) pipeline of ``family`` (see FAMILIES),
+    ``save_pretrained`` it into ``folder`` and return the folder. ``overrides`` replace
+    entries of its config."""
     import diffusers
 
     cls_name, n, config = FAMILIES[family]
     folder = Path(folder)
-    comps = get_dummy_components(n, seed, tokenizer_dir=folder.parent / f"{folder.name}_tok")
+    comps = get_dummy_components(n, seed, tokenizer_dir=folder.parent / f"{folder.name}_tok", full_size=full_size)
     pipe = getattr(diffusers, cls_name)(**comps, **{**config, **overrides})
     pipe.save_pretrained(folder)
     return folder

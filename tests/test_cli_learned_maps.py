@@ -55,7 +55,7 @@ def test_composite_with_learned_normals_albedo_and_depth(tmp_path, marigold_dirs
     assert r.exit_code == 0, r.output
     job = next((tmp_path / "out").glob("*/"))
     rep = json.loads((job / "report.json").read_text())
-    src = rep["scene"]["sources"] if "scene" in rep else rep["sources"]
+    src = rep["scene"]["sources"]
     for m in ("depth", "normals", "albedo", "roughness", "metallic"):
         assert src[m].startswith("learned:"), (m, src)
     assert "normals vs depth: median" in src["notes"]

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import logging
 import time
+import warnings
 from collections import OrderedDict
 from dataclasses import asdict, dataclass, field
 
@@ -218,8 +219,6 @@ def load_pipeline(info: PipelineInfo, device: str, dtype: str):
     keep = MAX_LOADED_GPU if device.startswith("cuda") else MAX_LOADED_CPU
     while len(_LOADED) >= keep:
         _LOADED.popitem(last=False)
-    import warnings
-
     cls = getattr(diffusers, info.runner, None)
     if cls is None:
         raise WeightsError(f"this diffusers ({diffusers.__version__}) has no {info.runner}; "
@@ -283,8 +282,8 @@ def run_pipeline(info: PipelineInfo, image_lin, settings: PipelineSettings) -> P
     pipe = load_pipeline(info, device, dtype)
     srgb = np.clip(linear_to_srgb(np.nan_to_num(img, nan=0.0, posinf=1.0, neginf=0.0)), 0.0, 1.0)
     gen = torch.Generator(device=device).manual_seed(int(settings.seed))
-    log.info("%s: %s (%s) on %s %s, %d steps, ensemble %d, %s px", info.task, info.runner, info.folder.path,
-             device, dtype, steps, settings.ensemble_size, res or "native")
+    log.info("%s: %s (%s) on %s %s, %d steps, ensemble %d, %s px ...", info.task, info.runner,
+             info.folder.path, device, dtype, steps, settings.ensemble_size, res or "native")
     t = time.perf_counter()
     try:
         out = pipe(srgb, num_inference_steps=int(steps), ensemble_size=int(settings.ensemble_size),
@@ -293,6 +292,7 @@ def run_pipeline(info: PipelineInfo, image_lin, settings: PipelineSettings) -> P
     except (ValueError, RuntimeError) as exc:
         raise NumericalError(f"{info.runner} in {info.folder.path} failed: {exc}") from exc
     seconds = time.perf_counter() - t
+    log.info("%s: predicted in %.1f s", info.task, seconds)
     pred = np.asarray(out.prediction, np.float32)
     h, w = img.shape[:2]
     if info.task == "depth":
