@@ -90,3 +90,20 @@ def test_relative_to_depth_invalid_values():
     np.testing.assert_array_equal(relative_to_depth(r, "affine", shift=0.5), [[0.5, 0, 0, 2.5]])
     with pytest.raises(InputError):
         relative_to_depth(r, "inverse")
+
+
+def test_scene_agreement_on_the_floor_sees_a_wrong_pitch():
+    """Normals given beside a ground-plane proxy: the floor's agreement measures the
+    ground-plane keys themselves (here a pitch 10 deg off)."""
+    from zcomp_cli.estimators import estimate_scene_maps
+
+    cam = Camera.from_fov(60, 96, 72)
+    _, true_n = ground_plane_depth(cam, GroundPlaneSpec(1.2, pitch_deg=-25))
+    img = np.full((72, 96, 3), 0.4, np.float32)
+    right = estimate_scene_maps(img, cam, depth_spec={"camera_height": 1.2, "pitch_deg": -25},
+                                provided={"normals": true_n})
+    wrong = estimate_scene_maps(img, cam, depth_spec={"camera_height": 1.2, "pitch_deg": -35},
+                                provided={"normals": true_n})
+    assert right.fits["agreement_floor"]["median_deg"] < 0.5
+    assert wrong.fits["agreement_floor"]["median_deg"] == pytest.approx(10.0, abs=0.5)
+    assert right.sources["normals"] == "provided" and right.agreement.shape == (72, 96)

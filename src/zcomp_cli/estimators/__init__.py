@@ -86,8 +86,8 @@ def _predict_depth(img, camera, spec, cache, img_key, notes, fits) -> _Depth:
                          "depth: {proxy: ground_plane, camera_height: 1.5, pitch_deg: -10}")
     check_estimator("depth", spec)
     if form_of("depth", spec) == "proxy":
-        d, n, _ = _ground_plane(camera, spec)
-        return _Depth(d, "ground_plane", proxy_normals=n)
+        d, n, floor = _ground_plane(camera, spec)
+        return _Depth(d, "ground_plane", proxy_normals=n, floor=floor)
     from zcomp_cli.estimators.learned_maps import learned_depth_raw
 
     res = learned_depth_raw(img, spec, cache=cache, img_key=img_key)
@@ -244,6 +244,13 @@ def estimate_scene_maps(image_lin, camera: Camera, *, depth_spec=None, normals_s
         fits["agreement"] = ag.summary()
         if ag.pixels:
             notes.append(ag.describe())
+        if dp.floor is not None and dp.floor.any():
+            # On the proxy's floor the comparison checks the ground-plane keys themselves
+            # (a wrong pitch tilts every floor normal); off it the proxy is a stand-in.
+            fl = agreement(depth, normals, camera, threshold_deg=thr, mask=dp.floor)
+            fits["agreement_floor"] = fl.summary()
+            if fl.pixels:
+                notes.append("on the ground plane's floor, " + fl.describe())
             if ag.median_deg > WARN_MEDIAN_DEG:
                 msg = (f"depth ({sources['depth']}) and normals ({sources['normals']}) disagree by a median "
                        f"{ag.median_deg:.0f} deg: the shading mask and the light read other surfaces than the "
