@@ -145,8 +145,9 @@ def load_scene(spec: SceneSpec, resolution: tuple[int, int] | None, *, cache_dir
         metallic=None if metal is None else np.clip(np.nan_to_num(metal), 0, 1).astype(np.float32),
     )
     files = [spec.image] + [spec.maps[k] for k in sorted(spec.maps)]
+    models = _model_fingerprints(spec.estimators)  # "" without model estimators: keys as before
     key = _hash_files(files, f"{size}|{camera.K.tolist()}|{sorted(spec.estimators.items())!r}"
-                             f"|{_model_fingerprints(spec.estimators)}")
+                             + (f"|{models}" if models else ""))
     return Scene(spec.name, image, scene_maps, camera, key, sources, notes, timings,
                  light=getattr(spec, "light", None), estimated=estimated)
 
