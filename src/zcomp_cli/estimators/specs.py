@@ -18,7 +18,7 @@ a folder saved under another name).
 from __future__ import annotations
 
 from zcomp_cli.estimators.diffusion import DTYPES, RUNNERS, PipelineSettings, settings_problems
-from zcomp_cli.estimators.ground_plane import _KEYS as GROUND_PLANE_KEYS
+from zcomp_cli.estimators.ground_plane import GROUND_PLANE_KEYS
 from zcomp_cli.estimators.model_outputs import INTRINSIC_SPACES, NORMAL_FRAMES
 
 __all__ = ["estimator_problems", "MODEL_KEYS", "GROUND_PLANE_KEYS", "DEPTH_OUTPUTS", "DEPTH_ALIGN"]
