@@ -3,6 +3,8 @@
     PYTHONPATH=src python docs/make_figures.py demo OUT_DEMO            # docs/demo.png
     PYTHONPATH=src python docs/make_figures.py cases BENCH IDS [METHOD] # docs/benchmark_cases.png
     PYTHONPATH=src python docs/make_figures.py coffee OUT_COFFEE        # docs/coffee_known_light.png
+    PYTHONPATH=src python docs/make_figures.py coffee_estimated OUT_EST OUT_MAPS OUT_COFFEE
+                                                                        # docs/coffee_estimated.png
 
 ``demo``: OUT_DEMO is ``zcomp composite examples/jobs.yaml --out OUT_DEMO`` (``make demo``);
 top row background / job 0 / its Cycles reference, bottom row jobs 1-3.
@@ -10,6 +12,9 @@ top row background / job 0 / its Cycles reference, bottom row jobs 1-3.
 composites; IDS comma-separated case ids; one row per case: background, physical, GT.
 ``coffee``: OUT_COFFEE is the composite output of ``docs/coffee/jobs.yaml``: the
 photograph and the composite, side by side.
+``coffee_estimated``: OUT_EST is the composite output of ``docs/coffee/jobs_estimated.yaml``
+(nothing but the photograph and a ground-plane line), OUT_MAPS its ``zcomp estimate``
+output, OUT_COFFEE that of ``docs/coffee/jobs.yaml`` (the light given).
 """
 
 from __future__ import annotations
@@ -66,11 +71,31 @@ def cases(bench: Path, ids: list[str], method: str = "physical"):
     write_png("docs/benchmark_cases.png", np.concatenate([left, np.ones((left.shape[0], 12, 3)), right], 1))
 
 
+def _first_job(out_dir: Path) -> Path:
+    return next(d for d in sorted(out_dir.iterdir()) if (d / "report.json").is_file())
+
+
 def coffee(out_dir: Path):
-    job = next(d for d in sorted(out_dir.iterdir()) if (d / "report.json").is_file())
+    job = _first_job(out_dir)
     rep = json.loads((job / "report.json").read_text())
     bg = read_image(Path(rep["job"]["manifest"]).parent / "coffee.png")
     write_png("docs/coffee_known_light.png", _row([bg, read_image(job / "composite.exr")]))
+
+
+def coffee_estimated(est_out: Path, maps_out: Path, known_out: Path):
+    """Top: the photograph, the weight-free composite (light estimated), the same with the
+    light given. Bottom: what the weight-free estimators see (zcomp estimate's preview
+    sheet without its image tile: inverse depth, normals, albedo, shading)."""
+    job = _first_job(est_out)
+    rep = json.loads((job / "report.json").read_text())
+    bg = read_image(Path(rep["job"]["manifest"]).parent / "coffee.png")
+    top = _row([bg, read_image(job / "composite.exr"), read_image(_first_job(known_out) / "composite.exr")])
+    sheet = read_image(maps_out / "table" / "preview.png")  # decoded as sRGB, re-encoded on writing
+    w = bg.shape[1]
+    tiles = [sheet[:, i * w:(i + 1) * w] for i in range(1, 5)]
+    bottom = _row([_resize(t, top.shape[1] // 4 - 6) for t in tiles])
+    bottom = np.pad(bottom, ((0, 0), (0, top.shape[1] - bottom.shape[1]), (0, 0)), constant_values=1.0)
+    write_png("docs/coffee_estimated.png", np.concatenate([top, bottom], 0))
 
 
 if __name__ == "__main__":
@@ -81,5 +106,7 @@ if __name__ == "__main__":
         cases(Path(sys.argv[2]), sys.argv[3].split(","), *(sys.argv[4:5]))
     elif what == "coffee":
         coffee(Path(sys.argv[2]))
+    elif what == "coffee_estimated":
+        coffee_estimated(Path(sys.argv[2]), Path(sys.argv[3]), Path(sys.argv[4]))
     else:
         raise SystemExit(__doc__)

@@ -95,3 +95,14 @@ def small_example():
         return p
 
     return make
+
+
+@pytest.fixture(scope="session")
+def marigold_dirs(tmp_path_factory):
+    """Tiny random pipelines of the four Marigold families (tests/marigold_dummy.py),
+    saved once per session: family name -> folder. Tests must not modify them (copy
+    first)."""
+    from marigold_dummy import FAMILIES, save_pipeline
+
+    root = tmp_path_factory.mktemp("marigold")
+    return {name: save_pipeline(root / name, name) for name in FAMILIES}

@@ -1,8 +1,11 @@
 """``zcomp estimate jobs.yaml --out DIR``: precompute a manifest's missing scene maps.
 
-Writes, per scene, ``OUT/<scene>/{depth,normals,albedo,shading}.exr``, ``sources.json``
-(which map came from where) and ``preview.png`` (image, depth, normals, albedo and
-shading side by side). Estimates land in the cache shared with ``zcomp composite``.
+Writes, per scene, ``OUT/<scene>/{depth,normals,albedo,shading}.exr`` (and
+``roughness.exr``/``metallic.exr`` when an appearance model predicted them,
+``agreement.exr`` — degrees between the normals and the depth's normals — when they come
+from different sources), ``sources.json`` (which map came from where, the fits, the
+model runs) and ``preview.png`` (the maps side by side). Estimates land in the cache
+shared with ``zcomp composite``.
 """
 
 from __future__ import annotations
@@ -11,11 +14,15 @@ import click
 
 from zcomp_cli.cli.options import cache_dir_opt, out_dir_opt
 
+AGREEMENT_DISPLAY_MAX_DEG = 90.0  # the agreement tile's colour scale: 0 .. 90 degrees
 
-def preview_sheet(image, depth, normals, albedo, shading):
-    """(H, 5W, 3) float32 display sheet in [0, 1] (already display-encoded): sRGB image,
-    turbo-coloured inverse depth, normals * 0.5 + 0.5, sRGB albedo, sRGB shading
-    normalised by its 99th percentile."""
+
+def preview_sheet(image, depth, normals, albedo, shading, *, roughness=None, metallic=None, agreement=None):
+    """(H, N*W, 3) float32 display sheet in [0, 1] (already display-encoded), tiles left to
+    right: sRGB image, turbo-coloured inverse depth, normals * 0.5 + 0.5, sRGB albedo,
+    sRGB shading normalised by its 99th percentile; then, when given, roughness and
+    metallic (grey, value as is) and the normals/depth agreement (viridis, 0 to 90
+    degrees, black where not compared)."""
     import numpy as np
     from matplotlib import colormaps
 
@@ -33,6 +40,15 @@ def preview_sheet(image, depth, normals, albedo, shading):
     ref = float(np.percentile(sh, 99)) if sh.size else 1.0
     tiles = [linear_to_srgb(image), dep, np.clip(np.nan_to_num(normals) * 0.5 + 0.5, 0, 1),
              linear_to_srgb(albedo), linear_to_srgb(sh / max(ref, 1e-12))]
+    for m in (roughness, metallic):
+        if m is not None:
+            tiles.append(np.repeat(np.clip(np.nan_to_num(m), 0, 1)[..., None], 3, axis=-1))
+    if agreement is not None:
+        a = np.asarray(agreement, np.float64)
+        ok = np.isfinite(a)
+        t = colormaps["viridis"](np.clip(np.where(ok, a, 0) / AGREEMENT_DISPLAY_MAX_DEG, 0, 1))[..., :3]
+        t[~ok] = 0
+        tiles.append(t)
     return np.concatenate([np.asarray(t, np.float32) for t in tiles], axis=1)
 
 
@@ -88,10 +104,17 @@ def estimate(ctx, manifest, out_dir, scene_names, native, cache_dir):
         write_exr(d / "normals.exr", mp.normals)
         write_exr(d / "albedo.exr", mp.albedo)
         write_exr(d / "shading.exr", shading)
-        write_png(d / "preview.png", preview_sheet(scene.image, mp.depth, mp.normals, mp.albedo, shading),
-                  srgb_encode=False)
+        est = scene.estimated or {}
+        agree = est.get("agreement")
+        for m, arr in (("roughness", mp.roughness), ("metallic", mp.metallic), ("agreement", agree)):
+            if arr is not None:
+                write_exr(d / f"{m}.exr", np.nan_to_num(arr, nan=-1.0) if m == "agreement" else arr)
+        write_png(d / "preview.png", preview_sheet(scene.image, mp.depth, mp.normals, mp.albedo, shading,
+                                                   roughness=mp.roughness, metallic=mp.metallic,
+                                                   agreement=agree), srgb_encode=False)
         write_json_atomic(d / "sources.json", {"scene": name, "sources": scene.sources,
                                                "notes": list(scene.notes),
+                                               "fits": est.get("fits", {}),
                                                "timings_s": scene.timings,
                                                "K": scene.camera.K.tolist(),
                                                "resolution": [scene.camera.width, scene.camera.height]})

@@ -101,14 +101,26 @@ def retinex_albedo(image_lin, *, lum_threshold: float = 0.12, chroma_threshold: 
         log_s = gaussian_filter(log_s, shading_smooth_px, mode="nearest")
     shading_grey = np.exp(log_s)
     albedo = img / shading_grey[..., None]
-    a_lum = luminance(albedo)
-    ref = float(np.percentile(a_lum, percentile))
-    scale = percentile_value / ref if ref > 1e-12 else 1.0
-    albedo = np.clip(albedo * scale, 0.0, 1.0)
+    albedo, scale = scale_albedo(albedo, percentile, percentile_value)
     # Shading so that image = albedo * shading in the original units.
     shading = np.repeat((shading_grey * peak / scale)[..., None], 3, axis=-1)
     shading = np.clip(shading, _EPS, 1e3 * max(peak, 1.0))
     return albedo.astype(np.float32), shading.astype(np.float32)
+
+
+def scale_albedo(albedo, percentile: float = 95.0, value: float = 0.8) -> tuple[np.ndarray, float]:
+    """Fix the global scale an intrinsic decomposition leaves open: the ``percentile``
+    of albedo luminance goes to ``value``; the result is clipped to [0, 1].
+
+    Args:
+        albedo: (H, W, 3) linear albedo up to scale (non-negative, finite).
+    Returns:
+        (scaled albedo, float32 in [0, 1]; the factor applied).
+    """
+    a = np.asarray(albedo, np.float64)
+    ref = float(np.percentile(luminance(a), percentile))
+    scale = value / ref if ref > 1e-12 else 1.0
+    return np.clip(a * scale, 0.0, 1.0).astype(np.float32), scale
 
 
 def scale_invariant_error(estimate, reference, mask=None) -> float:

@@ -25,6 +25,7 @@ from zcomp_cli.errors import InputError
 DEFAULT_BACKDROP_M = 10.0
 _KEYS = {"proxy", "camera_height", "camera_height_m", "pitch_deg", "horizon_row", "roll_deg",
          "backdrop_distance", "backdrop_distance_m"}
+GROUND_PLANE_KEYS = frozenset(_KEYS)  # the manifest keys of a ground-plane description
 
 
 @dataclass(frozen=True)

@@ -3,16 +3,11 @@
 
 Metric models (ZoeDepth; Depth Anything with ``depth_estimation_type: metric``) give
 depth in metres, used as z-depth. Relative models (DPT, Depth Anything relative) give an
-affine-invariant *disparity* d (inverse depth up to scale and shift). It is converted
-here, before anything else sees it (the footprint alignment must never be fed
-disparity):
-
-* with a ground-plane description: fit ``1 / depth_proxy ~ a * d + b`` by robust
-  least squares over the floor pixels of the proxy, then ``depth = 1 / (a d + b)``;
-* otherwise: shift 0 and the scale that puts the median depth at ``median_depth_m``
-  (default 3 m): ``depth = median_depth_m * median(d) / d``.
-
-Pixels whose fitted inverse depth is not positive are invalid (depth 0).
+affine-invariant *disparity* (inverse depth up to scale and shift), turned into metric
+z-depth by ``estimators.depth_alignment`` before anything else sees it (the footprint
+alignment must never be fed disparity): fitted to a ground plane when one is described,
+else scaled to a median depth with the shift fitted to learned normals or taken as 0.
+The diffusers depth pipelines (Marigold) live in ``estimators.diffusion``.
 """
 
 from __future__ import annotations
@@ -25,10 +20,13 @@ import numpy as np
 
 from zcomp_cli.camera import Camera
 from zcomp_cli.errors import InputError, WeightsError
+from zcomp_cli.estimators.depth_alignment import DEFAULT_MEDIAN_DEPTH_M, disparity_to_depth
+from zcomp_cli.estimators.model_outputs import clean_nonfinite
 
 log = logging.getLogger(__name__)
 
-DEFAULT_MEDIAN_DEPTH_M = 3.0
+__all__ = ["LearnedDepth", "check_model_dir", "load_depth_model", "output_kind", "predict_raw",
+           "learned_depth", "disparity_to_depth", "DEFAULT_MEDIAN_DEPTH_M"]
 WEIGHT_FILES = ("model.safetensors", "pytorch_model.bin", "model.safetensors.index.json",
                 "pytorch_model.bin.index.json")
 PROCESSOR_FILES = ("preprocessor_config.json",)
@@ -106,70 +104,8 @@ def predict_raw(model, processor, image_lin) -> np.ndarray:
     if out.ndim == 3:
         out = out[:, None]
     out = F.interpolate(out.float(), size=(h, w), mode="bilinear", align_corners=False)
-    raw = out[0, 0].cpu().numpy().astype(np.float32)
-    if not np.isfinite(raw).all():
-        from zcomp_cli.errors import NumericalError
-
-        raise NumericalError("the depth model produced non-finite values")
-    return raw
-
-
-def _robust_affine(x: np.ndarray, y: np.ndarray, iters: int = 10) -> tuple[float, float]:
-    """y ~ a x + b, robust to a minority of outliers (objects on the floor): least
-    squares, then refits on the inliers within 3 robust sigmas (MAD) of the last fit."""
-    keep = np.ones(x.shape, bool)
-    a = b = 0.0
-    for _ in range(iters):
-        A = np.stack([x[keep], np.ones(int(keep.sum()))], -1)
-        sol, *_ = np.linalg.lstsq(A, y[keep], rcond=None)
-        a, b = float(sol[0]), float(sol[1])
-        r = np.abs(a * x + b - y)
-        s = 1.4826 * float(np.median(r)) + 1e-12 * (np.abs(y).max() + 1e-30)
-        new = r <= 3.0 * s
-        if new.sum() < 8 or np.array_equal(new, keep):
-            break
-        keep = new
-    return a, b
-
-
-def disparity_to_depth(disp, *, proxy_depth=None, proxy_mask=None,
-                       median_depth_m: float = DEFAULT_MEDIAN_DEPTH_M) -> tuple[np.ndarray, str]:
-    """Convert an affine-invariant disparity map to metric z-depth (see module doc).
-
-    Args:
-        disp: (H, W) disparity (larger = nearer), any affine scale.
-        proxy_depth, proxy_mask: optional (H, W) reference depth (metres) and the bool
-            pixels to fit over (e.g. the ground-plane floor).
-        median_depth_m: used when no proxy is given.
-    Returns:
-        (depth (H, W) float32, 0 where invalid; a one-line description of the fit).
-    """
-    d = np.asarray(disp, np.float64)
-    if d.ndim != 2:
-        raise InputError(f"disparity must be (H, W), got {d.shape}")
-    finite = np.isfinite(d)
-    if proxy_depth is not None:
-        pd = np.asarray(proxy_depth, np.float64)
-        m = finite & np.isfinite(pd) & (pd > 0)
-        if proxy_mask is not None:
-            m &= np.asarray(proxy_mask, bool)
-        if m.sum() >= 16 and np.ptp(d[m]) > 1e-9:
-            a, b = _robust_affine(d[m], 1.0 / pd[m])
-            if a > 0:
-                inv = a * d + b
-                with np.errstate(divide="ignore"):
-                    depth = np.where(finite & (inv > 1e-6), 1.0 / inv, 0.0)
-                return depth.astype(np.float32), f"1/depth = {a:.4g} * disparity + {b:.4g} (fit to ground plane, {int(m.sum())} px)"
-        log.warning("disparity fit to the ground plane failed; using the median depth")
-    if not (np.isfinite(median_depth_m) and median_depth_m > 0):
-        raise InputError(f"median_depth must be positive, got {median_depth_m!r}")
-    pos = finite & (d > 0)
-    if not pos.any():
-        raise InputError("the disparity map has no positive value")
-    med = float(np.median(d[pos]))
-    with np.errstate(divide="ignore"):
-        depth = np.where(pos, median_depth_m * med / np.where(pos, d, 1.0), 0.0)
-    return depth.astype(np.float32), f"depth = {median_depth_m:g} m * median(disparity) / disparity"
+    # Non-finite values are kept: the caller cleans or refuses them (model_outputs).
+    return out[0, 0].float().cpu().numpy().astype(np.float32)
 
 
 def learned_depth(image_lin, camera: Camera, model_dir, *, output: str | None = None,
@@ -189,6 +125,7 @@ def learned_depth(image_lin, camera: Camera, model_dir, *, output: str | None = 
     if kind not in ("metric", "disparity"):
         raise InputError(f"depth model output must be 'metric' or 'disparity', got {kind!r}")
     raw = predict_raw(mdl, proc, np.nan_to_num(img, nan=0.0, posinf=1.0, neginf=0.0))
+    raw, _ = clean_nonfinite(raw, "depth model output")
     if kind == "metric":
         depth = np.where(raw > 0, raw, 0.0).astype(np.float32)
         return LearnedDepth(depth, raw, kind, "metric output used as z-depth")

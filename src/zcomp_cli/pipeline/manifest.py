@@ -368,7 +368,7 @@ def _parse_scenes(d, parent, root, probs, check_files, defaults) -> dict[str, Sc
                 continue
             v = s[m]
             if isinstance(v, dict):
-                spec.estimators[m] = dict(v)
+                spec.estimators[m] = _parse_estimator(m, v, s, f"{where}.{m}", root, probs, check_files)
                 continue
             if not isinstance(v, str):
                 continue
@@ -398,6 +398,34 @@ def _parse_scenes(d, parent, root, probs, check_files, defaults) -> dict[str, Sc
                           f"{W}x{H} does not have the aspect ratio of scene {name!r} ({w}x{h}); "
                           "use a matching size or 'native'")
         out[name] = spec
+    return out
+
+
+def _parse_estimator(name, spec, container, where, root, probs, check_files) -> dict:
+    """An estimator mapping (``depth: {model: DIR}``...): its keys and values checked by
+    the estimators' own table, ``model`` resolved against the manifest's folder and
+    required to be a folder (its files are checked when it is loaded, naming each)."""
+    from zcomp_cli.estimators.specs import estimator_problems
+
+    for key, msg in estimator_problems(name, spec):
+        probs.add(spec if key in spec else container, key if key in spec else name,
+                  f"{where}.{key}" if key else where, msg)
+    out = dict(spec)
+    model = spec.get("model")
+    if isinstance(model, str) and model and "\0" not in model:
+        p = Path(model).expanduser()
+        p = p if p.is_absolute() else (root / p).resolve()
+        if check_files and not p.is_dir():
+            probs.add(spec, "model", f"{where}.model",
+                      f"model folder not found: {shorten(str(p), 200)} (a saved diffusers pipeline or "
+                      "transformers model; nothing is downloaded)")
+        elif check_files:
+            from zcomp_cli.estimators.weights import folder_problem
+
+            bad = folder_problem(p, f"{name} model")
+            if bad:
+                probs.add(spec, "model", f"{where}.model", bad)
+        out["model"] = str(p)
     return out
 
 

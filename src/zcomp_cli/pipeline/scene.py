@@ -32,6 +32,8 @@ class Scene:
     notes: list = field(default_factory=list)
     timings: dict = field(default_factory=dict)
     light: dict | None = None  # known lighting from the manifest (pipeline/lightspec.py)
+    # what the estimators measured: {"fits": {...}, "agreement": (H, W) degrees or None}
+    estimated: dict | None = None
 
 
 def _hash_files(paths: list[Path], extra: str) -> str:
@@ -124,9 +126,10 @@ def load_scene(spec: SceneSpec, resolution: tuple[int, int] | None, *, cache_dir
     timings = {"read_s": time.perf_counter() - t0}
 
     missing = [m for m in ("depth", "normals", "albedo") if m not in maps]
+    estimated = None
     if missing:
         t1 = time.perf_counter()
-        maps, sources = _estimate_missing(spec, image, camera, maps, sources, cache_dir)
+        maps, sources, estimated = _estimate_missing(spec, image, camera, maps, sources, cache_dir)
         timings["estimate_s"] = time.perf_counter() - t1
 
     image, depth, normals, albedo, notes = sanitize_maps(
@@ -142,9 +145,24 @@ def load_scene(spec: SceneSpec, resolution: tuple[int, int] | None, *, cache_dir
         metallic=None if metal is None else np.clip(np.nan_to_num(metal), 0, 1).astype(np.float32),
     )
     files = [spec.image] + [spec.maps[k] for k in sorted(spec.maps)]
-    key = _hash_files(files, f"{size}|{camera.K.tolist()}|{sorted(spec.estimators.items())!r}")
+    models = _model_fingerprints(spec.estimators)  # "" without model estimators: keys as before
+    key = _hash_files(files, f"{size}|{camera.K.tolist()}|{sorted(spec.estimators.items())!r}"
+                             + (f"|{models}" if models else ""))
     return Scene(spec.name, image, scene_maps, camera, key, sources, notes, timings,
-                 light=getattr(spec, "light", None))
+                 light=getattr(spec, "light", None), estimated=estimated)
+
+
+def _model_fingerprints(estimators: dict) -> str:
+    """The weights behind each ``{model: DIR}`` estimator: new weights in the same folder
+    change the scene's key (``--resume`` redoes its jobs)."""
+    from zcomp_cli.estimators.weights import fingerprint
+
+    out = []
+    for name in sorted(estimators):
+        model = estimators[name].get("model") if isinstance(estimators[name], dict) else None
+        if isinstance(model, str) and Path(model).is_dir():
+            out.append(f"{name}:{fingerprint(model)}")
+    return ",".join(out)
 
 
 def _estimate_missing(spec, image, camera, maps, sources, cache_dir):
@@ -166,8 +184,8 @@ def _estimate_missing(spec, image, camera, maps, sources, cache_dir):
     notes = list(getattr(est, "notes", []) or [])
     if notes:
         sources["notes"] = "; ".join(notes)
-    for name in ("depth", "normals", "albedo"):
-        if name not in out:
+    for name in ("depth", "normals", "albedo", "roughness", "metallic"):
+        if name not in out and getattr(est, name, None) is not None:
             out[name] = getattr(est, name)
             sources[name] = est.sources.get(name, "estimated")
-    return out, sources
+    return out, sources, {"fits": dict(est.fits), "agreement": est.agreement}
