@@ -62,7 +62,7 @@ def run_and_report(ctx, archive_key: str, src, **kw) -> None:
     with StageProgress(disable=quiet) as prog:
         res = run_import(ARCHIVES[archive_key], opts,
                          progress=lambda i, n, label: prog.update("cases", i, n, label))
-    console = Console(stderr=True)
+    console = Console(stderr=True, soft_wrap=True)  # paths stay whole, copy-pasteable
     for name, why in res.failed.items():
         console.print(f"[red]failed[/] {name}: {why}", highlight=False)
     line = (f"{len(res.imported)} cases imported ({res.jobs} jobs), {len(res.failed)} failed, from {res.root}: "

@@ -33,12 +33,15 @@ class BundleReading:
     loader: str           # the official file that reads it (for messages)
     value_channel: int    # the value's channel in RGBA value layers (depth, footprint...)
     normals_frame: str    # "blender-camera" (z negated) or "opengl" (as stored)
+    decode_nonnegative_normals: bool  # a normals layer >= 0 everywhere is n * 0.5 + 0.5
 
 
-# data/dataset_labo.py: ``src_exr['depth'][:, :, :1]``, normals z negated.
-ZEROCOMP_READING = BundleReading("zerocomp-labo", "lvsn/ZeroComp data/dataset_labo.py", 0, "blender-camera")
-# src/zerocomp/data/dataset_render.py: ``src_exr['depth'][:, :, 2:4]  # value, alpha``.
-SPOTLIGHT_READING = BundleReading("spotlight", "lvsn/SpotLight src/zerocomp/data/dataset_render.py", 2, "opengl")
+# data/dataset_labo.py: ``src_exr['depth'][:, :, :1]``; comp_normal_to_openrooms_normal.
+ZEROCOMP_READING = BundleReading("zerocomp-labo", "lvsn/ZeroComp data/dataset_labo.py", 0, "blender-camera", True)
+# src/zerocomp/data/dataset_render.py: ``src_exr['depth'][:, :, 2:4]  # value, alpha``;
+# normals ``n * 0.5 + 0.5 * alpha`` (signed, premultiplied).
+SPOTLIGHT_READING = BundleReading("spotlight", "lvsn/SpotLight src/zerocomp/data/dataset_render.py", 2, "opengl",
+                                  False)
 
 
 @dataclass
@@ -129,7 +132,8 @@ def read_bundle(path, reading: BundleReading, *, fov_deg: float = FOV_DEG,
     footprint = blender_depth_to_z_depth(footprint)
     if not valid_depth_mask(footprint).any():
         notes.append("footprint_depth is empty: zcomp's depth alignment will fall back (and say so)")
-    normals = bundle_normals_to_camera(layers["normals"], frame)
+    normals = bundle_normals_to_camera(layers["normals"], frame,
+                                       decode_nonnegative=reading.decode_nonnegative_normals)
     normals = np.where((mask > 0)[..., None], normals, 0.0).astype(np.float32)
     albedo = np.clip(_colour_layer(layers["albedo"]), 0.0, 1.0)
     albedo = np.where((mask > 0)[..., None], albedo, 0.0).astype(np.float32)

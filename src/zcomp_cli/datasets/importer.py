@@ -167,6 +167,7 @@ def run_import(archive: Archive, opts: ImportOptions, progress=None) -> ImportRe
     out = opts.out.resolve()
     data = data_dir_for(out)
     partial = out.parent / f".{data.name}.partial"
+    made_parent = not out.parent.exists()
     out.parent.mkdir(parents=True, exist_ok=True)
     shutil.rmtree(partial, ignore_errors=True)  # a previous run's leftovers (interrupted)
     partial.mkdir()
@@ -198,6 +199,8 @@ def run_import(archive: Archive, opts: ImportOptions, progress=None) -> ImportRe
         _install(partial, data, out, manifest_text)
     finally:
         shutil.rmtree(partial, ignore_errors=True)
+        if made_parent and not out.exists() and not any(out.parent.iterdir()):
+            out.parent.rmdir()  # nothing imported: leave no empty folder behind
     result.manifest = out
     return result
 

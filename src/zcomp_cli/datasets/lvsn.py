@@ -15,8 +15,8 @@ skylibs' ``ezexr.imread(path, rgb="hybrid")``:
   (``compositor.alpha_blend``, "assuming premultiplied alpha"); so do its normals
   (``n * 0.5 + 0.5 * alpha``). zcomp stores straight values with a separate coverage
   mask, so a layer with an alpha channel is divided by it (``unpremultiply``);
-* normals: ``[:, :, :3]``, decoded from [0, 1] when the whole layer is >= 0
-  (``comp_normal_to_openrooms_normal``); the ZeroComp loader negates z (Blender's
+* normals: ``[:, :, :3]``; the ZeroComp loader decodes them from [0, 1] when the whole
+  layer is >= 0 (``comp_normal_to_openrooms_normal``) and negates z (Blender's
   shader camera space, z forward -> OpenRooms/OpenGL, +z toward the viewer), SpotLight's
   loader does not (its bundles are read as OpenGL camera frame already);
 * depth: z-depth in metres (``sdi_utils.depth_map_to_point_cloud`` unprojects it as
@@ -114,21 +114,22 @@ def unpremultiply(value, alpha, eps: float = ALPHA_EPS) -> np.ndarray:
     return np.where(ok, v / np.where(ok, a, 1.0), 0.0).astype(np.float32)
 
 
-def bundle_normals_to_camera(normals, frame: str) -> np.ndarray:
+def bundle_normals_to_camera(normals, frame: str, *, decode_nonnegative: bool = False) -> np.ndarray:
     """A bundle's normals layer (its first 3 channels) -> zcomp camera-frame unit normals.
 
-    Decoded from [0, 1] (``2 e - 1``) when every value is >= 0, as
-    ``comp_normal_to_openrooms_normal`` does; then ``frame`` "blender-camera" (the
-    ZeroComp loader: Blender's shader camera space, z forward) negates z, "opengl"
-    (SpotLight's loader) keeps the vector. The length is removed (premultiplied or
-    filtered normals are shorter); zero vectors stay 0.
+    With ``decode_nonnegative`` (the ZeroComp loader's rule,
+    ``comp_normal_to_openrooms_normal``) a layer whose every value is >= 0 is taken as
+    encoded, ``2 e - 1``; SpotLight's loader always reads signed vectors. Then ``frame``
+    "blender-camera" (the ZeroComp loader: Blender's shader camera space, z forward)
+    negates z, "opengl" (SpotLight's loader) keeps the vector. The length is removed
+    (premultiplied or filtered normals are shorter); zero vectors stay 0.
 
     ``bundle_normals_to_camera([0.6, 0, -0.8], "blender-camera") == [0.6, 0, 0.8]``.
     """
     if frame not in NORMAL_FRAMES:
         raise ValueError(f"unknown normals frame {frame!r} (one of {', '.join(NORMAL_FRAMES)})")
     n = np.nan_to_num(np.asarray(normals, np.float64)[..., :3], nan=0.0, posinf=0.0, neginf=0.0)
-    if n.size and n.min() >= 0:
+    if decode_nonnegative and n.size and n.min() >= 0:
         n = 2.0 * n - 1.0
     if frame == "blender-camera":
         n = n * np.array([1.0, 1.0, -1.0])
