@@ -101,21 +101,25 @@ def write_bg_maps(folder: Path, name: str, sc) -> None:
     Image.fromarray(np.full(sc.depth.shape, 102, np.uint8)).save(folder / f"{name}_bg_roughness.png")
 
 
-def make_zerocomp_archive(root: Path, n: int = 2, *, broken: dict | None = None) -> list[ReplicaCase]:
+def make_zerocomp_archive(root: Path, n: int = 2, *, broken: dict | None = None, size: int = SIZE
+                          ) -> list[ReplicaCase]:
     """``root/GT_emission_envmap/<case>/...`` (as labo.zip unpacks). ``broken``: case
     index -> layers to leave out of its bundle."""
     cases = []
-    base = root / "GT_emission_envmap"
     for k in range(n):
-        name = f"9C4A{k:04d}-crop_B0{k}"
-        sc, b, bg, comp = make_case(k)
-        folder = base / name
-        folder.mkdir(parents=True)
-        ch = bundle_channels(b, bg, comp, normals_frame="blender-camera", drop=(broken or {}).get(k, ()))
-        write_bundle(folder / f"{name}_bundle0001.exr", ch)
-        write_bg_maps(folder, name, sc)
-        cases.append(ReplicaCase(name, sc, b, bg, comp))
+        c = _write_case(root / "GT_emission_envmap", f"9C4A{k:04d}-crop_B0{k}", k, "blender-camera",
+                        (broken or {}).get(k, ()), size)
+        write_bg_maps(root / "GT_emission_envmap" / c.name, c.name, c.scene)
+        cases.append(c)
     return cases
+
+
+def _write_case(base: Path, name: str, k: int, normals_frame: str, drop=(), size: int = SIZE) -> ReplicaCase:
+    sc, b, bg, comp = make_case(k % 4, size)
+    (base / name).mkdir(parents=True)
+    write_bundle(base / name / f"{name}_bundle0001.exr", bundle_channels(b, bg, comp, normals_frame=normals_frame,
+                                                                         drop=drop))
+    return ReplicaCase(name, sc, b, bg, comp)
 
 
 def make_spotlight_archive(data: Path, n: int = 2) -> list[ReplicaCase]:
@@ -126,11 +130,8 @@ def make_spotlight_archive(data: Path, n: int = 2) -> list[ReplicaCase]:
     cases = []
     root = data / "rendered_2024-10-20_19-07-58_control"
     for k in range(n):
-        name = f"AG8A{k:04d}-spot_{k}"
-        sc, b, bg, comp = make_case(k)
-        folder = root / name
-        folder.mkdir(parents=True)
-        write_bundle(folder / f"{name}_bundle0001.exr", bundle_channels(b, bg, comp, normals_frame="opengl"))
+        c = _write_case(root, f"AG8A{k:04d}-spot_{k}", k, "opengl")
+        name, sc, folder = c.name, c.scene, root / c.name
         frames = [{"name": "0000", "blender_light_xyz_position_object_space": list(PATH_LIGHT)},
                   {"name": "gt_dir", "blender_light_xyz_position_object_space": list(GT_LIGHT)}]
         (folder / f"{name}_light_path_dto.json").write_text(json.dumps({"light_frames": frames}))
@@ -139,5 +140,5 @@ def make_spotlight_archive(data: Path, n: int = 2) -> list[ReplicaCase]:
         sh.mkdir(parents=True)
         for f in ("0000", "gt_dir"):
             Image.fromarray(np.zeros(sc.depth.shape, np.uint8)).save(sh / f"shadow_positive_{f}.png")
-        cases.append(ReplicaCase(name, sc, b, bg, comp))
+        cases.append(c)
     return cases

@@ -128,6 +128,9 @@ def _protocol_setup(ctx, pairs, protocol, region, paper_rows, linear, metrics) -
     if protocol == "paper" and ctx.get_parameter_source("metrics") == ParameterSource.DEFAULT:
         metrics = list(proto.PAPER_METRICS)
     given = load_rows(paper_rows) if paper_rows else None
+    if given and given.get("dataset") and dataset and given["dataset"] != dataset:
+        raise UsageError(f"--paper-rows {paper_rows} holds figures of {given['dataset']!r}; "
+                         f"these references are {dataset!r} cases")
     entry, rows = rows_for(dataset, region, given)
     info = {"name": protocol, "encoding": "linear" if linear else proto.ENCODINGS[protocol], "region": region,
             "dataset": dataset}
