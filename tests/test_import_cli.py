@@ -311,3 +311,28 @@ def test_spotlight_needs_its_estimates(spot, tmp_path):
     assert r.exit_code == 2 and "WACV_bg_estimates" in r.output
     r = run("import", "zerocomp", root, "--out", tmp_path / "k.yaml", "--maps", "provided", "--lights", "all")
     assert r.exit_code == 2
+
+
+def test_eval_protocol_errors(imported, tmp_path, no_lpips):
+    out, _, _ = imported
+    res = tmp_path / "naive"
+    assert run("composite", out, "--out", res, "--renderer", "naive").exit_code == 0
+    other = tmp_path / "spot.yaml"
+    other.write_text(yaml.safe_dump({"dataset": "spotlight", "rows": [{"name": "x", "psnr": 1.0}]}))
+    r = run("eval", res, "--paper-rows", other)
+    assert r.exit_code == 2 and "'spotlight'" in r.output
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump({"rows": [{"name": "x", "psnr": "high"}]}))
+    r = run("eval", res, "--paper-rows", bad)
+    assert r.exit_code == 2 and "rows[0].psnr" in r.output
+    r = run("eval", res, "--protocol", "paper", "--linear")
+    assert r.exit_code == 2 and "--linear" in r.output
+    r = run("eval", res, "--linear", "--metrics", "mae", "--out", tmp_path / "lin")  # auto: zcomp's, linear
+    assert r.exit_code == 0 and json.loads((tmp_path / "lin.json").read_text())["protocol"]["encoding"] == "linear"
+    # two plain folders: no object masks, nothing to crop
+    a, b = tmp_path / "a", tmp_path / "b"
+    for d in (a, b):
+        d.mkdir()
+        shutil.copy(res / next(iter(_manifest(out)["scenes"])) / "composite.png", d / "x.png")
+    r = run("eval", a, b, "--region", "object-crop", "--metrics", "mae")
+    assert r.exit_code == 2 and "object_mask.png" in r.output

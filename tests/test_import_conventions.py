@@ -13,7 +13,7 @@ from zcomp_cli.camera import Camera
 from zcomp_cli.conventions import gamma_encode
 from zcomp_cli.datasets import lvsn
 from zcomp_cli.datasets.bundle_exr import SPOTLIGHT_READING, ZEROCOMP_READING, _value_layer, read_bundle
-from zcomp_cli.datasets.importer import _read_bg_map
+from zcomp_cli.datasets.importer import _read_bg_map, safe_name
 from zcomp_cli.datasets.lights import GT_FRAME, aligned_centre, lamp_entry, read_light_frames, select_frames
 from zcomp_cli.errors import InputError
 from zcomp_cli.imageio import write_exr
@@ -270,3 +270,12 @@ def test_object_crop_box_grows_25_percent_each_side():
     assert object_crop_box(m2) == (11, 0, 16, 5)  # clipped to the image
     with pytest.raises(InputError, match="selects no pixel"):
         object_crop_box(np.zeros((4, 4)))
+
+
+def test_case_names_become_unique_zcomp_names():
+    taken: set[str] = set()
+    assert safe_name("9C4A1774-12d053d172_06_crop_B07QFB1TMP", taken) == "9C4A1774-12d053d172_06_crop_B07QFB1TMP"
+    assert safe_name("a b/c", taken) == "a_b_c"
+    assert safe_name("a b/c", taken) == "a_b_c-2"
+    assert safe_name(".hidden", taken) == "hidden"
+    assert len(safe_name("x" * 300, taken)) <= 100

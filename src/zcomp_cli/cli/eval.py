@@ -121,8 +121,8 @@ def _protocol_setup(ctx, pairs, protocol, region, paper_rows, linear, metrics) -
     from zcomp_cli.metrics.published import dataset_of_pairs, load_rows, rows_for
 
     dataset = dataset_of_pairs(pairs)
-    if protocol is None:
-        protocol = "paper" if dataset is not None else "zcomp"
+    if protocol is None:  # the paper's protocol on the paper's data, unless --linear asks for zcomp's
+        protocol = "paper" if dataset is not None and not linear else "zcomp"
     if protocol == "paper" and linear:
         raise UsageError("--linear does not apply to --protocol paper (the paper scores gamma-encoded images)")
     if protocol == "paper" and ctx.get_parameter_source("metrics") == ParameterSource.DEFAULT:

@@ -93,6 +93,8 @@ def list_cases(root: Path, maps_dir=None, light: bool = False, shadows_dir=None)
     """
     out: list[CaseFiles] = []
     for folder in sorted(d for d in root.iterdir() if d.is_dir() and not d.name.startswith(".")):
+        if (folder / "import.json").is_file():
+            continue  # an earlier zcomp import written into the archive's folder, not a case
         bundles = _bundles(folder)
         if not bundles:
             out.append(CaseFiles(folder.name, folder, problem=f"no *_bundle*.exr in {folder} (a partial case)"))
