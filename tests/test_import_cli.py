@@ -125,15 +125,16 @@ def test_import_composite_eval_end_to_end(imported, tmp_path, no_lpips, renderer
     r = run("eval", res, "--paper-rows", _paper_rows(tmp_path))
     assert r.exit_code == 0, r.output
     assert "paper protocol, gamma 2.2, full, zerocomp-labo" in r.output
-    assert "paper: Method A" in r.output and "31.5000" in r.output
+    assert "paper: Method A" in r.output and "31.5" in r.output
     full = json.loads((res / "eval.json").read_text())
-    assert full["metrics"] == ["psnr", "ssim", "lpips", "si-rmse", "mae"]
+    assert full["metrics"] == ["psnr", "rmse", "si-rmse", "ssim", "mae", "lpips", "flip"]
     assert full["protocol"]["encoding"] == "gamma2.2" and full["protocol"]["dataset"] == "zerocomp-labo"
     assert [i["name"] for i in full["images"]] == [cases[0].name, cases[1].name]
     assert "lpips" in full["unavailable"]
     r = run("eval", res, "--region", "object-crop", "--out", tmp_path / "crop")
     assert r.exit_code == 0, r.output
-    assert "none bundled" in r.output  # no published rows given: said, not invented
+    # the supplementary's object-crop table is bundled: printed beside the run's
+    assert "paper: ZeroComp OpenRooms" in r.output and "24.4" in r.output and "paper: Garon et al. 2019" in r.output
     crop = json.loads((tmp_path / "crop.json").read_text())
     assert crop["protocol"]["region"] == "object-crop"
     for name in ("psnr", "mae", "si-rmse", "ssim"):
@@ -287,6 +288,7 @@ def test_spotlight_end_to_end_light_estimated(spot, tmp_path, no_lpips):
     assert run("composite", out, "--out", res, "--renderer", "naive").exit_code == 0
     r = run("eval", res, "--metrics", "psnr,mae")
     assert r.exit_code == 0 and "spotlight" in r.output
+    assert "none bundled" in r.output  # no published figure for this set: said, not invented
     data = json.loads((res / "eval.json").read_text())
     assert len(data["images"]) == 2 and np.isfinite(data["mean"]["psnr"])
 

@@ -279,3 +279,20 @@ def test_case_names_become_unique_zcomp_names():
     assert safe_name("a b/c", taken) == "a_b_c-2"
     assert safe_name(".hidden", taken) == "hidden"
     assert len(safe_name("x" * 300, taken)) <= 100
+
+
+# ------------------------------------------------------------------ published figures
+def test_bundled_figures_are_the_supplementary_tables():
+    from zcomp_cli.metrics.published import PUBLISHED, format_value, rows_for
+
+    entry, crop = rows_for("zerocomp-labo", "object-crop")
+    assert entry is PUBLISHED["zerocomp-labo"] and len(crop) == 13
+    assert all(set(r["metrics"]) == {"psnr", "rmse", "si-rmse", "ssim", "mae", "lpips", "flip"} for r in crop)
+    zc = {r["name"]: r["metrics"] for r in crop}
+    assert zc["ZeroComp OpenRooms"]["psnr"] == 24.4 and zc["ZeroComp InteriorVerse"]["lpips"] == 0.0872
+    _, full = rows_for("zerocomp-labo", "full")
+    assert [r["metrics"]["psnr"] for r in full] == [31.7]
+    assert all("supp" in r["source"] for r in crop + full)
+    assert rows_for("spotlight", "full")[1] == [] and rows_for(None, "full") == (None, [])
+    assert (format_value("psnr", 24.4), format_value("ssim", 0.87), format_value("lpips", 0.067)) == \
+        ("24.4", "0.870", "0.0670")

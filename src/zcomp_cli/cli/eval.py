@@ -42,7 +42,8 @@ def _check_metrics(ctx, param, value):
 @click.option("--lpips-weights", type=click.Path(dir_okay=False), default=None,
               help="LPIPS v0.1 linear weights (lpips' weights/v0.1/alex.pth); env ZCOMP_LPIPS_WEIGHTS.")
 @click.option("--protocol", type=click.Choice(["paper", "zcomp"]), default=None,
-              help="paper: the ZeroComp paper's (gamma-2.2 display encoding; psnr, ssim, lpips, si-rmse, mae); "
+              help="paper: the ZeroComp paper's (gamma-2.2 display encoding; psnr, rmse, si-rmse, ssim, mae, "
+                   "lpips, flip); "
                    "zcomp: sRGB. Default: paper when every reference was written by `zcomp import`.")
 @click.option("--region", type=click.Choice(["full", "object-crop"]), default="full", show_default=True,
               help="object-crop: the object's box grown by 25% on each side (object_mask.png beside "
@@ -139,8 +140,10 @@ def _protocol_setup(ctx, pairs, protocol, region, paper_rows, linear, metrics) -
         info["paper_rows"] = rows
         if not rows:
             info["paper_rows_note"] = (
-                f"Paper rows for {dataset} ({region}): none bundled with this zcomp (not verified; "
-                f"docs/reproduce.md, 'The paper's figures'); give --paper-rows FILE. Source: {entry['source']}")
+                f"Paper rows for {dataset} ({region}): none bundled with this zcomp (docs/reproduce.md, "
+                f"'The paper's figures'); give --paper-rows FILE.")
+        else:
+            info["paper_rows_note"] = f"Paper rows: {entry['source']}."
     if protocol == "paper" and dataset is None and paper_rows is None:
         info["note"] = "the references are not from `zcomp import`: no published rows to compare with"
     return {"metrics": metrics, "encoding": proto.ENCODINGS[protocol], "info": info, "rows": rows}
@@ -176,9 +179,11 @@ def _print_table(result, paper_rows=()) -> None:
     table.add_section()
     table.add_row("mean", *(cell(result.mean, m) for m in cols), style="bold")
     if paper_rows:
+        from zcomp_cli.metrics.published import format_value
+
         table.add_section()
-        for row in paper_rows:  # the paper's published figures for the same region
+        for row in paper_rows:  # the paper's published figures for the same region, as printed there
             vals = row["metrics"]
-            table.add_row(f"paper: {row['name']}", *(f"{vals[m]:.4f}" if m in vals else "-" for m in cols),
+            table.add_row(f"paper: {row['name']}", *(format_value(m, vals[m]) if m in vals else "-" for m in cols),
                           style="italic")
     Console(width=max(100, 14 * (len(cols) + 2))).print(table)

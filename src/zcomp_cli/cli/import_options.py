@@ -65,8 +65,9 @@ def run_and_report(ctx, archive_key: str, src, **kw) -> None:
     console = Console(stderr=True, soft_wrap=True)  # paths stay whole, copy-pasteable
     for name, why in res.failed.items():
         console.print(f"[red]failed[/] {name}: {why}", highlight=False)
-    line = (f"{len(res.imported)} cases imported ({res.jobs} jobs), {len(res.failed)} failed, from {res.root}: "
-            f"wrote {res.manifest} and {res.data_dir}/")
+    n = len(res.imported)
+    line = (f"{n} case{'s' * (n != 1)} imported ({res.jobs} job{'s' * (res.jobs != 1)}), {len(res.failed)} failed, "
+            f"from {res.root}: wrote {res.manifest} and {res.data_dir}/")
     console.print(line if not res.failed else f"[yellow]{line}[/]", highlight=False)
     if res.failed:
         ctx.exit(1)

@@ -411,7 +411,8 @@ def _manifest_text(archive: Archive, opts: ImportOptions, root: Path, entries: l
         "estimated": "depth from the depth model, normals from the depth, albedo by Retinex (zcomp's estimators)",
     }[opts.maps]
     head = [
-        f"# zcomp import {archive.key}: {len(entries)} cases of the {archive.title} ({root})",
+        f"# zcomp import {archive.key}: {len(entries)} case{'s' * (len(entries) != 1)} of the {archive.title} "
+        f"({root})",
         f"# maps: {opts.maps} ({maps_line})",
         f"# The paper's settings: centre crop (window: center), fov {lvsn.FOV_DEG:g}, seed {lvsn.PAPER_SEED},",
         f"# {lvsn.PAPER_STEPS} DDIM steps, fp16 under autocast, shading mask radius {archive.shading_radius:g}.",

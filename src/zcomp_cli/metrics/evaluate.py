@@ -346,7 +346,10 @@ def score_pair(pair: Pair, metrics: list[str], *, linear: bool = False, lpips_mo
     pred_s, ref_s = protocol.encode(pred_lin, encoding), protocol.encode(ref_lin, encoding)
     p, r = (pred_lin, ref_lin) if linear else (pred_s, ref_s)
     fns = {"psnr": im.psnr, "rmse": im.rmse, "si-rmse": im.si_rmse, "ssim": im.ssim, "mae": im.mae}
-    hdr = pair.pred.suffix.lower() in FLOAT_EXTS and pair.ref.suffix.lower() in FLOAT_EXTS
+    # HDR FLIP on two float files, unless a display encoding is the protocol (the paper's
+    # figures are LDR FLIP of its 8-bit composites)
+    hdr = (encoding == "srgb" and pair.pred.suffix.lower() in FLOAT_EXTS
+           and pair.ref.suffix.lower() in FLOAT_EXTS)
     out: dict[str, float] = {}
     for m in metrics:
         try:

@@ -5,19 +5,20 @@ Protocols (how images are encoded before the pixel metrics):
 * ``zcomp``: sRGB-encoded [0, 1] (the exact curve), or linear with ``--linear``;
 * ``paper``: the ZeroComp paper's protocol: images in the official display encoding,
   ``clip(x, 0, 1) ** (1 / 2.2)`` (the official loaders' ``gamma_correction``; the
-  official script saves its composites so encoded), metrics PSNR, SSIM, LPIPS (AlexNet,
-  on 256 x 256 resizes in [-1, 1]), si-RMSE and MAE. si-RMSE is ``min_a RMSE(a * pred,
-  ref)`` with one scale for all pixels and channels (closed form ``a = <pred, ref> /
-  <pred, pred>``), MAE the mean absolute difference over pixels and channels, both on
-  the encoded [0, 1] values. It is the default when every reference was written by
-  ``zcomp import``.
+  official script saves its composites so encoded), and the paper's metrics: PSNR, RMSE,
+  si-RMSE, SSIM, MAE, LPIPS (AlexNet, on 256 x 256 resizes in [-1, 1]) and FLIP (LDR, on
+  the encoded images). si-RMSE is ``min_a RMSE(a * pred, ref)`` with one scale for all
+  pixels and channels (closed form ``a = <pred, ref> / <pred, pred>``), MAE the mean
+  absolute difference over pixels and channels, both on the encoded [0, 1] values. It is
+  the default when every reference was written by ``zcomp import``.
 
 Regions:
 
 * ``full``: the whole image;
 * ``object-crop``: the object's bounding box (coverage > 0.5 in ``object_mask.png``
   beside the reference) grown by 25 % of its width on the left and the right and 25 % of
-  its height above and below (the ZeroComp supplementary material's object crop),
+  its height above and below, "while ensuring to avoid going over the image's bounds"
+  (the ZeroComp supplementary material's object crop, Sec. 2),
   rounded outward to whole pixels and clipped to the image. LPIPS resizes the crop to
   256 x 256 like any image.
 """
@@ -34,7 +35,8 @@ PROTOCOLS = ("zcomp", "paper")
 REGIONS = ("full", "object-crop")
 OBJECT_CROP_GROW = 0.25
 OBJECT_MASK_THRESHOLD = 0.5
-PAPER_METRICS = ("psnr", "ssim", "lpips", "si-rmse", "mae")
+# The columns of the ZeroComp supplementary material's tables (Tab. 1 uses "the same metrics").
+PAPER_METRICS = ("psnr", "rmse", "si-rmse", "ssim", "mae", "lpips", "flip")
 ENCODINGS = {"zcomp": "srgb", "paper": "gamma2.2"}
 
 
