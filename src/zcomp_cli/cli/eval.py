@@ -132,7 +132,8 @@ def _protocol_setup(ctx, pairs, protocol, region, paper_rows, linear, metrics) -
     if given and given.get("dataset") and dataset and given["dataset"] != dataset:
         raise UsageError(f"--paper-rows {paper_rows} holds figures of {given['dataset']!r}; "
                          f"these references are {dataset!r} cases")
-    entry, rows = rows_for(dataset, region, given)
+    # the published figures are only comparable under the paper's protocol (or when given)
+    entry, rows = rows_for(dataset, region, given) if protocol == "paper" or given else (None, [])
     info = {"name": protocol, "encoding": "linear" if linear else proto.ENCODINGS[protocol], "region": region,
             "dataset": dataset}
     if entry is not None:
