@@ -331,6 +331,12 @@ def test_eval_protocol_errors(imported, tmp_path, no_lpips):
     assert r.exit_code == 2 and "--linear" in r.output
     r = run("eval", res, "--linear", "--metrics", "mae", "--out", tmp_path / "lin")  # auto: zcomp's, linear
     assert r.exit_code == 0 and json.loads((tmp_path / "lin.json").read_text())["protocol"]["encoding"] == "linear"
+    # shadow metrics on the crop: the background (the manifest's scene photo) is cut like the images
+    r = run("eval", res, "--metrics", "shadow-iou,shadow-darkness", "--region", "object-crop",
+            "--out", tmp_path / "sh")
+    assert r.exit_code == 0, r.output
+    sh = json.loads((tmp_path / "sh.json").read_text())["mean"]
+    assert 0 <= sh["shadow-iou"] <= 1 and np.isfinite(sh["shadow-darkness"])
     # two plain folders: no object masks, nothing to crop
     a, b = tmp_path / "a", tmp_path / "b"
     for d in (a, b):

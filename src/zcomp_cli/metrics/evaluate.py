@@ -395,18 +395,15 @@ def _shadow_metric(m: str, pair: Pair, pred_lin, ref_lin, box=None) -> float:
     from zcomp_cli.metrics.shadow import shadow_darkness, shadow_iou
 
     bg = read_image(pair.background)
-    full = pred_lin.shape if box is None else None
-    if box is not None:  # the full frame's size, from the object mask the box came from
-        full = read_alpha_or_grey(pair.object_mask).shape + (3,)
+    om = read_alpha_or_grey(pair.object_mask) if pair.object_mask is not None else None
+    # the frame the images come from: before an object crop, the object mask's size
+    full = pred_lin.shape if box is None else om.shape + (3,)
     if bg.shape != full:
         import cv2
 
         bg = cv2.resize(bg, (full[1], full[0]), interpolation=cv2.INTER_AREA)
-    om = None
-    if pair.object_mask is not None:
-        om = read_alpha_or_grey(pair.object_mask)
-        if om.shape != full[:2]:
-            om = None
+    if om is not None and om.shape != full[:2]:
+        om = None
     if box is not None:
         bg, om = crop(bg, box), crop(om, box)
     fn = shadow_iou if m == "shadow-iou" else shadow_darkness
