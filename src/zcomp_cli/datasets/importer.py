@@ -296,8 +296,9 @@ def _import_case(archive: Archive, opts: ImportOptions, files: CaseFiles, name: 
     if not frames:
         scenes[name] = scene
         jobs.append(_job(name, name, name, bc, f"{rel}/reference.exr"))
+    frame_names: set[str] = set()
     for fr in frames:
-        sname = name if opts.lights == "gt" else f"{name}_light{fr.name}"
+        sname = name if opts.lights == "gt" else safe_name(f"{name}_light{fr.name}", frame_names)
         lamp = lamp_entry(fr, light_info["centre_used"])
         scenes[sname] = {**scene, "light": [lamp]}
         light_info.setdefault("lamps", {})[fr.name] = lamp
