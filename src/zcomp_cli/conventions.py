@@ -17,6 +17,7 @@ import numpy as np
 __all__ = [
     "srgb_to_linear",
     "linear_to_srgb",
+    "gamma_encode",
     "luminance",
     "K_from_fov",
     "fov_from_K",
@@ -87,6 +88,19 @@ def linear_to_srgb(x_lin) -> np.ndarray:
     return np.where(x <= 0.0031308, x * 12.92, 1.055 * np.power(x, 1.0 / 2.4) - 0.055).astype(
         x.dtype
     )
+
+
+def gamma_encode(x_lin, gamma: float = GAMMA) -> np.ndarray:
+    """The official ZeroComp display encoding (``gamma_correction`` of its loaders):
+    ``clip(x, 0, 1) ** (1 / gamma)``, a pure power law, not the sRGB curve.
+
+    Args:
+        x_lin: any shape, linear values (HDR allowed: clipped to [0, 1] first; NaN -> 0).
+    Returns:
+        Same shape, in [0, 1], float32 (float64 kept). ``gamma_encode(0.5) = 0.7297``.
+    """
+    x = np.nan_to_num(_as_float(x_lin), nan=0.0, posinf=1.0, neginf=0.0)
+    return np.power(np.clip(x, 0.0, 1.0), 1.0 / gamma).astype(x.dtype)
 
 
 def luminance(rgb, weights=REC601) -> np.ndarray:

@@ -375,3 +375,49 @@ def write_image(path, img_lin) -> None:
         write_png(path, img_lin)
     else:
         raise InputError(f"unsupported output format {ext!r}", where=str(path))
+
+
+def read_exr_channels(path) -> dict[str, np.ndarray]:
+    """Every channel of an OpenEXR file by its full name (``"albedo.R"``, ``"depth.A"``),
+    each an H x W float32 array. A multi-part file's parts are read in turn; a channel
+    of a named part without a layer prefix is named ``<part>.<channel>``.
+
+    Raises InputError (naming the file) when it is missing, not an EXR, over the pixel
+    budget, truncated, or when two channels share a name.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("file not found", where=str(path))
+    oiio = _oiio()
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise InputError(f"cannot read EXR: {_first_line(oiio.geterror()) or 'unknown format'}", where=str(path))
+    out: dict[str, np.ndarray] = {}
+    try:
+        if inp.format_name() != "openexr":
+            raise InputError(f"not an OpenEXR file ({inp.format_name()})", where=str(path))
+        sub = 0
+        while True:
+            spec = inp.spec()
+            budget = pixel_budget_problem(spec.width, spec.height)
+            if budget:
+                raise InputError(f"the image is {budget}", where=str(path))
+            data = inp.read_image(sub, 0, 0, spec.nchannels, oiio.FLOAT)
+            if data is None or not isinstance(data, np.ndarray):
+                why = _first_line(inp.geterror()) or "truncated or corrupt file"
+                raise InputError(f"cannot decode pixels: {why}", where=str(path))
+            data = data.reshape(spec.height, spec.width, spec.nchannels)
+            part = spec.getattribute("name") or ""
+            for i, ch in enumerate(spec.channelnames):
+                name = f"{part}.{ch}" if part and "." not in ch else ch
+                if name in out:
+                    raise InputError(f"two channels are named {name!r}", where=str(path))
+                if out and next(iter(out.values())).shape != data.shape[:2]:
+                    raise InputError("the parts of the file differ in size", where=str(path))
+                out[name] = np.ascontiguousarray(data[..., i], dtype=np.float32)
+            sub += 1
+            if not inp.seek_subimage(sub, 0):
+                break
+    finally:
+        inp.close()
+    return out

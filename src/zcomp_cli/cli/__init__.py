@@ -44,6 +44,8 @@ _COMMANDS: dict[str, tuple[str, str, str]] = {
     "train": ("zcomp_cli.cli.train", "train", "Train the ZeroComp ControlNet."),
     "status": ("zcomp_cli.cli.status", "status",
                "Merge an output folder's runs and shards: done, failed, missing jobs."),
+    "import": ("zcomp_cli.cli.import_group", "import_group",
+               "Import the ZeroComp or SpotLight evaluation set as a manifest."),
 }
 
 

@@ -41,9 +41,18 @@ def _check_metrics(ctx, param, value):
               help="torchvision AlexNet state dict (alexnet-owt-7be5be79.pth); env ZCOMP_LPIPS_BACKBONE.")
 @click.option("--lpips-weights", type=click.Path(dir_okay=False), default=None,
               help="LPIPS v0.1 linear weights (lpips' weights/v0.1/alex.pth); env ZCOMP_LPIPS_WEIGHTS.")
+@click.option("--protocol", type=click.Choice(["paper", "zcomp"]), default=None,
+              help="paper: the ZeroComp paper's (gamma-2.2 display encoding; psnr, rmse, si-rmse, ssim, mae, "
+                   "lpips, flip); "
+                   "zcomp: sRGB. Default: paper when every reference was written by `zcomp import`.")
+@click.option("--region", type=click.Choice(["full", "object-crop"]), default="full", show_default=True,
+              help="object-crop: the object's box grown by 25% on each side (object_mask.png beside "
+                   "each reference).")
+@click.option("--paper-rows", type=click.Path(exists=True, dir_okay=False), default=None, metavar="FILE",
+              help="The paper's published rows to print beside the run's (YAML; docs/reproduce.md).")
 @click.pass_context
 def eval_cmd(ctx, pred, ref, metrics, refs_dir, linear, mask, background, out_prefix, lpips_backbone,
-             lpips_weights):
+             lpips_weights, protocol, region, paper_rows):
     """Score PRED against REF.
 
     PRED and REF are two folders whose images are matched by relative path (the
@@ -73,9 +82,18 @@ def eval_cmd(ctx, pred, ref, metrics, refs_dir, linear, mask, background, out_pr
     else:
         raise UsageError(f"{pred_dir} is not a composite output folder (no */report.json): give REF")
 
-    result = evaluate(pairs, metrics, linear=linear, lpips_backbone=lpips_backbone,
-                      lpips_weights=lpips_weights)
+    setup = _protocol_setup(ctx, pairs, protocol, region, paper_rows, linear, metrics)
+    if region == "object-crop":  # pairs whose object is unknown cannot be cropped: listed, not scored
+        for p in [p for p in pairs if p.object_mask is None]:
+            unscored[p.name] = "no object_mask.png beside the reference (needed by --region object-crop)"
+        pairs = [p for p in pairs if p.object_mask is not None]
+        if not pairs:
+            raise UsageError("--region object-crop: no reference has an object_mask.png beside it "
+                             "(zcomp import and make-benchmark write one)")
+    result = evaluate(pairs, setup["metrics"], linear=linear, lpips_backbone=lpips_backbone,
+                      lpips_weights=lpips_weights, region=region, encoding=setup["encoding"])
     result.unscored = unscored
+    result.protocol = setup["info"]
     prefix = Path(out_prefix) if out_prefix else pred_dir / "eval"
     csv_path, json_path = write_outputs(result, prefix)
 
@@ -88,18 +106,63 @@ def eval_cmd(ctx, pred, ref, metrics, refs_dir, linear, mask, background, out_pr
         click.secho(f"Not scored ({len(unscored)}): " + "; ".join(f"{k}: {v}" for k, v in list(unscored.items())[:10])
                     + (" ..." if len(unscored) > 10 else ""), fg="yellow", err=True)
     if not quiet:
-        _print_table(result)
+        _print_table(result, setup["rows"])
+        if setup["info"].get("paper_rows_note"):
+            click.echo(setup["info"]["paper_rows_note"])
     click.echo(f"Wrote {csv_path} and {json_path}")
 
 
-def _print_table(result) -> None:
+def _protocol_setup(ctx, pairs, protocol, region, paper_rows, linear, metrics) -> dict:
+    """The protocol of this run: its encoding and metrics, the dataset and the paper's
+    rows to print (metrics/protocol.py, metrics/published.py)."""
+    from click.core import ParameterSource
+
+    from zcomp_cli.errors import UsageError
+    from zcomp_cli.metrics import protocol as proto
+    from zcomp_cli.metrics.published import dataset_of_pairs, load_rows, rows_for
+
+    dataset = dataset_of_pairs(pairs)
+    if protocol is None:  # the paper's protocol on the paper's data, unless --linear asks for zcomp's
+        protocol = "paper" if dataset is not None and not linear else "zcomp"
+    if protocol == "paper" and linear:
+        raise UsageError("--linear does not apply to --protocol paper (the paper scores gamma-encoded images)")
+    if protocol == "paper" and ctx.get_parameter_source("metrics") == ParameterSource.DEFAULT:
+        metrics = list(proto.PAPER_METRICS)
+    given = load_rows(paper_rows) if paper_rows else None
+    if given and given.get("dataset") and dataset and given["dataset"] != dataset:
+        raise UsageError(f"--paper-rows {paper_rows} holds figures of {given['dataset']!r}; "
+                         f"these references are {dataset!r} cases")
+    # the published figures are only comparable under the paper's protocol (or when given)
+    entry, rows = rows_for(dataset, region, given) if protocol == "paper" or given else (None, [])
+    info = {"name": protocol, "encoding": "linear" if linear else proto.ENCODINGS[protocol], "region": region,
+            "dataset": dataset}
+    if entry is not None:
+        info["paper_source"] = entry["source"]
+        info["paper_rows"] = rows
+        if not rows:
+            info["paper_rows_note"] = (
+                f"Paper rows for {dataset} ({region}): none bundled with this zcomp (docs/reproduce.md, "
+                f"'The paper's figures'); give --paper-rows FILE.")
+        else:
+            info["paper_rows_note"] = f"Paper rows: {entry['source']}."
+    if protocol == "paper" and dataset is None and paper_rows is None:
+        info["note"] = "the references are not from `zcomp import`: no published rows to compare with"
+    return {"metrics": metrics, "encoding": proto.ENCODINGS[protocol], "info": info, "rows": rows}
+
+
+def _print_table(result, paper_rows=()) -> None:
     from rich.console import Console
     from rich.table import Table
 
     from zcomp_cli.metrics.evaluate import HIGHER_IS_BETTER
 
     cols = [m for m in result.metrics]
-    table = Table(title=f"zcomp eval ({'linear' if result.linear else 'sRGB'})")
+    pr = result.protocol or {}
+    enc = "linear" if result.linear else {"gamma2.2": "gamma 2.2"}.get(pr.get("encoding"), "sRGB")
+    what = f"{pr.get('name', 'zcomp')} protocol, {enc}, {pr.get('region', 'full')}"
+    if pr.get("dataset"):
+        what += f", {pr['dataset']}"
+    table = Table(title=f"zcomp eval ({what})")
     table.add_column("image")
     for m in cols:
         table.add_column(f"{m} {'↑' if HIGHER_IS_BETTER.get(m) else '↓'}", justify="right")
@@ -116,4 +179,12 @@ def _print_table(result) -> None:
         table.add_row(p.name, *(cell(vals, m) for m in cols))
     table.add_section()
     table.add_row("mean", *(cell(result.mean, m) for m in cols), style="bold")
+    if paper_rows:
+        from zcomp_cli.metrics.published import format_value
+
+        table.add_section()
+        for row in paper_rows:  # the paper's published figures for the same region, as printed there
+            vals = row["metrics"]
+            table.add_row(f"paper: {row['name']}", *(format_value(m, vals[m]) if m in vals else "-" for m in cols),
+                          style="italic")
     Console(width=max(100, 14 * (len(cols) + 2))).print(table)

@@ -76,6 +76,9 @@ class EvalResult:
     unscored: dict[str, str] = field(default_factory=dict)
     # Metric -> why some images have no value (NaN in ``values``, left out of the mean).
     partial: dict[str, str] = field(default_factory=dict)
+    # The protocol (metrics/protocol.py): name, encoding, region; the dataset and the
+    # paper's rows when known. Empty for the plain zcomp protocol on the whole image.
+    protocol: dict = field(default_factory=dict)
 
     def to_json(self) -> dict:
         return {
@@ -91,6 +94,7 @@ class EvalResult:
             "unavailable": dict(self.unavailable),
             "unscored": dict(self.unscored),
             "partial": dict(self.partial),
+            **({"protocol": self.protocol} if self.protocol else {}),
         }
 
     def to_csv(self) -> str:
@@ -322,18 +326,30 @@ def load_pair(pair: Pair):
     return pred, ref, mask
 
 
-def score_pair(pair: Pair, metrics: list[str], *, linear: bool = False, lpips_model=None) -> dict[str, float]:
-    """All requested metrics of one pair (metrics needing an absent model are skipped)."""
-    from zcomp_cli.conventions import linear_to_srgb
+def score_pair(pair: Pair, metrics: list[str], *, linear: bool = False, lpips_model=None,
+               region: str = "full", encoding: str = "srgb") -> dict[str, float]:
+    """All requested metrics of one pair (metrics needing an absent model are skipped).
+
+    ``region`` "object-crop" scores the object's grown box (``pair.object_mask``);
+    ``encoding`` is the display encoding of the non-linear metrics ("srgb" or "gamma2.2",
+    metrics/protocol.py)."""
     from zcomp_cli.metrics import flip as flip_mod
     from zcomp_cli.metrics import image_metrics as im
+    from zcomp_cli.metrics import protocol
     from zcomp_cli.metrics.lpips import lpips_distance
 
     pred_lin, ref_lin, mask = load_pair(pair)
-    pred_s, ref_s = linear_to_srgb(pred_lin), linear_to_srgb(ref_lin)
+    box = None
+    if region == "object-crop":
+        box = _object_box(pair, pred_lin.shape[:2])
+        pred_lin, ref_lin, mask = (protocol.crop(a, box) for a in (pred_lin, ref_lin, mask))
+    pred_s, ref_s = protocol.encode(pred_lin, encoding), protocol.encode(ref_lin, encoding)
     p, r = (pred_lin, ref_lin) if linear else (pred_s, ref_s)
     fns = {"psnr": im.psnr, "rmse": im.rmse, "si-rmse": im.si_rmse, "ssim": im.ssim, "mae": im.mae}
-    hdr = pair.pred.suffix.lower() in FLOAT_EXTS and pair.ref.suffix.lower() in FLOAT_EXTS
+    # HDR FLIP on two float files, unless a display encoding is the protocol (the paper's
+    # figures are LDR FLIP of its 8-bit composites)
+    hdr = (encoding == "srgb" and pair.pred.suffix.lower() in FLOAT_EXTS
+           and pair.ref.suffix.lower() in FLOAT_EXTS)
     out: dict[str, float] = {}
     for m in metrics:
         try:
@@ -352,34 +368,54 @@ def score_pair(pair: Pair, metrics: list[str], *, linear: bool = False, lpips_mo
             elif m == "lpips" and lpips_model is not None:
                 out[m] = lpips_distance(lpips_model, pred_s, ref_s, mask)
             elif m in SHADOW_METRICS and pair.background is not None:
-                out[m] = _shadow_metric(m, pair, pred_lin, ref_lin)
+                out[m] = _shadow_metric(m, pair, pred_lin, ref_lin, box)
         except InputError as exc:
             raise InputError(f"{m}: {exc}", where=f"{pair.pred} vs {pair.ref}") from exc
     return out
 
 
-def _shadow_metric(m: str, pair: Pair, pred_lin, ref_lin) -> float:
+def _object_box(pair: Pair, shape) -> tuple[int, int, int, int]:
+    """The object crop of a pair, from ``object_mask.png`` beside its reference."""
+    from zcomp_cli.imageio import read_alpha_or_grey
+    from zcomp_cli.metrics.protocol import object_crop_box
+
+    if pair.object_mask is None:
+        raise InputError("--region object-crop needs the object's mask (object_mask.png beside the reference)",
+                         where=str(pair.ref))
+    om = read_alpha_or_grey(pair.object_mask)
+    if om.shape != tuple(shape):
+        raise InputError(f"object mask is {om.shape[1]}x{om.shape[0]}, image is {shape[1]}x{shape[0]}",
+                         where=str(pair.object_mask))
+    return object_crop_box(om)
+
+
+def _shadow_metric(m: str, pair: Pair, pred_lin, ref_lin, box=None) -> float:
     from zcomp_cli.imageio import read_alpha_or_grey, read_image
+    from zcomp_cli.metrics.protocol import crop
     from zcomp_cli.metrics.shadow import shadow_darkness, shadow_iou
 
     bg = read_image(pair.background)
-    if bg.shape != pred_lin.shape:
+    om = read_alpha_or_grey(pair.object_mask) if pair.object_mask is not None else None
+    # the frame the images come from: before an object crop, the object mask's size
+    full = pred_lin.shape if box is None else om.shape + (3,)
+    if bg.shape != full:
         import cv2
 
-        bg = cv2.resize(bg, (pred_lin.shape[1], pred_lin.shape[0]), interpolation=cv2.INTER_AREA)
-    om = None
-    if pair.object_mask is not None:
-        om = read_alpha_or_grey(pair.object_mask)
-        if om.shape != pred_lin.shape[:2]:
-            om = None
+        bg = cv2.resize(bg, (full[1], full[0]), interpolation=cv2.INTER_AREA)
+    if om is not None and om.shape != full[:2]:
+        om = None
+    if box is not None:
+        bg, om = crop(bg, box), crop(om, box)
     fn = shadow_iou if m == "shadow-iou" else shadow_darkness
     return fn(pred_lin, ref_lin, bg, om)
 
 
 def evaluate(pairs: list[Pair], metrics: list[str], *, linear: bool = False,
-             lpips_backbone=None, lpips_weights=None, on_pair=None) -> EvalResult:
+             lpips_backbone=None, lpips_weights=None, on_pair=None, region: str = "full",
+             encoding: str = "srgb") -> EvalResult:
     """Score every pair. LPIPS weights that cannot be loaded make only LPIPS
-    unavailable (the reason is kept in ``EvalResult.unavailable``)."""
+    unavailable (the reason is kept in ``EvalResult.unavailable``). ``region`` and
+    ``encoding``: see ``score_pair``."""
     unavailable: dict[str, str] = {}
     model = None
     if "lpips" in metrics:
@@ -396,7 +432,8 @@ def evaluate(pairs: list[Pair], metrics: list[str], *, linear: bool = False,
                               f"{' ...' if len(no_bg) > 5 else ''} (give --background)")
     values = []
     for pair in pairs:
-        values.append(score_pair(pair, metrics, linear=linear, lpips_model=model))
+        values.append(score_pair(pair, metrics, linear=linear, lpips_model=model, region=region,
+                                 encoding=encoding))
         if on_pair is not None:
             on_pair(pair, values[-1])
     mean = {}
