@@ -293,7 +293,6 @@ def test_spotlight_end_to_end_light_estimated(spot, tmp_path, no_lpips):
     assert len(data["images"]) == 2 and np.isfinite(data["mean"]["psnr"])
 
 
-@pytest.mark.xfail(strict=False, reason="the manifest's lamp light type lands with the lead's lightspec change")
 def test_spotlight_end_to_end_with_lamps(spot, tmp_path, no_lpips):
     root, _ = spot
     out = tmp_path / "sl" / "jobs.yaml"
@@ -303,6 +302,13 @@ def test_spotlight_end_to_end_with_lamps(spot, tmp_path, no_lpips):
     r = run("composite", out, "--out", res, "--renderer", "physical")
     assert r.exit_code == 0, r.output
     assert run("eval", res, "--metrics", "psnr").exit_code == 0
+    # the case's light is the manifest's lamp, frozen in the fit (its power fitted)
+    import json
+
+    rep = json.loads(next(res.glob("*/report.json")).read_text())
+    light = rep["renderer"]["info"]["light"]
+    assert light["source"] == "manifest" and light["lights"][0]["kind"] == "lamp"
+    assert light["lights"][0]["position_from"] == "given in the manifest"
 
 
 def test_spotlight_needs_its_estimates(spot, tmp_path):
