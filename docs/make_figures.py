@@ -1,15 +1,17 @@
 """Figures of the README and docs/physical.md (issue 10).
 
     PYTHONPATH=src python docs/make_figures.py demo OUT_DEMO            # docs/demo.png
-    PYTHONPATH=src python docs/make_figures.py cases BENCH IDS [METHOD] # docs/benchmark_cases.png
+    PYTHONPATH=src python docs/make_figures.py cases BENCH IDS [METHOD [OUT]]  # docs/benchmark_cases.png
     PYTHONPATH=src python docs/make_figures.py coffee OUT_COFFEE        # docs/coffee_known_light.png
     PYTHONPATH=src python docs/make_figures.py coffee_estimated OUT_EST OUT_MAPS OUT_COFFEE
                                                                         # docs/coffee_estimated.png
 
 ``demo``: OUT_DEMO is ``zcomp composite examples/jobs.yaml --out OUT_DEMO`` (``make demo``);
 top row background / job 0 / its Cycles reference, bottom row jobs 1-3.
-``cases``: BENCH is a ``make-benchmark`` folder whose ``results/physical`` holds the
-composites; IDS comma-separated case ids; one row per case: background, physical, GT.
+``cases``: BENCH is a ``make-benchmark`` folder whose ``results/METHOD`` (default
+``physical``) holds the composites; IDS comma-separated case ids; one row per case:
+background, the method's composite, GT; written to OUT (default
+``docs/benchmark_cases.png``).
 ``coffee``: OUT_COFFEE is the composite output of ``docs/coffee/jobs.yaml``: the
 photograph and the composite, side by side.
 ``coffee_estimated``: OUT_EST is the composite output of ``docs/coffee/jobs_estimated.yaml``
@@ -56,7 +58,7 @@ def demo(out_dir: Path):
     write_png("docs/demo.png", np.concatenate([top, bottom], 0))
 
 
-def cases(bench: Path, ids: list[str], method: str = "physical"):
+def cases(bench: Path, ids: list[str], method: str = "physical", out: str = "docs/benchmark_cases.png"):
     b = json.loads((bench / "benchmark.json").read_text())
     by_id = {c["id"]: c for c in b["cases"]}
     rows = []
@@ -68,7 +70,7 @@ def cases(bench: Path, ids: list[str], method: str = "physical"):
     half = (len(rows) + 1) // 2
     left, right = np.concatenate(rows[:half], 0), np.concatenate(rows[half:], 0)
     right = np.pad(right, ((0, left.shape[0] - right.shape[0]), (0, 0), (0, 0)), constant_values=1.0)
-    write_png("docs/benchmark_cases.png", np.concatenate([left, np.ones((left.shape[0], 12, 3)), right], 1))
+    write_png(out, np.concatenate([left, np.ones((left.shape[0], 12, 3)), right], 1))
 
 
 def _first_job(out_dir: Path) -> Path:
@@ -103,7 +105,7 @@ if __name__ == "__main__":
     if what == "demo":
         demo(Path(sys.argv[2]))
     elif what == "cases":
-        cases(Path(sys.argv[2]), sys.argv[3].split(","), *(sys.argv[4:5]))
+        cases(Path(sys.argv[2]), sys.argv[3].split(","), *(sys.argv[4:6]))
     elif what == "coffee":
         coffee(Path(sys.argv[2]))
     elif what == "coffee_estimated":

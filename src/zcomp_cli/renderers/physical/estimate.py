@@ -59,9 +59,11 @@ from zcomp_cli.renderers.physical.solver import SIGMA_FLOOR, Atom, base_sigma, f
 MIN_GAIN = 0.05
 PRIOR_SKY_SHARE = 0.5
 # The ridge toward the prior split, per fit pixel over the data scale squared: a
-# pseudo-observation weighing about 1 % of the pixels at the noise floor (0.02 of the
-# data scale squared is 4e-4): the pixels decide wherever they can.
-PRIOR_RIDGE = 4e-4
+# departure from the prior as large as the prior itself costs what a noise-floor
+# residual on every pixel does; where the pixels tell the split (a shadow: a residual
+# of tens of percent on its pixels) they decide. (4e-6, a hundredth of it, let model
+# errors decide the split of a bare floor: 0.1 dB less on development seed 1618.)
+PRIOR_RIDGE = SIGMA_FLOOR ** 2
 MAX_LIGHTS = 3
 # Angular radii (degrees) a sun's size is chosen among.
 RADII_DEG = (0.0, 1.0, 2.0, 4.0, 8.0, 16.0)

@@ -12,12 +12,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from zcomp_cli.renderers.physical.atoms import SUPPORT_DEG
 from zcomp_cli.renderers.physical.lightmodel import Origin
 from zcomp_cli.renderers.physical.sampling import fibonacci_sphere
 from zcomp_cli.worldframe import up_from_pitch_roll
 
 SUPPORT_BINS = 400
-SUPPORT_DEG = 15.0
 MAX_TILT_DEG = 60.0
 MIN_SUPPORT_NORMALS = 3
 
