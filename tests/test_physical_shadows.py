@@ -131,7 +131,8 @@ def test_cast_shadow_has_no_bands():
 def test_mesh_shadow_from_posed_mesh(tmp_path):
     import trimesh
 
-    from zcomp_cli.renderers.physical.meshshadow import load_posed_mesh, mesh_shadow
+    from zcomp_cli.posed_mesh import load_posed_mesh
+    from zcomp_cli.renderers.physical.meshshadow import mesh_shadow
 
     trimesh.creation.box(extents=(0.2, 1.0, 0.2)).export(tmp_path / "pole.glb")
     M = np.eye(4)

@@ -53,11 +53,12 @@ from zcomp_cli.renderers.physical.sampling import fine_spiral, hemisphere, spaci
 from zcomp_cli.renderers.physical.settings import DEFAULTS, PhysicalSettings
 from zcomp_cli.renderers.physical.solver import SIGMA_FLOOR, Atom, base_sigma, fit, score_candidates
 
-# Calibrated by benchmarks/fit_light_constants.py on the development seeds
+# Calibrated by benchmarks/fit_light_constants.py on the development seeds (its output:
+# docs/fit_light_constants.txt)
 # (benchmarks/seeds.py): the least held-out gain for which a light's cast shadow is drawn,
 # and the sky's share of the support's shading where the pixels do not fix the split.
 MIN_GAIN = 0.05
-PRIOR_SKY_SHARE = 0.5
+PRIOR_SKY_SHARE = 0.46
 # The ridge toward the prior split, per fit pixel over the data scale squared: a
 # departure from the prior as large as the prior itself costs what a noise-floor
 # residual on every pixel does; where the pixels tell the split (a shadow: a residual
@@ -78,7 +79,7 @@ FEW_PIXELS = 50
 
 
 @dataclass
-class _Light:
+class FitLight:
     """A chosen light while the fit runs: ``kind`` sun/lamp, ``param`` direction or
     position, ``radius`` (deg for a sun, m for a lamp), its column, how its size came."""
 
@@ -140,16 +141,16 @@ def held_out_gain(loss_without: float, loss_with: float) -> float:
     return (float(loss_without) - float(loss_with)) / (float(loss_with) + floor)
 
 
-def _loss_blocks(fp: at.FitPixels) -> int:
+def held_out_blocks(fp: at.FitPixels) -> int:
     blk = max(fp.depth.shape) / at.HOLDOUT_BLOCKS
     held = ~fp.train
     ids = (fp.ys[held] // blk).astype(int) * (at.HOLDOUT_BLOCKS + 1) + (fp.xs[held] // blk).astype(int)
     return max(1, len(np.unique(ids)))
 
 
-def _temper(loss_held: np.ndarray, sigma_rel2: float, blocks: int) -> np.ndarray:
+def tempered_likelihood(loss_held: np.ndarray, sigma_rel2: float, blocks: int) -> np.ndarray:
     """Likelihood weights of candidates from their held-out losses: each held-out block
-    is one observation (``_loss_blocks``), the loss per pixel over the noise's
+    is one observation (``held_out_blocks``), the loss per pixel over the noise's
     (``sigma_rel2``, squared over the data scale) half its Gaussian log-likelihood."""
     lh = np.asarray(loss_held, np.float64)
     nll = blocks * (lh - lh.min()) / max(sigma_rel2, 1e-12)
@@ -220,7 +221,7 @@ def _search_light(pp: Prepared, base: list[np.ndarray], cand: _Candidates, setti
         cf = at.sun_columns(fp, fine, steps=steps)
         lh_f, _ = score_candidates(B, cf, y, fp.train, sigma=sig)
         j = int(np.argmin(lh_f))
-        light = _Light("sun", fine[j], 0.0, cf[:, j])
+        light = FitLight("sun", fine[j], 0.0, cf[:, j])
         best_l = float(lh_f[j])
         # its size: the cone-averaged columns of a few radii
         radii = (float(softness),) if softness is not None else RADII_DEG
@@ -228,18 +229,18 @@ def _search_light(pp: Prepared, base: list[np.ndarray], cand: _Candidates, setti
                 for r in radii]
         lh_r, _ = score_candidates(B, _stack(cols), y, fp.train, sigma=sig)
         k = int(np.argmin(lh_r))
-        light = _Light("sun", light.param, radii[k], cols[k],
+        light = FitLight("sun", light.param, radii[k], cols[k],
                        Origin.MANIFEST if softness is not None else Origin.FIT)
         best_l = float(lh_r[k])
     else:
         i = int(np.argmin(lh_l))
         q = cand.lamps[short][i]
-        light = _Light("lamp", q, 0.0, cl[:, i], Origin.DEFAULT)
+        light = FitLight("lamp", q, 0.0, cl[:, i], Origin.DEFAULT)
         best_l = float(lh_l[i])
     return light, best_l, lh_s, l_base, (sig / scale) ** 2
 
 
-def _prior(atoms: list[Atom], pp: Prepared, light_names: list[str]) -> dict:
+def prior_weights(atoms: list[Atom], pp: Prepared, light_names: list[str]) -> dict:
     """The prior weights: the support's level split by PRIOR_SKY_SHARE between the
     uniform sky and the lights (equally), nothing in the other lobes; a ``fixed`` atom
     (the manifest's lights in physical units) its own level's exposure."""
@@ -262,7 +263,7 @@ def _prior(atoms: list[Atom], pp: Prepared, light_names: list[str]) -> dict:
     return out
 
 
-def _sky_from_weights(pp: Prepared, weights: dict, extra_sh: np.ndarray | None = None) -> np.ndarray:
+def sky_from_weights(pp: Prepared, weights: dict, extra_sh: np.ndarray | None = None) -> np.ndarray:
     """(9, 3) sky radiance SH from the lobes' RGB weights."""
     out = np.zeros((sh.N_COEFFS, 3))
     for name, c in at.sky_lobes(pp.frame):
@@ -291,7 +292,7 @@ def estimate_light(depth, normals, shading, known, albedo, camera: Camera, *, up
     base_atoms = sky_atoms(pp)
     base = [a.values for a in base_atoms]
     cand = _Candidates(pp, settings)
-    lights: list[_Light] = []
+    lights: list[FitLight] = []
     coarse = None
     gain = 0.0
     first = None
@@ -312,10 +313,10 @@ def estimate_light(depth, normals, shading, known, albedo, camera: Camera, *, up
     if not cast:
         lights, names = [first], ["light0"]
     fit_atoms = base_atoms + [Atom(n_, x.column) for n_, x in zip(names, lights)]
-    res = fit(fit_atoms, pp.shading, train=fp.train, prior=_prior(fit_atoms, pp, names), ridge=PRIOR_RIDGE,
+    res = fit(fit_atoms, pp.shading, train=fp.train, prior=prior_weights(fit_atoms, pp, names), ridge=PRIOR_RIDGE,
               direct=names)
     suns, lh_s, s2 = coarse
-    post = _temper(lh_s, s2, _loss_blocks(fp))
+    post = tempered_likelihood(lh_s, s2, held_out_blocks(fp))
     key = first.param if first.kind == "sun" else _lamp_dir(first.param, fp)
     unc = _rms_angle(suns, post, key)
     summary = FitSummary(gain=float(gain), uncertainty_deg=unc, residual=float(res.loss_train),
@@ -332,10 +333,10 @@ def estimate_light(depth, normals, shading, known, albedo, camera: Camera, *, up
         brought = float(np.median(first.column[fp.support])) if fp.support.any() else 0.0
         if on_up > 1e-12:
             spread = spread * (brought * float(w.mean()) / on_up)
-        sky = Sky(radiance_sh=_sky_from_weights(pp, res.weights, spread), ground=pp.ground, up=up)
+        sky = Sky(radiance_sh=sky_from_weights(pp, res.weights, spread), ground=pp.ground, up=up)
         return LightModel(sky=sky, shadows=ShadowKind.CONTACT, up_from=up_from,
                           albedo_offset=pp.albedo_offset, walls=fp.walls, fit=summary)
-    return _model(pp, res, lights, names, up, up_from, summary)
+    return model_from_fit(pp, res, lights, names, up, up_from, summary)
 
 
 def _lamp_dir(q, fp: at.FitPixels) -> np.ndarray:
@@ -344,7 +345,7 @@ def _lamp_dir(q, fp: at.FitPixels) -> np.ndarray:
     return v / max(float(np.linalg.norm(v)), 1e-12)
 
 
-def _model(pp: Prepared, res, lights: list[_Light], names: list[str], up, up_from, summary,
+def model_from_fit(pp: Prepared, res, lights: list[FitLight], names: list[str], up, up_from, summary,
            origin: Origin = Origin.FIT, source: str = "estimated") -> LightModel:
     suns, lamps = [], []
     for n_, x in zip(names, lights):
@@ -355,7 +356,7 @@ def _model(pp: Prepared, res, lights: list[_Light], names: list[str], up, up_fro
         else:
             lamps.append(Lamp(position=x.param, radius_m=x.radius, intensity=w, position_from=origin,
                               radius_from=x.radius_from, strength_from=Origin.FIT))
-    sky = Sky(radiance_sh=_sky_from_weights(pp, res.weights), ground=pp.ground, up=up)
+    sky = Sky(radiance_sh=sky_from_weights(pp, res.weights), ground=pp.ground, up=up)
     return LightModel(suns=tuple(suns), lamps=tuple(lamps), sky=sky, shadows=ShadowKind.CAST, source=source,
                       up_from=up_from, albedo_offset=pp.albedo_offset, walls=pp.fp.walls, fit=summary)
 

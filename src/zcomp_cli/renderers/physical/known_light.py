@@ -24,15 +24,14 @@ at distance r.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 
 from zcomp_cli.camera import Camera
 from zcomp_cli.renderers.physical import atoms as at
 from zcomp_cli.renderers.physical import sh
-from zcomp_cli.renderers.physical.estimate import (PRIOR_RIDGE, RADII_DEG, _Light, _loss_blocks, _model, _prior,
-                                                   _sky_from_weights, _temper, prepare, sky_atoms)
+from zcomp_cli.renderers.physical.estimate import (PRIOR_RIDGE, RADII_DEG, FitLight, held_out_blocks, model_from_fit,
+                                                   prepare, prior_weights, sky_atoms, tempered_likelihood)
 from zcomp_cli.renderers.physical.lightmodel import FitSummary, Lamp, LightModel, Origin, ShadowKind, Sky, Sun
 from zcomp_cli.renderers.physical.settings import DEFAULTS, PhysicalSettings
 from zcomp_cli.renderers.physical.solver import Atom, base_sigma, fit, score_candidates
@@ -71,7 +70,7 @@ def fit_known(specs: list, depth, normals, shading, known, albedo, camera: Camer
     fixed = np.zeros((n_fit, 3))
     fixed_parts = []  # (kind, spec, extra) to rebuild the lights once the exposure is known
     probe = None
-    autos: list[tuple[dict, _Light]] = []
+    autos: list[tuple[dict, FitLight]] = []
     ratio_specs = []
     for spec in specs:
         t = spec["type"]
@@ -97,7 +96,7 @@ def fit_known(specs: list, depth, normals, shading, known, albedo, camera: Camer
                     fixed += (spec["irradiance"] * SUN_SHADING_PER_IRRADIANCE) * col[:, None] * _colour(spec)[None]
                 fixed_parts.append(("sun", spec, (d, r)))
             elif spec["strength"] == "auto":
-                autos.append((spec, _Light("sun", d, -1.0 if radius is None else float(radius), np.zeros(n_fit),
+                autos.append((spec, FitLight("sun", d, -1.0 if radius is None else float(radius), np.zeros(n_fit),
                                            Origin.FIT if radius is None else Origin.MANIFEST)))
             else:
                 ratio_specs.append((spec, d, radius if radius is not None else _default_sun_radius()))
@@ -111,7 +110,7 @@ def fit_known(specs: list, depth, normals, shading, known, albedo, camera: Camer
                     fixed += (spec["power"] * LAMP_SHADING_PER_WATT) * col[:, None] * _colour(spec)[None]
                 fixed_parts.append(("lamp", spec, (q, rm, facing)))
             else:
-                light = _Light("lamp", q, float(rm), _lamp_column(fp, q, rm, facing, steps, settings.cone_samples, seed)
+                light = FitLight("lamp", q, float(rm), _lamp_column(fp, q, rm, facing, steps, settings.cone_samples, seed)
                                if n_fit else np.zeros(0),
                                Origin.MANIFEST if spec["radius_m"] is not None else Origin.DEFAULT)
                 light.facing = facing
@@ -141,12 +140,12 @@ def fit_known(specs: list, depth, normals, shading, known, albedo, camera: Camer
             _fit_radius(pp, light, [a.values for a in atoms] + [x.column for _, x in autos[:i]], settings, seed)
         atoms.append(Atom(f"light{i}", light.column))
         names.append(f"light{i}")
-    res = fit(atoms, pp.shading, train=fp.train, prior=_prior(atoms, pp, names), ridge=PRIOR_RIDGE,
+    res = fit(atoms, pp.shading, train=fp.train, prior=prior_weights(atoms, pp, names), ridge=PRIOR_RIDGE,
               direct=names + (["fixed"] if fixed_parts else []) + (["ratio"] if ratio_specs else []))
     k = float(np.mean(res.weights.get("fixed", np.zeros(3)))) if fixed_parts else 1.0
     summary = FitSummary(residual=float(res.loss_train), pixels=n_fit, note=note,
                          exposure=k if fixed_parts else float("nan"))
-    model = _model(pp, res, [x for _, x in autos], names, up, up_from, summary, origin=Origin.MANIFEST,
+    model = model_from_fit(pp, res, [x for _, x in autos], names, up, up_from, summary, origin=Origin.MANIFEST,
                    source="manifest")
     suns = list(model.suns)
     facings = [getattr(x, "facing", None) for _, x in autos if x.kind == "lamp"]
@@ -219,7 +218,7 @@ def _lamp_column(fp, q, radius_m, facing, steps, cone_samples, seed) -> np.ndarr
     return col
 
 
-def _fit_radius(pp, light: _Light, base_cols: list, settings: PhysicalSettings, seed: int) -> None:
+def _fit_radius(pp, light: FitLight, base_cols: list, settings: PhysicalSettings, seed: int) -> None:
     """Choose a sun's angular radius among RADII_DEG by the held-out pixels (in place);
     the default radius where they cannot tell (a likelihood under one held-out block's
     worth of evidence)."""
@@ -239,7 +238,7 @@ def _fit_radius(pp, light: _Light, base_cols: list, settings: PhysicalSettings, 
     scale = max(float(np.median(np.abs(y[fp.train]))), 1e-12)
     sig = base_sigma(B[fp.train], y[fp.train], scale=scale)
     lh, _ = score_candidates(B, np.stack(cols, 1), y, fp.train, sigma=sig)
-    w = _temper(lh, (sig / scale) ** 2, _loss_blocks(fp))
+    w = tempered_likelihood(lh, (sig / scale) ** 2, held_out_blocks(fp))
     i = int(np.argmin(lh))
     if w[0] > np.exp(-1.0):  # the default is within one unit of log-likelihood of the best
         i = 0

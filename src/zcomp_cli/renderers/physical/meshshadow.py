@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from zcomp_cli.posed_mesh import PosedMesh, load_posed_mesh  # noqa: F401  (geometry lives below)
+from zcomp_cli.posed_mesh import PosedMesh  # (geometry: it lives below the renderers)
 
 # Shadow-map samples of the mesh's surface: per cell's area of it, and at most.
 MESH_SAMPLE_DENSITY = 8.0

@@ -21,7 +21,7 @@ from typing import Sequence
 
 import numpy as np
 
-from zcomp_cli.conventions import DEFAULT_SEED, REC601
+from zcomp_cli.conventions import DEFAULT_SEED
 from zcomp_cli.errors import InputError, NumericalError, UsageError
 from zcomp_cli.renderers.base import Renderer, RenderOutput, RenderRequest
 from zcomp_cli.renderers.physical.lightmodel import LightModel, ShadowKind
