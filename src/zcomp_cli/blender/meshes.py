@@ -46,9 +46,10 @@ def mesh_format(path) -> str:
     return MESH_FORMATS[suffix]
 
 
-def _side_files(path: Path) -> list[Path]:
+def side_files(path) -> list[Path]:
     """Files a mesh references next to itself (OBJ's MTL and its textures, a .gltf's
     buffers and images): they are part of the content and of the hash."""
+    path = Path(path)
     found: list[Path] = []
     try:
         if path.suffix.lower() == ".obj":
@@ -80,7 +81,7 @@ def content_hash(path) -> str:
     file with its name, which the mesh refers to; the mesh's own name does not count)."""
     path = Path(path)
     h = hashlib.sha256()
-    for p in [path] + _side_files(path):
+    for p in [path] + side_files(path):
         if p != path:
             h.update(b"\0" + p.name.encode() + b"\0")
         with open(p, "rb") as f:

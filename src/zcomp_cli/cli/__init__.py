@@ -8,6 +8,7 @@ traceback is shown only with ``-v``.
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import logging
 import sys
@@ -17,6 +18,54 @@ import click
 from zcomp_cli import __version__
 
 EXIT_INTERRUPTED = 130  # 128 + SIGINT
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGTERM or SIGHUP, raised in the main thread like Ctrl-C's KeyboardInterrupt, so
+    that a terminated run cleans up as an interrupted one does: its summary rewritten
+    with what is on disk, its locks and temporaries removed, its Blender child killed."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+def exit_code_of(exc: KeyboardInterrupt) -> int:
+    """128 + the signal number, the shell's convention (130 for Ctrl-C)."""
+    return 128 + int(getattr(exc, "signum", 2))
+
+
+@contextlib.contextmanager
+def signals_as_interrupts():
+    """While a command runs: SIGTERM and SIGHUP raise ``Interrupted`` (as SIGINT raises
+    KeyboardInterrupt); a repeated one is ignored so that the clean-up it triggered
+    finishes. The previous handlers come back afterwards. Main thread only (elsewhere,
+    e.g. in a Ray worker, nothing changes)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    seen = []
+
+    def handler(signum, frame):
+        if seen:
+            return
+        seen.append(signum)
+        raise Interrupted(signum)
+
+    old = {}
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        try:
+            old[sig] = signal.signal(sig, handler)
+        except (ValueError, OSError):  # pragma: no cover - not the main interpreter
+            pass
+    try:
+        yield
+    finally:
+        for sig, h in old.items():
+            signal.signal(sig, h)
 
 # command name -> (module, attribute, one-line help shown by `zcomp --help`)
 _COMMANDS: dict[str, tuple[str, str, str]] = {
@@ -65,7 +114,8 @@ class LazyGroup(click.Group):
         from zcomp_cli.errors import ZcompError
 
         try:
-            return super().invoke(ctx)
+            with signals_as_interrupts():
+                return super().invoke(ctx)
         except ZcompError as exc:
             if (ctx.obj or {}).get("verbose"):
                 import traceback
@@ -73,10 +123,11 @@ class LazyGroup(click.Group):
                 traceback.print_exc()
             click.secho(f"Error: {exc}", fg="red", err=True)
             ctx.exit(exc.exit_code)
-        except KeyboardInterrupt:
-            # Ctrl-C: the shell convention 128 + SIGINT, not click's "Aborted!" and 1.
+        except KeyboardInterrupt as exc:
+            # Ctrl-C, SIGTERM, SIGHUP: the shell convention 128 + the signal, not
+            # click's "Aborted!" and 1.
             click.echo("\nInterrupted.", err=True)
-            ctx.exit(EXIT_INTERRUPTED)
+            ctx.exit(exit_code_of(exc))
 
     def format_commands(self, ctx, formatter):
         # Short help from the table: listing commands must not import them.
@@ -123,15 +174,15 @@ def main(argv: list[str] | None = None) -> None:
     except click.exceptions.Abort as exc:
         if isinstance(exc.__cause__, KeyboardInterrupt):
             click.echo("Interrupted.", err=True)
-            sys.exit(EXIT_INTERRUPTED)
+            sys.exit(exit_code_of(exc.__cause__))
         click.echo("Aborted.", err=True)
         sys.exit(1)
     except click.ClickException as exc:
         exc.show()
         sys.exit(exc.exit_code)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         click.echo("Interrupted.", err=True)
-        sys.exit(EXIT_INTERRUPTED)
+        sys.exit(exit_code_of(exc))
     except click.exceptions.Exit as exc:
         sys.exit(exc.exit_code)
     # With standalone_mode=False, click returns ctx.exit()'s code instead of exiting.

@@ -93,6 +93,9 @@ class SceneSpec:
     maps: dict[str, Path] = field(default_factory=dict)  # provided map files
     estimators: dict[str, dict] = field(default_factory=dict)  # map -> estimator spec
     light: dict | None = None  # known lighting (pipeline/lightspec.py); None = estimate it
+    # every file the scene's settings name (the light's probe...), as the manifest
+    # resolved them: job fingerprints hash their contents (pipeline/fingerprint.py)
+    setting_files: list[Path] = field(default_factory=list)
 
 
 @dataclass
@@ -173,7 +176,26 @@ def _num(v) -> float | None:
     return v if math.isfinite(v) else None
 
 
-def _file(root: Path, value, container, key, where, probs, exts=None) -> Path | None:
+def special_file_problem(p: Path, want: str = "file") -> str | None:
+    """Why ``p`` (which exists) cannot be read as a ``want`` ("file" or "folder"): a
+    FIFO, a device or a socket would hang a reader or be read forever (``/dev/zero``),
+    so only regular files (and folders where a folder is expected) are taken."""
+    import stat
+
+    try:
+        mode = p.stat().st_mode
+    except OSError as exc:
+        return f"cannot use {shorten(str(p), 200)}: {exc.strerror}"
+    if stat.S_ISDIR(mode):
+        return None if want == "folder" else f"{shorten(str(p), 200)} is a folder, expected a file"
+    if stat.S_ISREG(mode):
+        return None if want == "file" else f"{shorten(str(p), 200)} is a file, expected a folder"
+    kind = ("a FIFO (named pipe)" if stat.S_ISFIFO(mode) else "a character device" if stat.S_ISCHR(mode)
+            else "a block device" if stat.S_ISBLK(mode) else "a socket" if stat.S_ISSOCK(mode) else "not a file")
+    return f"{shorten(str(p), 200)} is {kind}, not a regular file"
+
+
+def _file(root: Path, value, container, key, where, probs, exts=None, want: str = "file") -> Path | None:
     if not isinstance(value, str) or not value:
         probs.add(container, key, where, f"expected a file path, got {type_name(value)} {shorten(value)}")
         return None
@@ -189,7 +211,11 @@ def _file(root: Path, value, container, key, where, probs, exts=None) -> Path | 
     if not exists:
         probs.add(container, key, where, f"file not found: {shorten(str(p), 200)}")
         return None
-    if exts and p.suffix.lower() not in exts and not p.is_dir():
+    special = special_file_problem(p, want)
+    if special:
+        probs.add(container, key, where, special)
+        return None
+    if exts and p.suffix.lower() not in exts:
         probs.add(container, key, where, f"unsupported format {p.suffix!r} (supported: {', '.join(sorted(exts))})")
         return None
     return p
@@ -362,7 +388,7 @@ def _parse_scenes(d, parent, root, probs, check_files, defaults) -> dict[str, Sc
         if "K" in s:
             spec.K = _parse_K(s["K"], s, "K", f"{where}.K", probs)
         if "light" in s:
-            spec.light = _parse_scene_light(s, where, probs, root)
+            spec.light = _parse_scene_light(s, where, probs, root, spec.setting_files)
         for m, ch in MAP_CHANNELS.items():
             if m not in s:
                 continue
@@ -401,14 +427,18 @@ def _parse_scenes(d, parent, root, probs, check_files, defaults) -> dict[str, Sc
     return out
 
 
-def _parse_scene_light(s, where, probs, root) -> dict | None:
+def _parse_scene_light(s, where, probs, root, files: list) -> dict | None:
+    """The scene's parsed ``light``; every file it names is appended to ``files``."""
     from zcomp_cli.pipeline.lightspec import PROBE_EXTS, parse_light
 
     def add(container, key, w, msg):  # problems without a container sit on 'light'
         probs.add(s if container is None else container, "light" if container is None else key, w, msg)
 
     def resolve(container, key, w):  # a light probe file, relative to the manifest
-        return _file(root, container[key], container, key, w, probs, PROBE_EXTS)
+        p = _file(root, container[key], container, key, w, probs, PROBE_EXTS)
+        if p is not None:
+            files.append(p)
+        return p
 
     return parse_light(s["light"], f"{where}.light", add, resolve)
 
@@ -427,9 +457,16 @@ def _parse_objects(d, parent, root, probs, check_files) -> dict[str, ObjectSpec]
         if kind == "mesh":
             spec.mesh = _file(root, o["mesh"], o, "mesh", f"{where}.mesh", probs, MESH_EXTS)
         elif kind == "bundle":
-            p = _file(root, o["bundle"], o, "bundle", f"{where}.bundle", probs)
+            p = _file(root, o["bundle"], o, "bundle", f"{where}.bundle", probs, want="folder")
             if p is not None and not (p / "meta.json").is_file():
                 probs.add(o, "bundle", f"{where}.bundle", f"not an intrinsics bundle (no meta.json in {p})")
+                p = None
+            if p is not None:
+                special = next((x for x in (special_file_problem(f, "folder" if f.is_dir() else "file")
+                                            for f in sorted(p.iterdir())) if x), None)
+                if special:
+                    probs.add(o, "bundle", f"{where}.bundle", special)
+                    p = None
             spec.bundle = p
         else:
             spec.image = _file(root, o["image"], o, "image", f"{where}.image", probs, IMAGE_EXTS)
