@@ -505,3 +505,313 @@ def test_a_huge_shard_count_is_bounded(project):
     assert time.monotonic() - t < 10
     d = json.loads(st.output)
     assert d["done"] == 2 and any("300000000" in n for n in d["notes"]) and len(d["shards"]) == 0
+
+
+# ------------------------------------------------------------------ 8. status judges as --resume does
+def _status(out, *extra) -> tuple[int, dict]:
+    r = CliRunner().invoke(cli, ["status", str(out), "--json", *map(str, extra)])
+    assert r.exception is None or isinstance(r.exception, SystemExit), r.exc_info
+    return r.exit_code, json.loads(r.output)
+
+
+@pytest.mark.parametrize("damage", ["delete-png", "empty-exr", "edit-png"])
+def test_status_checks_the_outputs(project, damage):
+    out = project / "out"
+    assert _composite(project / "jobs.yaml", out).exit_code == 0
+    job = out / "000_room_ball"
+    if damage == "delete-png":
+        (job / "composite.png").unlink()
+    elif damage == "empty-exr":
+        (job / "composite.exr").write_bytes(b"")
+    else:
+        data = bytearray((job / "composite.png").read_bytes())
+        data[-20] ^= 0xFF
+        (job / "composite.png").write_bytes(bytes(data))
+    code, d = _status(out)
+    assert code == 1 and d["done"] == 1 and list(d["jobs"]["damaged"]) == ["000_room_ball"], d
+
+
+def test_status_with_the_manifest_sees_changed_inputs(project):
+    doc = base_manifest()
+    m = _write(project, doc)
+    out = project / "out"
+    assert _composite(m, out).exit_code == 0
+    assert _status(out, "--manifest", m)[0] == 0
+    doc["jobs"][0]["shading_radius"] = 2.0
+    _write(project, doc)
+    code, d = _status(out, "--manifest", m)
+    assert code == 1 and d["jobs"]["changed"] == ["000_room_ball"] and d["done"] == 1, d
+    # the renderer a job was made with (a command-line override) is not a change
+    assert _composite(m, out, "--resume", "--redo-changed", "--renderer", "physical").exit_code == 0
+    assert _status(out, "--manifest", m)[0] == 0
+
+
+# ------------------------------------------------------------------ 9. non-finite vertices
+def test_obj_with_a_nan_vertex_is_refused_naming_the_file(project):
+    (project / "objects/bad.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv nan 0.5 0\nv 1 1 inf\n"
+                                             "f 1 2 3\nf 2 4 3\nf 1 5 2\n")
+    doc = base_manifest()
+    doc["objects"]["bad"] = {"mesh": "objects/bad.obj"}
+    doc["jobs"].append({"scene": "room", "object": "bad", "pose": {"position": [0, -1, -3]}})
+    r = _composite(_write(project, doc), project / "out")
+    assert r.exit_code == 2 and "objects.bad.mesh" in r.output and "non-finite" in r.output, r.output
+    assert not (project / "out").exists()
+
+
+def test_binary_meshes_with_non_finite_vertices_are_refused(tmp_path):
+    from zcomp_cli.blender.meshes import load_mesh_info
+    from zcomp_cli.errors import GeometryError
+
+    ply = tmp_path / "bad.ply"
+    ply.write_text("ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+                   "property float z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n"
+                   "0 0 0\n1 0 0\n0 1 0\nnan 1 0\n3 0 1 2\n3 1 3 2\n")
+    with pytest.raises(GeometryError, match="non-finite"):
+        load_mesh_info(ply)
+
+
+# ------------------------------------------------------------------ 10. textures in the pixel budget
+def _huge_texture_budget(monkeypatch):
+    monkeypatch.setenv("ZCOMP_MAX_PIXELS", "1000")  # the 32x24 scene fits; a 40x40 texture does not
+
+
+def test_an_mtl_texture_over_the_pixel_budget_is_refused(project, monkeypatch):
+    _textured_obj(project / "objects/quad")
+    write_png(project / "objects/quad/tex.png", np.zeros((40, 40, 3), np.float32))
+    _huge_texture_budget(monkeypatch)
+    doc = base_manifest()
+    doc["objects"]["quad"] = {"mesh": "objects/quad/quad.obj"}
+    doc["jobs"].append({"scene": "room", "object": "quad", "pose": {"position": [0, -1, -3]}})
+    r = _composite(_write(project, doc), project / "out")
+    assert r.exit_code == 2 and "objects.quad.mesh" in r.output and "tex.png" in r.output, r.output
+    assert "pixel budget" in r.output
+
+
+def test_a_glb_embedded_texture_over_the_pixel_budget_is_refused(project, monkeypatch):
+    import trimesh
+    from PIL import Image
+
+    quad = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], [[0, 1, 2], [0, 2, 3]], process=False)
+    quad.visual = trimesh.visual.TextureVisuals(uv=[[0, 0], [1, 0], [1, 1], [0, 1]],
+                                                image=Image.new("RGB", (40, 40), (200, 10, 10)))
+    (project / "objects/quad.glb").write_bytes(quad.export(file_type="glb"))
+    _huge_texture_budget(monkeypatch)
+    doc = base_manifest()
+    doc["objects"]["quad"] = {"mesh": "objects/quad.glb"}
+    doc["jobs"].append({"scene": "room", "object": "quad", "pose": {"position": [0, -1, -3]}})
+    r = _composite(_write(project, doc), project / "out")
+    assert r.exit_code == 2 and "objects.quad.mesh" in r.output and "40x40" in r.output, r.output
+
+
+# ------------------------------------------------------------------ 11. YAML 1.2 floats
+def test_every_yaml_12_float_form_is_a_number(project):
+    from zcomp_cli.yamlloc import load_yaml
+
+    p = project / "f.yaml"
+    p.write_text("a: 1.0e6\nb: 1.5E3\nc: .5e1\nd: 12\ne: 1e9\nf: '1.0e6'\n")
+    assert load_yaml(p) == {"a": 1e6, "b": 1500.0, "c": 5.0, "d": 12, "e": 1e9, "f": "1.0e6"}
+    doc = base_manifest()
+    text = yaml.safe_dump(doc, sort_keys=False).replace("height: 0.4", "height: 0.04e1")
+    assert "0.04e1" in text
+    (project / "m.yaml").write_text(text)
+    assert _composite(project / "m.yaml", project / "out").exit_code == 0
+
+
+# ------------------------------------------------------------------ 12. names
+@pytest.mark.parametrize("name", ["newline\n", "summary.shard-0-of-2.json", "0", "3-5"])
+def test_output_names_that_break_a_run_are_refused(project, name):
+    doc = base_manifest()
+    doc["jobs"][0]["output"] = name
+    r = _composite(_write(project, doc), project / "out")
+    assert r.exit_code == 2 and "jobs[0].output" in r.output, r.output
+    assert not (project / "out").exists()
+
+
+# ------------------------------------------------------------------ 13. validated before anything is written
+@pytest.mark.parametrize("edit, needle", [
+    (lambda d: d["defaults"].update(renderer="nope"), "unknown renderer"),
+    (lambda d: d["defaults"].update(renderer={"name": "physical", "colour": 3}), "colour"),
+    (lambda d: d["defaults"].update(renderer={"name": "physical", "march_steps": 0}), "march_steps"),
+    (lambda d: d["jobs"][1].update(pose={"position": [0, -1, -3]}, placement=None) or d["jobs"][1].pop("placement"),
+     "needs a 'placement'"),
+    (lambda d: d["jobs"][1]["placement"].pop("height"), "placement.height"),
+])
+def test_manifest_mistakes_are_refused_with_their_line_before_anything_is_written(project, edit, needle):
+    doc = base_manifest()
+    edit(doc)
+    r = _composite(_write(project, doc), project / "out")
+    assert r.exit_code == 2 and needle in r.output, r.output
+    assert "m.yaml:" in r.output  # the line
+    assert not (project / "out").exists()
+
+
+def test_2d_object_mask_mistakes_are_refused_at_validation(project):
+    write_png(project / "objects/small_mask.png", np.ones((8, 8), np.float32), srgb_encode=False)
+    write_png(project / "objects/empty_mask.png", np.zeros((16, 16), np.float32), srgb_encode=False)
+    for mask, needle in (("objects/small_mask.png", "8x8"), ("objects/empty_mask.png", "selects no pixel")):
+        doc = base_manifest()
+        doc["objects"]["card"]["mask"] = mask
+        r = _composite(_write(project, doc), project / "out")
+        assert r.exit_code == 2 and "objects.card.mask" in r.output and needle in r.output, r.output
+        assert not (project / "out").exists()
+
+
+def test_run_setup_mistakes_write_nothing(project, monkeypatch):
+    import builtins
+
+    out = project / "out"
+    monkeypatch.delenv("ZCOMP_CONTROLNET", raising=False)
+    monkeypatch.delenv("ZCOMP_SD_BASE", raising=False)
+    r = _composite(project / "jobs.yaml", out, "--renderer", "zerocomp")  # no weights anywhere
+    assert r.exit_code == 2 and "weights not found" in r.output, r.output
+    assert not out.exists()
+    r = _composite(project / "jobs.yaml", out, "--renderer", "physical", "--march-steps", "0")
+    assert r.exit_code == 2 and not out.exists(), r.output
+    real = builtins.__import__
+
+    def no_ray(name, *a, **k):
+        if name == "ray" or name.startswith("ray."):
+            raise ImportError("No module named 'ray'")
+        return real(name, *a, **k)
+
+    monkeypatch.setattr(builtins, "__import__", no_ray)
+    r = _composite(project / "jobs.yaml", out, "--executor", "ray")
+    assert r.exit_code == 2 and "zcomp[ray]" in r.output and not out.exists(), r.output
+
+
+# ------------------------------------------------------------------ 14. redo exactly the changed jobs
+def test_redo_changed_redoes_exactly_the_changed_job(project):
+    doc = base_manifest()
+    m = _write(project, doc)
+    out = project / "out"
+    assert _composite(m, out).exit_code == 0
+    card = (out / "001_room_card/composite.png").stat().st_mtime_ns
+    doc["jobs"][0]["seed"] = 1234
+    _write(project, doc)
+    assert _composite(m, out, "--resume").exit_code == 2
+    assert _composite(m, out, "--redo-changed").exit_code == 2  # it goes with --resume
+    assert _composite(m, out, "--resume", "--redo-changed").exit_code == 0
+    assert _this_run(out) == {"000_room_ball": "done", "001_room_card": "skipped"}
+    assert (out / "001_room_card/composite.png").stat().st_mtime_ns == card
+
+
+def test_resume_with_debug_writes_the_debug_maps(project):
+    out = project / "out"
+    assert _composite(project / "jobs.yaml", out).exit_code == 0
+    assert _composite(project / "jobs.yaml", out, "--resume", "--debug").exit_code == 0
+    for job in ("000_room_ball", "001_room_card"):
+        assert (out / job / "debug/f_bg.exr").is_file() and (out / job / "grid.png").is_file()
+    assert _composite(project / "jobs.yaml", out, "--resume", "--debug").exit_code == 0
+    assert set(_this_run(out).values()) == {"skipped"}
+
+
+# ------------------------------------------------------------------ 15. eval
+def test_eval_lists_a_job_of_another_size_as_unscored(project):
+    doc = base_manifest()
+    write_png(project / "ref.png", np.full((24, 32, 3), 0.3, np.float32))
+    write_png(project / "small_ref.png", np.full((12, 16, 3), 0.3, np.float32))
+    doc["jobs"][0]["reference"] = "ref.png"
+    doc["jobs"][1]["reference"] = "small_ref.png"
+    out = project / "out"
+    assert _composite(_write(project, doc), out).exit_code == 0
+    r = CliRunner().invoke(cli, ["eval", str(out), "--metrics", "psnr"])
+    assert r.exit_code == 0, r.output
+    d = json.loads((out / "eval.json").read_text())
+    assert [i["name"] for i in d["images"]] == ["000_room_ball"]
+    assert "size mismatch" in d["unscored"]["001_room_card"] and "001_room_card" in r.output
+
+
+def test_a_folder_as_reference_is_refused_at_validation(project):
+    doc = base_manifest()
+    doc["jobs"][0]["reference"] = "scenes"
+    r = _composite(_write(project, doc), project / "out")
+    assert r.exit_code == 2 and "jobs[0].reference" in r.output and "folder" in r.output, r.output
+
+
+# ------------------------------------------------------------------ 16. folders that are not job folders
+def test_outputs_into_input_folders_are_refused(project):
+    doc = base_manifest()
+    doc["jobs"][0]["output"] = "scenes"  # --out is the manifest's folder
+    doc["jobs"][1]["output"] = "README.md"
+    (project / "README.md").write_text("notes\n")
+    before = {p: p.read_bytes() for p in (project / "scenes").iterdir()}
+    r = _composite(_write(project, doc), project)
+    assert r.exit_code == 2 and "not a zcomp job folder" in r.output and "not a folder" in r.output, r.output
+    assert {p: p.read_bytes() for p in (project / "scenes").iterdir()} == before
+    assert not (project / "summary.json").exists()
+
+
+# ------------------------------------------------------------------ 17. minimum sides, option names
+def test_a_mesh_scene_smaller_than_blender_renders_is_refused(tmp_path):
+    make_project(tmp_path, width=10, height=2)
+    (tmp_path / "objects/tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    doc = base_manifest(10, 2)
+    doc["objects"]["tri"] = {"mesh": "objects/tri.obj"}
+    doc["jobs"] = [{"scene": "room", "object": "tri", "pose": {"position": [0, -1, -3]}}]
+    r = _composite(_write(tmp_path, doc), tmp_path / "out")
+    assert r.exit_code == 2 and "scenes.room.image" in r.output and "4x4" in r.output, r.output
+
+
+@pytest.mark.parametrize("flags, option", [(["--resolution", "1", "1"], "--resolution"),
+                                           (["--fov-deg", "nan"], "--fov-deg"), (["--fov-deg", "190"], "--fov-deg")])
+def test_render_intrinsics_names_the_bad_option(tmp_path, flags, option):
+    mesh = tmp_path / "m.obj"
+    mesh.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    r = CliRunner().invoke(cli, ["render-intrinsics", "--mesh", str(mesh), "--position", "0", "0", "-3", *flags,
+                                 "--out", str(tmp_path / "o")])
+    assert r.exit_code == 2 and option in r.output, r.output
+    assert not (tmp_path / "o").exists()
+
+
+# ------------------------------------------------------------------ 18. a probe without light
+@pytest.mark.parametrize("value", [0.0, -1.0, np.nan])
+def test_a_probe_without_light_is_refused(project, value):
+    write_exr(project / "probe.exr", np.full((8, 16, 3), value, np.float32))
+    doc = base_manifest()
+    doc["scenes"]["room"]["light"] = {"type": "probe", "hdr": "probe.exr"}
+    r = _composite(_write(project, doc), project / "out")
+    assert r.exit_code == 2 and "scenes.room.light.hdr" in r.output and "no light" in r.output, r.output
+
+
+# ------------------------------------------------------------------ 19. shards beyond the job count
+def test_more_shards_than_jobs_is_cheap(project):
+    doc = base_manifest()
+    doc["jobs"] = [{"scene": "room", "object": "card", "output": f"j{i:04d}",
+                    "placement": {"pixel": [8 + i % 16, 18], "height": 0.3}} for i in range(2000)]
+    m = _write(project, doc)
+    try:
+        r = subprocess.run(_zcomp("-q", "composite", m, "--out", project / "out", "--shard", "5/100000"),
+                           env=_env(), capture_output=True, text=True, timeout=120)
+    except subprocess.TimeoutExpired:
+        pytest.fail("--shard 5/100000 hangs")
+    assert r.returncode == 0, r.stderr
+    assert json.loads((project / "out/summary.shard-5-of-100000.json").read_text())["shard"]["jobs"] == ["j0005"]
+    r = _composite(m, project / "out", "--shard", "0/10000000")
+    assert r.exit_code == 2 and "at most" in r.output
+
+
+# ------------------------------------------------------------------ 20. formats, one overwrite rule
+def test_a_jpeg_named_png_is_read_as_what_it_is(project):
+    from PIL import Image
+
+    from zcomp_cli.imageio import verify_image
+
+    img = Image.open(project / "scenes/room.png").convert("RGB")
+    img.save(project / "scenes/room.png", format="JPEG", quality=95)  # a JPEG, named .png
+    assert verify_image(project / "scenes/room.png")[:2] == (32, 24)
+    assert _composite(project / "jobs.yaml", project / "out").exit_code == 0
+    data = (project / "scenes/room.png").read_bytes()
+    (project / "scenes/room.png").write_bytes(data[: len(data) - 40])
+    r = _composite(project / "jobs.yaml", project / "out2")
+    assert r.exit_code == 2 and "a JPEG file named .png" in r.output and "truncated PNG" not in r.output, r.output
+
+
+def test_estimate_does_not_overwrite_without_overwrite(project):
+    out = project / "est"
+    args = ["-q", "estimate", str(project / "jobs.yaml"), "--out", str(out)]
+    assert CliRunner().invoke(cli, args).exit_code == 0
+    first = (out / "room/sources.json").stat().st_mtime_ns
+    r = CliRunner().invoke(cli, args)
+    assert r.exit_code == 2 and "--overwrite" in r.output, r.output
+    assert (out / "room/sources.json").stat().st_mtime_ns == first
+    assert CliRunner().invoke(cli, [*args, "--overwrite"]).exit_code == 0

@@ -75,7 +75,8 @@ def eval_cmd(ctx, pred, ref, metrics, refs_dir, linear, mask, background, out_pr
 
     result = evaluate(pairs, metrics, linear=linear, lpips_backbone=lpips_backbone,
                       lpips_weights=lpips_weights)
-    result.unscored = unscored
+    result.unscored = {**unscored, **result.unscored}
+    unscored = result.unscored
     prefix = Path(out_prefix) if out_prefix else pred_dir / "eval"
     csv_path, json_path = write_outputs(result, prefix)
 

@@ -61,10 +61,41 @@ overwrite_opt = click.option(
 resume_opt = click.option(
     "--resume", is_flag=True, help="Skip items whose outputs are already complete."
 )
+def _check_fov(ctx, param, value):
+    import math
+
+    if value is not None and not (math.isfinite(value) and 0 < value < 180):
+        raise click.BadParameter(f"expected degrees in (0, 180), got {value}", ctx=ctx, param=param)
+    return value
+
+
+def _check_resolution(ctx, param, value):
+    """[W, H]: at least MIN_RENDER_SIDE pixels a side (Blender's smallest image) and
+    within the pixel budget -- refused here, before Blender starts."""
+    if value is None:
+        return value
+    from zcomp_cli.errors import UsageError
+    from zcomp_cli.limits import pixel_budget_problem
+    from zcomp_cli.pipeline.manifest import MIN_RENDER_SIDE
+
+    w, h = value
+    if min(w, h) < MIN_RENDER_SIDE:
+        raise click.BadParameter(f"{w}x{h} is too small: Blender renders at least {MIN_RENDER_SIDE}x"
+                                 f"{MIN_RENDER_SIDE} pixels", ctx=ctx, param=param)
+    try:
+        budget = pixel_budget_problem(w, h)
+    except UsageError as exc:  # a bad $ZCOMP_MAX_PIXELS
+        raise click.BadParameter(str(exc), ctx=ctx, param=param) from None
+    if budget:
+        raise click.BadParameter(budget, ctx=ctx, param=param)
+    return value
+
+
 fov_opt = click.option(
     "--fov-deg",
     type=float,
     default=None,
+    callback=_check_fov,
     help="Horizontal field of view in degrees (default 50).",
 )
 K_opt = click.option(
@@ -79,6 +110,7 @@ resolution_opt = click.option(
     type=(int, int),
     default=None,
     metavar="W H",
+    callback=_check_resolution,
     help="Image size in pixels.",
 )
 seed_opt = click.option("--seed", type=click.IntRange(min=0), default=None,
