@@ -163,7 +163,8 @@ def main(argv: list[str] | None = None) -> None:
 
     verbose = any(a in ("-v", "-vv", "--verbose") for a in (argv or sys.argv[1:]))
     try:
-        rv = cli.main(args=argv, prog_name="zcomp", standalone_mode=False)
+        with signals_as_interrupts():  # from the start: option callbacks write probe files too
+            rv = cli.main(args=argv, prog_name="zcomp", standalone_mode=False)
     except ZcompError as exc:
         if verbose:
             import traceback

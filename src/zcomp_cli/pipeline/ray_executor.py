@@ -110,6 +110,20 @@ class _Worker:
         return os.getpid(), sorted(statuses, key=lambda s: order[s.job.index])
 
 
+def cpus_per_worker(node_cpus: list[int], workers: int) -> int:
+    """The most CPUs each of ``workers`` actors can ask for so that all of them fit on
+    the nodes (``node_cpus``: each alive node's CPU count): at most an equal share of the
+    cluster, and never more than a node holds (an actor that fits nowhere would wait
+    forever). At least 1."""
+    nodes = [c for c in node_cpus if c > 0]
+    if not nodes or workers < 1:
+        return 1
+    for per in range(min(sum(nodes) // workers, max(nodes)), 1, -1):
+        if sum(c // per for c in nodes) >= workers:
+            return per
+    return 1
+
+
 class RayExecutor(Executor):
     """Runs the job stage on Ray actors. ``address``: ``auto``, ``HOST:PORT`` or
     ``ray://HOST:PORT`` (default ``$RAY_ADDRESS``, else a local Ray, or the Ray already
@@ -187,14 +201,21 @@ class RayExecutor(Executor):
         return [g[k:k + self.unit_size] for g in by_scene.values() for k in range(0, len(g), self.unit_size)]
 
     def _worker_count(self, ctx, n_units: int) -> tuple[int, dict]:
+        """How many workers, and what each asks Ray for. A CPU worker gets its share of
+        the cluster's cores (``cpus_per_worker``): Ray sets a worker's thread count
+        (OMP_NUM_THREADS) from its CPUs, and one worker on a many-core cluster limited
+        to one thread ran at 0.74 of the local executor."""
         gpu = ctx.renderer_spec.name == "zerocomp"
-        res = {"num_cpus": 1, "num_gpus": 1 if gpu else 0}
+        total = self._ray.cluster_resources()
         if self.workers is not None:
             n = self.workers
         else:
-            total = self._ray.cluster_resources()
             n = int(total.get("GPU" if gpu else "CPU", 0)) or 1
-        return max(1, min(n, n_units)), res
+        n = max(1, min(n, n_units))
+        if gpu:
+            return n, {"num_cpus": 1, "num_gpus": 1}
+        nodes = [int(nd.get("Resources", {}).get("CPU", 0)) for nd in self._ray.nodes() if nd.get("Alive")]
+        return n, {"num_cpus": cpus_per_worker(nodes, n), "num_gpus": 0}
 
     def run(self, ctx, works) -> list[JobStatus]:
         ray = self._ray or import_ray()
@@ -237,9 +258,12 @@ class RayExecutor(Executor):
             in_flight[actors[a].run_unit.remote(units[pick])] = (a, pick)
 
         try:
-            for a in range(n):
-                if pending:
-                    submit(a)
+            # two units per worker in flight: the next one waits in the actor's queue, so
+            # a worker never idles while the driver collects a result and sends more
+            for _ in range(2):
+                for a in range(n):
+                    if pending:
+                        submit(a)
             while in_flight:
                 ready, _ = ray.wait(list(in_flight), num_returns=1)
                 ref = ready[0]
@@ -263,6 +287,6 @@ class RayExecutor(Executor):
         finally:  # also when interrupted: no worker (and no Blender of theirs) goes on
             for a in actors:
                 ray.kill(a)
-        self.info.update(workers=n, units=len(units), worker_pids=sorted(pids),
+        self.info.update(workers=n, cpus_per_worker=res["num_cpus"], units=len(units), worker_pids=sorted(pids),
                          seconds=time.perf_counter() - t0)
         return statuses
