@@ -95,3 +95,19 @@ def small_example():
         return p
 
     return make
+
+
+@pytest.fixture
+def no_ray(monkeypatch):
+    """``no_ray()``: from then on, ``import ray`` fails as on a plain install."""
+    import builtins
+
+    real = builtins.__import__
+
+    def blocked(name, *a, **k):
+        if name == "ray" or name.startswith("ray."):
+            raise ImportError("No module named 'ray'")
+        return real(name, *a, **k)
+
+    return lambda: monkeypatch.setattr(builtins, "__import__", blocked)
+

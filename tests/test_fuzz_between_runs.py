@@ -41,7 +41,7 @@ from click.testing import CliRunner
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from hostile_project import base_manifest, make_project
+from hostile_project import base_manifest, make_project, textured_quad
 from zcomp_cli.cli import cli
 from zcomp_cli.imageio import read_image, read_map, write_exr, write_png
 
@@ -59,15 +59,6 @@ def _has_bpy() -> bool:
     import importlib.util
 
     return importlib.util.find_spec("bpy") is not None
-
-
-def _textured_quad(folder: Path) -> None:
-    folder.mkdir(parents=True, exist_ok=True)
-    write_png(folder / "tex.png", np.random.default_rng(0).random((8, 8, 3)).astype(np.float32))
-    (folder / "quad.mtl").write_text("newmtl m\nKd 1 1 1\nmap_Kd tex.png\n")
-    (folder / "quad.obj").write_text(
-        "mtllib quad.mtl\nv -0.5 0 0\nv 0.5 0 0\nv 0.5 1 0\nv -0.5 1 0\n"
-        "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nusemtl m\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n")
 
 
 # ----------------------------------------------------------------------------- input changes
@@ -94,7 +85,7 @@ def _two_scene_project(root: Path, mesh: bool) -> None:
                    {**copy.deepcopy(ball), "scene": "hall", "output": "hall_ball"},
                    {**copy.deepcopy(card), "scene": "hall", "output": "hall_card"}]
     if mesh:
-        _textured_quad(root / "objects/quad")
+        textured_quad(root / "objects/quad")
         doc["objects"]["quad"] = {"mesh": "objects/quad/quad.obj"}
         doc["jobs"].append({"scene": "hall", "object": "quad", "output": "hall_quad",
                             "pose": {"position": [0.3, -1.2, -3.2], "height": 0.5, "rotation_deg": [0, 20, 0]}})
@@ -257,7 +248,7 @@ def _signal_project(root: Path, mesh: bool) -> Path:
                     **({"pose": {"position": [0, -1.2, -3]}} if i % 2 else
                        {"placement": {"pixel": [10 + 4 * i, 36], "height": 0.3 + 0.02 * i}})} for i in range(10)]
     if mesh:
-        _textured_quad(root / "objects/quad")
+        textured_quad(root / "objects/quad")
         doc["objects"]["quad"] = {"mesh": "objects/quad/quad.obj"}
         doc["jobs"] += [{"scene": "room", "object": "quad", "output": f"quad{i}",
                          "pose": {"position": [0.2 * i, -1.2, -3.2], "height": 0.5}} for i in range(2)]

@@ -121,17 +121,8 @@ def test_status_reports_missing_and_failed(batch, tmp_path):
 # ------------------------------------------------------------------------------------
 # Ray
 # ------------------------------------------------------------------------------------
-def test_plain_install_names_the_extra(monkeypatch, batch, tmp_path):
-    import builtins
-
-    real = builtins.__import__
-
-    def no_ray(name, *a, **k):
-        if name == "ray" or name.startswith("ray."):
-            raise ImportError("No module named 'ray'")
-        return real(name, *a, **k)
-
-    monkeypatch.setattr(builtins, "__import__", no_ray)
+def test_plain_install_names_the_extra(no_ray, batch, tmp_path):
+    no_ray()
     res = CliRunner().invoke(cli, ["composite", str(batch), "--out", str(tmp_path / "o"), "--executor", "ray"])
     assert res.exit_code == 2 and "zcomp[ray]" in res.output
     res = CliRunner().invoke(cli, ["composite", str(batch), "--out", str(tmp_path / "o"), "--workers", "2"])
