@@ -111,7 +111,7 @@ def run_batch(
                                            digests=digests)
             digests.save()
             if to_run:
-                executor.check(ctx)
+                executor.check(ctx, len(to_run))
             summary = BatchSummary(statuses=list(skipped), shard=shard_info)
             running = {job.name for job, _ in to_run}
             if shard_info is None:  # (a shard's own summary tells `zcomp status` it finished)

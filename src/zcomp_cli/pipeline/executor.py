@@ -1,8 +1,9 @@
 """Executors run the job stage of a batch (``pipeline.batch`` stage 4).
 
 :class:`Executor` is the interface ``run_batch`` uses: ``preflight()`` before anything
-is written (refuse what cannot work: Ray not installed, no cluster), ``check(ctx)``
-once the output folder exists (Ray: every node sees it), ``run(ctx, works)`` the job
+is written (refuse what cannot work: Ray not installed, no cluster), ``check(ctx,
+n_jobs)`` once the output folder exists and the plan is made (Ray: every node sees it;
+the workers start), ``run(ctx, works)`` the job
 stage, ``renders_objects`` (True: the executor renders the object intrinsics itself,
 stage 3 is left to it) and ``info`` (figures for the summary).
 
@@ -46,8 +47,9 @@ class Executor(ABC):
     def preflight(self) -> None:
         """Before anything is written: raise UsageError for what cannot work."""
 
-    def check(self, ctx: BatchContext) -> None:
-        """Once ``ctx.out_root`` exists, before any job runs."""
+    def check(self, ctx: BatchContext, n_jobs: int = 0) -> None:
+        """Once ``ctx.out_root`` exists and the plan is made (``n_jobs`` will run),
+        before any job runs: e.g. Ray's shared-folder probe, and its workers' start."""
 
     @abstractmethod
     def run(self, ctx: BatchContext, works: list[JobWork]) -> list[JobStatus]:

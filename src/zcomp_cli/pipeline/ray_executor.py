@@ -142,6 +142,7 @@ class RayExecutor(Executor):
         self.unit_size = max(1, int(unit_size))
         self.max_retries = int(max_retries)
         self._ray = None
+        self._workers: tuple[list, dict] | None = None  # started by check(), used by run()
 
     # -- before any work ---------------------------------------------------------
     def preflight(self) -> None:
@@ -155,10 +156,26 @@ class RayExecutor(Executor):
                 raise UsageError(f"--executor ray: cannot join the Ray cluster at {address or 'a new local Ray'}: "
                                  f"{exc}") from None
 
-    def check(self, ctx) -> None:
+    def check(self, ctx, n_jobs: int = 0) -> None:
+        """``OUT`` is seen by every node; then the workers start, so that their start
+        (a process, zcomp's imports, the renderer) overlaps the driver's own work until
+        the job stage."""
         if self._ray is None:
             self.preflight()
         self._check_shared_output(ctx.out_root)
+        if n_jobs:
+            self._workers = self._start_workers(ctx, n_jobs)
+
+    def _start_workers(self, ctx, at_most: int) -> tuple[list, dict]:
+        """(actors, the resources each asked for): at most ``at_most`` workers."""
+        ray = self._ray
+        n, res = self._worker_count(ctx, at_most)
+        opts = dict(max_restarts=self.max_retries, max_task_retries=self.max_retries, **res)
+        if self.runtime_env:
+            opts["runtime_env"] = self.runtime_env
+        actor_cls = ray.remote(**opts)(_Worker)
+        return [actor_cls.remote(ctx.manifest, str(ctx.out_root), ctx.renderer_spec, ctx.debug,
+                                 ctx.cache_root, ctx.batch_size) for _ in range(n)], res
 
     def _check_shared_output(self, out_root: Path) -> None:
         """Every node with Ray workers must see ``out_root``: write a probe, read it
@@ -228,15 +245,18 @@ class RayExecutor(Executor):
             if rep is not None and rep.get("status") == "done":
                 (ctx.out_root / w.job.name / REPORT).unlink(missing_ok=True)
         units = self._units(works)
+        started, self._workers = self._workers, None
+        actors, res = started if started is not None else ([], {})
         if not units:
+            for a in actors:
+                ray.kill(a)
             return []
-        n, res = self._worker_count(ctx, len(units))
-        opts = dict(max_restarts=self.max_retries, max_task_retries=self.max_retries, **res)
-        if self.runtime_env:
-            opts["runtime_env"] = self.runtime_env
-        actor_cls = ray.remote(**opts)(_Worker)
-        actors = [actor_cls.remote(ctx.manifest, str(ctx.out_root), ctx.renderer_spec, ctx.debug,
-                                   ctx.cache_root, ctx.batch_size) for _ in range(n)]
+        if not actors:
+            actors, res = self._start_workers(ctx, len(units))
+        for a in actors[len(units):]:  # more workers than units (units hold up to unit_size jobs)
+            ray.kill(a)
+        actors = actors[:len(units)]
+        n = len(actors)
         pending = list(range(len(units)))
         last_scene: dict[int, str] = {}
         in_flight: dict = {}  # ref -> (actor index, unit index)
