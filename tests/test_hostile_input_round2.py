@@ -295,6 +295,23 @@ def test_sigterm_and_sighup_clean_up_like_ctrl_c(tmp_path, sig):
     assert json.loads((out / "summary.json").read_text())["done"] == 40
 
 
+def test_nohup_keeps_ignoring_hangups(tmp_path):
+    """``nohup zcomp ...`` ignores SIGHUP: zcomp must not turn it into an interrupt."""
+    m = _long_batch(tmp_path, n=12)
+    out = tmp_path / "out"
+
+    def ignore_hup():
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)
+
+    p = subprocess.Popen(_zcomp("-q", "composite", m, "--out", out), env=_env(), preexec_fn=ignore_hup,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    _wait_for_reports(out, 1, p)
+    p.send_signal(signal.SIGHUP)
+    _, err = p.communicate(timeout=300)
+    assert p.returncode == 0, err
+    assert json.loads((out / "summary.json").read_text())["done"] == 12
+
+
 SLEEPER = """import json, os, sys, time
 from zcomp_cli.blender.runner import EVENT_PREFIX
 print(EVENT_PREFIX + json.dumps({"event": "ready", "startup_s": 0}), flush=True)
@@ -661,6 +678,7 @@ def test_redo_changed_redoes_exactly_the_changed_job(project):
 def test_resume_with_debug_writes_the_debug_maps(project):
     out = project / "out"
     assert _composite(project / "jobs.yaml", out).exit_code == 0
+    assert _composite(project / "jobs.yaml", out, "--debug").exit_code == 2  # nothing replaced unasked
     assert _composite(project / "jobs.yaml", out, "--resume", "--debug").exit_code == 0
     for job in ("000_room_ball", "001_room_card"):
         assert (out / job / "debug/f_bg.exr").is_file() and (out / job / "grid.png").is_file()

@@ -39,7 +39,8 @@ def exit_code_of(exc: KeyboardInterrupt) -> int:
 def signals_as_interrupts():
     """While a command runs: SIGTERM and SIGHUP raise ``Interrupted`` (as SIGINT raises
     KeyboardInterrupt); a repeated one is ignored so that the clean-up it triggered
-    finishes. The previous handlers come back afterwards. Main thread only (elsewhere,
+    finishes. A signal the parent told zcomp to ignore (``nohup`` ignores SIGHUP) stays
+    ignored. The previous handlers come back afterwards. Main thread only (elsewhere,
     e.g. in a Ray worker, nothing changes)."""
     import signal
     import threading
@@ -58,6 +59,8 @@ def signals_as_interrupts():
     old = {}
     for sig in (signal.SIGTERM, signal.SIGHUP):
         try:
+            if signal.getsignal(sig) is signal.SIG_IGN:  # `nohup zcomp ...`: a hang-up is ignored, as asked
+                continue
             old[sig] = signal.signal(sig, handler)
         except (ValueError, OSError):  # pragma: no cover - not the main interpreter
             pass

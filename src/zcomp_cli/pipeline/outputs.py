@@ -191,7 +191,9 @@ def plan_outputs(manifest, jobs, out_root: Path, renderer, samples, *, resume: b
         st = job_state(out_dir, fp, need_debug=debug)
         if st.note:
             log.warning("%s", st.note)
-        if st.state in ("unfinished", "damaged", "incomplete") or overwrite:
+        if st.state in ("unfinished", "damaged") or overwrite:
+            to_run.append((job, fp))
+        elif st.state == "incomplete" and resume:  # --resume --debug: make the debug maps
             to_run.append((job, fp))
         elif st.state == "done" and resume:
             skipped.append(JobStatus(job, "skipped", "finished in an earlier run (--resume)", 0.0, out_dir))
