@@ -160,14 +160,32 @@ def cli(ctx, verbose: int, quiet: bool):
     ctx.obj["quiet"] = quiet
 
 
+def _ignore_signals_from_now() -> None:
+    """The command is over (its outputs and summary are written or it has failed): a
+    SIGTERM or SIGHUP during the interpreter's tear-down (a fraction of a second; Ray's
+    shutdown) is ignored and the process exits with the command's own code. (No Python
+    handler runs during finalization, where the default action would kill the process
+    with the signal, as if the finished run had been interrupted; an ignored signal
+    stays ignored there.)"""
+    import signal
+
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        with contextlib.suppress(ValueError, OSError):
+            signal.signal(sig, signal.SIG_IGN)
+
+
 def main(argv: list[str] | None = None) -> None:
     """Entry point: run the group, turning typed errors into exit codes."""
     from zcomp_cli.errors import ZcompError
 
     verbose = any(a in ("-v", "-vv", "--verbose") for a in (argv or sys.argv[1:]))
     try:
-        with signals_as_interrupts():  # from the start: option callbacks write probe files too
-            rv = cli.main(args=argv, prog_name="zcomp", standalone_mode=False)
+        try:
+            with signals_as_interrupts():  # from the start: option callbacks write probe files too
+                rv = cli.main(args=argv, prog_name="zcomp", standalone_mode=False)
+        finally:
+            if argv is None:  # the `zcomp` process itself (not a caller's process): it ends now
+                _ignore_signals_from_now()
     except ZcompError as exc:
         if verbose:
             import traceback
