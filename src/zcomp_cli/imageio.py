@@ -37,21 +37,25 @@ def atomic_path(path, suffix: str | None = None):
     The temporary name keeps the extension so that writers that pick the format from
     the name (OpenImageIO, matplotlib) still work.
     """
+    from zcomp_cli.interrupts import deferred
+
     path = Path(path)
     suffix = suffix if suffix is not None else path.suffix
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{suffix}", dir=path.parent)
-        os.close(fd)
+        with deferred():  # an interrupt waits until the temporary is ours to remove
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{suffix}", dir=path.parent)
+            os.close(fd)
     except OSError as exc:
         raise OutputError(f"cannot write: {exc.strerror or exc}", where=str(path)) from exc
     try:
         yield Path(tmp)
         if os.path.getsize(tmp) == 0:
             raise OutputError("the writer produced an empty file (disk full?)", where=str(path))
-        # mkstemp creates 0600 files; outputs get the usual permissions (umask applied).
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
+        with deferred():  # installed, or removed: never left half way
+            # mkstemp creates 0600 files; outputs get the usual permissions (umask applied).
+            os.chmod(tmp, 0o666 & ~_umask())
+            os.replace(tmp, path)
     except OSError as exc:
         with contextlib.suppress(OSError):
             os.unlink(tmp)

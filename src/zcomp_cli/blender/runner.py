@@ -50,9 +50,12 @@ KEEP_MARK = "[zcomp] log kept: an item failed"
 
 
 def _temporary_log() -> Path:
+    from zcomp_cli.interrupts import deferred
+
     # the pid in the name lets a later run remove it if this process is killed
-    fd, tmp = tempfile.mkstemp(prefix=f"{LOG_PREFIX}{os.getpid()}-", suffix=".log")
-    os.close(fd)
+    with deferred():
+        fd, tmp = tempfile.mkstemp(prefix=f"{LOG_PREFIX}{os.getpid()}-", suffix=".log")
+        os.close(fd)
     return Path(tmp)
 
 
@@ -156,10 +159,10 @@ def run_blender_batch(
     path = script_path(script)
     result = BatchResult()
     temporary_log = log_path is None
-    result.log_path = _temporary_log() if log_path is None else Path(log_path)
     pending = list(items)
     max_restarts = len(items) if max_restarts is None else max_restarts
     clean = False
+    result.log_path = _temporary_log() if log_path is None else Path(log_path)
     try:
         with open(result.log_path, "a", encoding="utf-8", errors="replace") as log:
             while pending:

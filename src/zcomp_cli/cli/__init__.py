@@ -17,17 +17,9 @@ import click
 
 from zcomp_cli import __version__
 
+from zcomp_cli.interrupts import Interrupted  # noqa: F401 - re-exported
+
 EXIT_INTERRUPTED = 130  # 128 + SIGINT
-
-
-class Interrupted(KeyboardInterrupt):
-    """SIGTERM or SIGHUP, raised in the main thread like Ctrl-C's KeyboardInterrupt, so
-    that a terminated run cleans up as an interrupted one does: its summary rewritten
-    with what is on disk, its locks and temporaries removed, its Blender child killed."""
-
-    def __init__(self, signum: int):
-        super().__init__(signum)
-        self.signum = signum
 
 
 def exit_code_of(exc: KeyboardInterrupt) -> int:
@@ -37,13 +29,16 @@ def exit_code_of(exc: KeyboardInterrupt) -> int:
 
 @contextlib.contextmanager
 def signals_as_interrupts():
-    """While a command runs: SIGTERM and SIGHUP raise ``Interrupted`` (as SIGINT raises
-    KeyboardInterrupt); a repeated one is ignored so that the clean-up it triggered
-    finishes. A signal the parent told zcomp to ignore (``nohup`` ignores SIGHUP) stays
-    ignored. The previous handlers come back afterwards. Main thread only (elsewhere,
-    e.g. in a Ray worker, nothing changes)."""
+    """While a command runs: SIGINT, SIGTERM and SIGHUP raise ``Interrupted`` (a
+    KeyboardInterrupt), at once or at the end of a step that must run whole
+    (``interrupts.deferred``); a repeated one is ignored so that the clean-up it
+    triggered finishes. A signal the parent told zcomp to ignore (``nohup`` ignores
+    SIGHUP) stays ignored. The previous handlers come back afterwards. Main thread only
+    (elsewhere, e.g. in a Ray worker, nothing changes)."""
     import signal
     import threading
+
+    from zcomp_cli.interrupts import interrupt
 
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -54,10 +49,10 @@ def signals_as_interrupts():
         if seen:
             return
         seen.append(signum)
-        raise Interrupted(signum)
+        interrupt(signum)
 
     old = {}
-    for sig in (signal.SIGTERM, signal.SIGHUP):
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         try:
             if signal.getsignal(sig) is signal.SIG_IGN:  # `nohup zcomp ...`: a hang-up is ignored, as asked
                 continue

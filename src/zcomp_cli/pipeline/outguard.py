@@ -35,6 +35,7 @@ import time
 from pathlib import Path
 
 from zcomp_cli.errors import UsageError
+from zcomp_cli.interrupts import deferred
 
 LOCK_PREFIX = ".zcomp-"
 
@@ -62,7 +63,12 @@ class _FileLock:
         self.fd: int | None = None
 
     def try_acquire(self) -> dict | None:
-        """Take the lock; None on success, else what the current holder wrote."""
+        """Take the lock; None on success, else what the current holder wrote. Whole or
+        not at all: an interrupt waits (a lock file opened but not recorded would stay)."""
+        with deferred():
+            return self._try_acquire()
+
+    def _try_acquire(self) -> dict | None:
         for _ in range(20):
             fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
             try:
@@ -89,11 +95,12 @@ class _FileLock:
     def release(self) -> None:
         if self.fd is None:
             return
-        with contextlib.suppress(OSError):
-            os.unlink(self.path)
-        with contextlib.suppress(OSError):
-            os.close(self.fd)
-        self.fd = None
+        with deferred():
+            with contextlib.suppress(OSError):
+                os.unlink(self.path)
+            with contextlib.suppress(OSError):
+                os.close(self.fd)
+            self.fd = None
 
 
 def _read_holder(fd: int) -> dict | None:
