@@ -220,8 +220,8 @@ class RayExecutor(Executor):
     def _worker_count(self, ctx, n_units: int) -> tuple[int, dict]:
         """How many workers, and what each asks Ray for. A CPU worker gets its share of
         the cluster's cores (``cpus_per_worker``): Ray sets a worker's thread count
-        (OMP_NUM_THREADS) from its CPUs, and one worker on a many-core cluster limited
-        to one thread ran at 0.74 of the local executor."""
+        (OMP_NUM_THREADS) from its CPUs, so a lone worker computes with the threads a
+        local run has, not with one."""
         gpu = ctx.renderer_spec.name == "zerocomp"
         total = self._ray.cluster_resources()
         if self.workers is not None:
