@@ -73,6 +73,8 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=24)
     ap.add_argument("--size", type=int, nargs=2, default=(128, 96), metavar=("W", "H"))
     ap.add_argument("--repeat", type=int, default=3, help="rounds over all configurations")
+    ap.add_argument("--configs", default="local,ray-1,ray-2,shards-2",
+                    help="comma-separated configurations to run (local is always run: the reference)")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--plot", type=Path, default=None)
     ap.add_argument("--replot", type=Path, default=None, metavar="JSON",
@@ -98,6 +100,11 @@ def main(argv=None) -> int:
                                          "--workers", 2)],
             "shards-2": lambda out: [_zcomp(manifest, "--out", out, "--shard", f"{i}/2") for i in range(2)],
         }
+        want = {"local", *(c.strip() for c in args.configs.split(",") if c.strip())}
+        unknown = want - set(cmds)
+        if unknown:
+            raise SystemExit(f"unknown configurations {sorted(unknown)}; known: {', '.join(cmds)}")
+        cmds = {k: v for k, v in cmds.items() if k in want}
         t = time.perf_counter()
         subprocess.run([str(ray_bin), "start", "--head", "--num-cpus", "2", "--include-dashboard", "false",
                         "--disable-usage-stats"], env=_env(), check=True, capture_output=True)

@@ -106,3 +106,19 @@ def marigold_dirs(tmp_path_factory):
 
     root = tmp_path_factory.mktemp("marigold")
     return {name: save_pipeline(root / name, name) for name in FAMILIES}
+
+
+@pytest.fixture
+def no_ray(monkeypatch):
+    """``no_ray()``: from then on, ``import ray`` fails as on a plain install."""
+    import builtins
+
+    real = builtins.__import__
+
+    def blocked(name, *a, **k):
+        if name == "ray" or name.startswith("ray."):
+            raise ImportError("No module named 'ray'")
+        return real(name, *a, **k)
+
+    return lambda: monkeypatch.setattr(builtins, "__import__", blocked)
+

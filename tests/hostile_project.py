@@ -39,6 +39,37 @@ def make_project(root: Path, *, width: int = W, height: int = H) -> Path:
     return p
 
 
+def write_manifest(project: Path, doc, name: str = "m.yaml") -> Path:
+    """Write ``doc`` (a dict, or YAML text as is) to ``project/name``; return the path."""
+    p = Path(project) / name
+    p.write_text(doc if isinstance(doc, str) else yaml.safe_dump(doc, sort_keys=False))
+    return p
+
+
+def run_composite(manifest, out, *extra):
+    """``zcomp -q composite MANIFEST --out OUT ...`` in process; a Python exception other
+    than the CLI's exit fails the calling test."""
+    from click.testing import CliRunner
+
+    from zcomp_cli.cli import cli
+
+    r = CliRunner().invoke(cli, ["-q", "composite", str(manifest), "--out", str(out), *map(str, extra)])
+    assert r.exception is None or isinstance(r.exception, SystemExit), r.exc_info
+    return r
+
+
+def textured_quad(folder: Path) -> Path:
+    """A textured quad mesh, OBJ -> MTL -> PNG, in ``folder``; returns the OBJ."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    write_png(folder / "tex.png", np.random.default_rng(0).random((8, 8, 3)).astype(np.float32))
+    (folder / "quad.mtl").write_text("newmtl m\nKd 1 1 1\nmap_Kd tex.png\n")
+    (folder / "quad.obj").write_text(
+        "mtllib quad.mtl\nv -0.5 0 0\nv 0.5 0 0\nv 0.5 1 0\nv -0.5 1 0\n"
+        "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nusemtl m\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n")
+    return folder / "quad.obj"
+
+
 def base_manifest(width: int = W, height: int = H) -> dict:
     return {
         "version": 1,

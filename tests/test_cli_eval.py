@@ -68,11 +68,18 @@ def test_out_prefix_and_linear_and_mask(folders, tmp_path):
 
 
 def test_size_mismatch_names_files(folders):
+    """A pair of another size is listed as unscored (named, with both files), the rest
+    is scored (issue 30: it used to abort the whole evaluation)."""
     pred, ref = folders
     write_png(ref / "a.png", _img(0, 17, 20))
     r = run("eval", "--metrics", "psnr", pred, ref)
-    assert r.exit_code == 1
+    assert r.exit_code == 0, r.output
     assert "size mismatch" in r.output and str(pred / "a.png") in r.output and str(ref / "a.png") in r.output
+    d = json.loads((pred / "eval.json").read_text())
+    assert "a" in d["unscored"] and "a" not in [i["name"] for i in d["images"]] and d["images"]
+    write_exr(ref / "sub" / "b.exr", _img(2, 17, 20))
+    r = run("eval", "--metrics", "psnr", pred, ref)
+    assert r.exit_code == 1 and "no pair could be scored" in r.output
 
 
 def test_missing_pair_and_nan(folders):

@@ -18,7 +18,7 @@ import pytest
 import yaml
 from click.testing import CliRunner
 
-from hostile_project import base_manifest, make_project
+from hostile_project import base_manifest, make_project, run_composite, write_manifest
 from zcomp_cli.cli import cli
 from zcomp_cli.errors import ManifestError, OutputError
 from zcomp_cli.imageio import verify_image, write_exr, write_json_atomic, write_png
@@ -41,16 +41,8 @@ def project(tmp_path):
     return tmp_path
 
 
-def _write(project: Path, doc, name="m.yaml") -> Path:
-    p = project / name
-    p.write_text(doc if isinstance(doc, str) else yaml.safe_dump(doc, sort_keys=False))
-    return p
-
-
-def _composite(manifest, out, *extra):
-    r = CliRunner().invoke(cli, ["-q", "composite", str(manifest), "--out", str(out), *extra])
-    assert r.exception is None or isinstance(r.exception, SystemExit), r.exc_info
-    return r
+_write = write_manifest
+_composite = run_composite
 
 
 def _problems(path) -> list[str]:

@@ -270,7 +270,7 @@ def test_lock_of_a_killed_run_is_taken_over(project):
     p = _slow_run(project / "jobs.yaml", out, hold_s=60)
     p.kill()
     p.wait()
-    assert list(out.glob(".zcomp-job-*.lock"))  # its lock files are still there
+    assert list(out.glob(".zcomp-run-*.lock"))  # its lock file is still there
     r = _run(project / "jobs.yaml", out)
     assert r.exit_code == 0, r.output
     assert not list(out.glob(".zcomp-*"))

@@ -1,7 +1,10 @@
 """One contract, every renderer (the diffusers ``PipelineTesterMixin`` way).
 
-Each entry of ``renderers.registry.RENDERERS`` must be covered here: a new renderer
-without a contract row fails ``test_every_renderer_is_covered``. The contract:
+Each entry of ``renderers.registry.RENDERERS`` is checked here, the renderers of
+installed plugins (the ``zcomp.renderers`` entry point group) included: a built-in
+renderer needs a row in ``CONTRACT`` (else ``test_every_renderer_is_covered`` fails); a
+plugin brings its own settings (``RendererEntry.contract_settings``, ``contract_exact``).
+The contract:
 
 * deterministic for a seed;
 * one (H, W, 3) float32 finite image per request;
@@ -59,16 +62,25 @@ CONTRACT = {
 }
 
 
+def _contract(name):
+    """(settings factory, exact) of a renderer: its CONTRACT row, or a plugin's own."""
+    if name in CONTRACT:
+        return CONTRACT[name]
+    entry = RENDERERS[name]
+    return (lambda f: dict(entry.contract_settings)), entry.contract_exact
+
+
 def test_every_renderer_is_covered():
-    assert set(CONTRACT) == set(RENDERERS)
+    assert set(CONTRACT) == set(RENDERERS.builtin)
+    assert all(n in CONTRACT or RENDERERS[n].source != "zcomp" for n in RENDERERS)
 
 
 # The tiny diffusion model takes seconds per call on a CPU: its rows are slow tests.
 @pytest.fixture(scope="module", params=[pytest.param(n, marks=pytest.mark.slow) if n == "zerocomp" else n
-                                        for n in sorted(CONTRACT)])
+                                        for n in sorted(RENDERERS)])
 def renderer_case(request, tmp_path_factory):
     name = request.param
-    make_settings, exact = CONTRACT[name]
+    make_settings, exact = _contract(name)
     settings = make_settings(tmp_path_factory)
     return name, settings, exact
 

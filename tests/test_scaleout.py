@@ -121,17 +121,8 @@ def test_status_reports_missing_and_failed(batch, tmp_path):
 # ------------------------------------------------------------------------------------
 # Ray
 # ------------------------------------------------------------------------------------
-def test_plain_install_names_the_extra(monkeypatch, batch, tmp_path):
-    import builtins
-
-    real = builtins.__import__
-
-    def no_ray(name, *a, **k):
-        if name == "ray" or name.startswith("ray."):
-            raise ImportError("No module named 'ray'")
-        return real(name, *a, **k)
-
-    monkeypatch.setattr(builtins, "__import__", no_ray)
+def test_plain_install_names_the_extra(no_ray, batch, tmp_path):
+    no_ray()
     res = CliRunner().invoke(cli, ["composite", str(batch), "--out", str(tmp_path / "o"), "--executor", "ray"])
     assert res.exit_code == 2 and "zcomp[ray]" in res.output
     res = CliRunner().invoke(cli, ["composite", str(batch), "--out", str(tmp_path / "o"), "--workers", "2"])
@@ -210,3 +201,16 @@ def test_ray_renders_meshes_in_its_workers_like_a_local_run(ray_local, small_exa
     assert r.exit_code == 0, r.output
     assert list((tmp_path / "cache").rglob("meta.json"))  # the worker rendered the objects
     assert _outputs(remote) == _outputs(local) and len(_outputs(local)) == 6
+
+
+def test_ray_workers_get_their_share_of_the_cpus():
+    """A worker asks Ray for its share of the cluster's cores (Ray sets its thread count
+    from it: one worker used to be limited to one thread), never more than a node
+    holds, and all the workers must fit on the nodes."""
+    from zcomp_cli.pipeline.ray_executor import cpus_per_worker
+
+    assert cpus_per_worker([2], 1) == 2 and cpus_per_worker([2], 2) == 1 and cpus_per_worker([4], 8) == 1
+    assert cpus_per_worker([16, 16, 16, 16], 4) == 16 and cpus_per_worker([16, 16], 8) == 4
+    assert cpus_per_worker([10, 6], 2) == 6  # 8 each would leave the second worker nowhere to go
+    assert cpus_per_worker([], 3) == 1
+

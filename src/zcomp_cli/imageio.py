@@ -37,21 +37,25 @@ def atomic_path(path, suffix: str | None = None):
     The temporary name keeps the extension so that writers that pick the format from
     the name (OpenImageIO, matplotlib) still work.
     """
+    from zcomp_cli.interrupts import deferred
+
     path = Path(path)
     suffix = suffix if suffix is not None else path.suffix
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{suffix}", dir=path.parent)
-        os.close(fd)
+        with deferred():  # an interrupt waits until the temporary is ours to remove
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{suffix}", dir=path.parent)
+            os.close(fd)
     except OSError as exc:
         raise OutputError(f"cannot write: {exc.strerror or exc}", where=str(path)) from exc
     try:
         yield Path(tmp)
         if os.path.getsize(tmp) == 0:
             raise OutputError("the writer produced an empty file (disk full?)", where=str(path))
-        # mkstemp creates 0600 files; outputs get the usual permissions (umask applied).
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
+        with deferred():  # installed, or removed: never left half way
+            # mkstemp creates 0600 files; outputs get the usual permissions (umask applied).
+            os.chmod(tmp, 0o666 & ~_umask())
+            os.replace(tmp, path)
     except OSError as exc:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
@@ -136,7 +140,8 @@ def image_header(path) -> tuple[int, int, int]:
     oiio = _oiio()
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
-        raise ValueError(_first_line(oiio.geterror()) or "unreadable image (unknown format)")
+        why = _first_line(oiio.geterror()) or "unreadable image (unknown format)"
+        raise ValueError(why + _misnamed(path))
     try:
         spec = inp.spec()
         return int(spec.width), int(spec.height), int(spec.nchannels)
@@ -158,16 +163,18 @@ def verify_image(path) -> tuple[int, int, int]:
     if w <= 0 or h <= 0:
         raise ValueError(f"empty image ({w}x{h})")
     ext = Path(path).suffix.lower()
-    if ext == ".png" or ext in (".jpg", ".jpeg"):
+    real = sniff_format(path)  # the content decides, not the name (a JPEG named .png)
+    if real in ("PNG", "JPEG"):
         with open(path, "rb") as f:
             f.seek(0, os.SEEK_END)
             size = f.tell()
             f.seek(max(0, size - 64))
             tail = f.read()
-        if ext == ".png" and b"IEND" not in tail[-12:]:
-            raise ValueError("truncated PNG (no IEND chunk at the end of the file)")
-        if ext != ".png" and b"\xff\xd9" not in tail:
-            raise ValueError("truncated JPEG (no end-of-image marker)")
+        alias = _misnamed(path)
+        if real == "PNG" and b"IEND" not in tail[-12:]:
+            raise ValueError(f"truncated PNG{alias} (no IEND chunk at the end of the file)")
+        if real == "JPEG" and b"\xff\xd9" not in tail:
+            raise ValueError(f"truncated JPEG{alias} (no end-of-image marker)")
         return w, h, c
     if pixel_budget_problem(w, 1) is not None:
         return w, h, c  # a single row over budget: the reader will refuse it anyway
@@ -189,6 +196,32 @@ def verify_image(path) -> tuple[int, int, int]:
     finally:
         inp.close()
     return w, h, c
+
+
+_MAGIC = ((b"\x89PNG\r\n\x1a\n", "PNG"), (b"\xff\xd8\xff", "JPEG"), (b"v/1\x01", "EXR"),
+          (b"#?RADIANCE", "HDR"), (b"#?RGBE", "HDR"), (b"II*\0", "TIFF"), (b"MM\0*", "TIFF"))
+
+
+_NAMED = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG", ".exr": "EXR", ".hdr": "HDR", ".tif": "TIFF",
+          ".tiff": "TIFF"}
+
+
+def _misnamed(path) -> str:
+    """' (a JPEG file named .png)' when the content is another format than the name
+    says, else ''."""
+    real, named = sniff_format(path), _NAMED.get(Path(path).suffix.lower())
+    return f" (a {real} file named {Path(path).suffix})" if real and named and real != named else ""
+
+
+def sniff_format(path) -> str | None:
+    """The format an image file's first bytes say it is (PNG, JPEG, EXR, HDR, TIFF),
+    whatever its name; None when unknown."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(16)
+    except OSError:
+        return None
+    return next((name for magic, name in _MAGIC if head.startswith(magic)), None)
 
 
 def _read_raw(path) -> tuple[np.ndarray, str]:

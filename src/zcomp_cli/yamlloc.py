@@ -85,9 +85,11 @@ def _check_expansion(root, limit: int) -> None:
                 stack.append((c, False))
 
 
-# YAML 1.2 floats without a dot ("1e9", "-2E-3"), which YAML 1.1 reads as strings.
-_Loader.add_implicit_resolver(
-    "tag:yaml.org,2002:float", re.compile(r"^[-+]?[0-9][0-9_]*[eE][-+]?[0-9]+$"), list("-+0123456789"))
+# Every float of YAML 1.2's core schema that YAML 1.1 (PyYAML) reads as a string: an
+# exponent without a sign ("1e9", "1.0e6", "1.5E3", ".5e3") or without a dot ("-2E-3").
+# (Integers keep PyYAML's resolver: a float needs a dot or an exponent.)
+YAML12_FLOAT = re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$")
+_Loader.add_implicit_resolver("tag:yaml.org,2002:float", YAML12_FLOAT, list("-+.0123456789"))
 
 
 def _construct_mapping(loader, node, deep=False):

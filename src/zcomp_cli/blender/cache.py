@@ -3,7 +3,9 @@
 Key: sha256 of (mesh content hash, pose, K, resolution, render settings, script
 version). An entry is a bundle folder ``<cache>/<key[:2]>/<key>/``; it is complete only
 when its ``meta.json`` exists (written last), so entries left by a crash are ignored and
-overwritten. Entries are created in a temporary sibling folder and renamed into place.
+overwritten. Entries are completed in a scratch folder of their writer
+(``<cache>/.work-<pid>-*``) and renamed into place in one step; runs sharing a cache
+never delete each other's entries (``store``).
 
 Each entry records the sha256 of its files (``cache-hashes.json``); a lookup verifies
 them, so an entry edited or damaged after it was made is dropped and rendered again
@@ -17,6 +19,7 @@ import hashlib
 import json
 import os
 import shutil
+import uuid
 from pathlib import Path
 
 from zcomp_cli.bundle import ObjectBundle
@@ -59,19 +62,40 @@ def _file_hashes(folder: Path) -> dict[str, str]:
 
 def lookup(cache_dir, key: str) -> Path | None:
     """The complete, intact cache entry for ``key``, or None. An entry whose files do
-    not match their recorded hashes (or that has none) is removed."""
+    not match their recorded hashes (or that has none) is moved aside and removed."""
     d = entry_dir(cache_dir, key)
-    if not ObjectBundle.is_complete(d):
-        return None
-    try:
-        recorded = json.loads((d / HASHES).read_text())
-        ok = isinstance(recorded, dict) and recorded == _file_hashes(d)
-    except (OSError, ValueError):
-        ok = False
-    if not ok:
-        shutil.rmtree(d, ignore_errors=True)
+    if not _intact(d):
+        if d.exists():
+            _discard(cache_dir, d)
         return None
     return d
+
+
+def _intact(d: Path) -> bool:
+    if not ObjectBundle.is_complete(d):
+        return False
+    try:
+        recorded = json.loads((d / HASHES).read_text())
+        return isinstance(recorded, dict) and recorded == _file_hashes(d)
+    except (OSError, ValueError):
+        return False
+
+
+def _scratch(cache_dir, what: str) -> Path:
+    """A fresh name for a scratch folder of this process in the cache (``.work-<pid>-``:
+    a later run's sweep removes it if this process dies)."""
+    return Path(cache_dir) / f".work-{os.getpid()}-{what}-{uuid.uuid4().hex[:12]}"
+
+
+def _discard(cache_dir, d: Path) -> None:
+    """Remove entry ``d`` without ever exposing half of it: rename it away first (a
+    reader copying it from its old name keeps a whole entry or finds none)."""
+    trash = _scratch(cache_dir, "trash")
+    try:
+        os.rename(d, trash)
+    except OSError:
+        return  # gone already, or another run moved it: not ours to remove
+    shutil.rmtree(trash, ignore_errors=True)
 
 
 def copy_bundle(src, dst) -> None:
@@ -97,16 +121,35 @@ def copy_bundle(src, dst) -> None:
 
 
 def store(cache_dir, key: str, bundle_folder) -> Path:
-    """Move a finished bundle folder into the cache under ``key``; returns the entry."""
-    final = entry_dir(cache_dir, key)
-    final.parent.mkdir(parents=True, exist_ok=True)
-    if final.exists():
-        shutil.rmtree(final, ignore_errors=True)
-    try:
-        os.replace(bundle_folder, final)
-    except OSError:  # another filesystem: copy instead
-        copy_bundle(bundle_folder, final)
+    """Move a finished bundle folder into the cache under ``key``; returns the entry.
+
+    Race-free between runs sharing a cache: the entry is completed (``cache-hashes.json``
+    written) under a name of its own, then renamed into place in one step. If an intact
+    entry is there already (another run stored the same render first), it is kept and
+    ours dropped; a damaged one is moved aside (renamed, then removed) before ours goes
+    in. No run ever deletes an entry another run is writing: nobody writes at the
+    entry's own name."""
     from zcomp_cli.imageio import write_json_atomic
 
-    write_json_atomic(final / HASHES, _file_hashes(final))
-    return final
+    final = entry_dir(cache_dir, key)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    src = Path(bundle_folder)
+    staged = _scratch(cache_dir, "store")
+    try:
+        os.rename(src, staged)
+    except OSError:  # another filesystem (or a folder we may not move): copy instead
+        copy_bundle(src, staged)
+    write_json_atomic(staged / HASHES, _file_hashes(staged))
+    try:
+        for _ in range(10):
+            try:
+                os.rename(staged, final)
+                return final
+            except OSError:  # a non-empty folder is there: another run's entry
+                if _intact(final):
+                    return final
+                _discard(cache_dir, final)
+        raise OSError(f"cannot store cache entry {final}: it keeps changing")
+    finally:
+        if staged.exists():
+            shutil.rmtree(staged, ignore_errors=True)

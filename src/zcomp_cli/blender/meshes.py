@@ -46,33 +46,166 @@ def mesh_format(path) -> str:
     return MESH_FORMATS[suffix]
 
 
-def _side_files(path: Path) -> list[Path]:
-    """Files a mesh references next to itself (OBJ's MTL and its textures, a .gltf's
-    buffers and images): they are part of the content and of the hash."""
+def _references(path: Path) -> list[Path]:
+    """Every existing path a mesh file references next to itself (OBJ's MTL and its
+    textures, a .gltf's buffers and images), whatever its type (a FIFO included: the
+    caller decides), never read unless it is a regular file."""
     found: list[Path] = []
     try:
         if path.suffix.lower() == ".obj":
             text = path.read_text(errors="replace")
             for m in re.finditer(r"^\s*mtllib\s+(.+?)\s*$", text, re.M):
                 mtl = path.parent / m.group(1)
-                if mtl.is_file():
-                    found.append(mtl)
-                    mtext = mtl.read_text(errors="replace")
-                    for t in re.finditer(r"^\s*(?:map_\w+|bump|disp|norm)\s+(?:-\S+\s+\S+\s+)*(\S.*?)\s*$", mtext, re.M):
-                        tex = mtl.parent / t.group(1)
-                        if tex.is_file():
-                            found.append(tex)
+                if not mtl.exists():
+                    continue
+                found.append(mtl)
+                if not mtl.is_file():
+                    continue
+                mtext = mtl.read_text(errors="replace")
+                for t in re.finditer(r"^\s*(?:map_\w+|bump|disp|norm)\s+(?:-\S+\s+\S+\s+)*(\S.*?)\s*$", mtext, re.M):
+                    tex = mtl.parent / t.group(1)
+                    if tex.exists():
+                        found.append(tex)
         elif path.suffix.lower() == ".gltf":
             import json
 
             doc = json.loads(path.read_text())
-            for entry in doc.get("buffers", []) + doc.get("images", []):
+            entries = []
+            if isinstance(doc, dict):
+                for k in ("buffers", "images"):
+                    if isinstance(doc.get(k), list):
+                        entries += [e for e in doc[k] if isinstance(e, dict)]
+            for entry in entries:
                 uri = entry.get("uri", "")
-                if uri and not uri.startswith("data:") and (path.parent / uri).is_file():
+                if isinstance(uri, str) and uri and not uri.startswith("data:") and (path.parent / uri).exists():
                     found.append(path.parent / uri)
     except (OSError, ValueError):
         pass  # a malformed side file is the loader's problem, not the hash's
     return sorted(set(found))
+
+
+def side_files(path) -> list[Path]:
+    """Files a mesh references next to itself (OBJ's MTL and its textures, a .gltf's
+    buffers and images): they are part of the content and of the hash."""
+    return [p for p in _references(Path(path)) if p.is_file()]
+
+
+# glTF/GLB image types whose size a header tells (the others are not checked)
+_IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".exr", ".hdr", ".tif", ".tiff", ".bmp", ".tga", ".webp"}
+
+
+def _embedded_images(path: Path) -> list[tuple[str, bytes]]:
+    """(name, first bytes) of the images a GLB embeds (its JSON chunk's ``images``
+    with a ``bufferView`` into the binary chunk). Reads the JSON chunk and, per image,
+    the first 64 KiB of its bytes only."""
+    import json
+    import struct
+
+    out: list[tuple[str, bytes]] = []
+    with open(path, "rb") as f:
+        head = f.read(12)
+        if len(head) < 12 or head[:4] != b"glTF":
+            return out
+        n, kind = struct.unpack("<II", f.read(8))
+        if kind != 0x4E4F534A or n > 64 << 20:  # "JSON"; a header past 64 MiB is not one we read
+            return out
+        doc = json.loads(f.read(n))
+        bin_at = 12 + 8 + n + 8  # the BIN chunk's data
+        if not isinstance(doc, dict):
+            return out
+        views = doc.get("bufferViews") if isinstance(doc.get("bufferViews"), list) else []
+        for k, img in enumerate(doc.get("images") or []):
+            if not isinstance(img, dict) or not isinstance(img.get("bufferView"), int):
+                continue
+            v = img["bufferView"]
+            view = views[v] if 0 <= v < len(views) and isinstance(views[v], dict) else {}
+            off = view.get("byteOffset", 0)
+            if not isinstance(off, int):
+                continue
+            f.seek(bin_at + off)
+            out.append((str(img.get("name") or f"images[{k}]"), f.read(1 << 16)))
+    return out
+
+
+def image_size_from_bytes(data: bytes) -> tuple[int, int] | None:
+    """(width, height) of a PNG or JPEG from its first bytes, else None."""
+    import struct
+
+    if data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) >= 24:
+        return struct.unpack(">II", data[16:24])
+    if data[:2] == b"\xff\xd8":
+        i = 2
+        while i + 9 < len(data):
+            if data[i] != 0xFF:
+                return None
+            marker = data[i + 1]
+            if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
+                i += 2
+                continue
+            size = struct.unpack(">H", data[i + 2:i + 4])[0]
+            if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):  # a start of frame
+                h, w = struct.unpack(">HH", data[i + 5:i + 9])
+                return w, h
+            i += 2 + size
+    return None
+
+
+_SUSPECT = re.compile(rb"(?i)nan|inf|e\+?[0-9]{3}")
+_VERTEX = re.compile(rb"^[ \t]*v[ \t]+([^\n#]*)", re.M)
+
+
+def _obj_nonfinite_vertex(path: Path) -> int | None:
+    """1-based index of the first vertex of an OBJ with a non-finite coordinate (a
+    loader drops it silently and renders a cut or shifted mesh), else None."""
+    data = path.read_bytes()
+    if not _SUSPECT.search(data):
+        return None
+    for k, m in enumerate(_VERTEX.finditer(data), start=1):
+        for tok in m.group(1).split()[:3]:
+            try:
+                v = float(tok)
+            except ValueError:
+                continue  # the loader's problem
+            if v != v or v in (float("inf"), float("-inf")):
+                return k
+    return None
+
+
+def mesh_file_problems(path) -> list[str]:
+    """Cheap checks of a mesh file and what it references, for validation (before
+    anything renders): side files that are not regular files (a FIFO would hang the
+    loader), textures over the pixel budget (read from their headers, embedded GLB
+    images included), non-finite OBJ vertices. Messages name the offending file."""
+    from zcomp_cli.imageio import image_header
+    from zcomp_cli.limits import pixel_budget_problem
+
+    path = Path(path)
+    problems: list[str] = []
+    refs = _references(path)
+    for p in refs:
+        if not p.is_file():
+            problems.append(f"{p.name} (referenced by {path.name}) is not a regular file")
+    textures: list[tuple[str, tuple[int, int] | None]] = []
+    for p in refs:
+        if p.is_file() and p.suffix.lower() in _IMAGE_SUFFIXES:
+            try:
+                textures.append((p.name, image_header(p)[:2]))
+            except ValueError:
+                textures.append((p.name, None))  # unreadable: Blender says so, per job
+    if path.suffix.lower() == ".glb":
+        try:
+            textures += [(name, image_size_from_bytes(data)) for name, data in _embedded_images(path)]
+        except (OSError, ValueError, TypeError):
+            pass  # a malformed GLB: the loader's problem
+    for name, size in textures:
+        budget = size and pixel_budget_problem(*size)
+        if budget:
+            problems.append(f"texture {name} of {path.name} is {budget}")
+    if path.suffix.lower() == ".obj":
+        k = _obj_nonfinite_vertex(path)
+        if k is not None:
+            problems.append(f"{path.name}: vertex {k} has a non-finite coordinate (nan or inf)")
+    return problems
 
 
 def content_hash(path) -> str:
@@ -80,7 +213,7 @@ def content_hash(path) -> str:
     file with its name, which the mesh refers to; the mesh's own name does not count)."""
     path = Path(path)
     h = hashlib.sha256()
-    for p in [path] + _side_files(path):
+    for p in [path] + side_files(path):
         if p != path:
             h.update(b"\0" + p.name.encode() + b"\0")
         with open(p, "rb") as f:
@@ -105,17 +238,23 @@ def load_mesh_info(path) -> MeshInfo:
     import trimesh
 
     try:
-        scene = trimesh.load(str(path), force="scene")
+        # process=False: trimesh's processing drops non-finite vertices silently (and
+        # Blender then renders a cut or shifted mesh); materials are not needed here
+        scene = trimesh.load(str(path), force="scene", process=False, skip_materials=True)
     except Exception as exc:  # trimesh raises many types for corrupt files
         raise InputError(f"cannot read mesh: {type(exc).__name__}: {exc}", where=str(path)) from exc
     meshes = [g for g in scene.dump(concatenate=False)] if hasattr(scene, "dump") else []
-    verts = [np.asarray(m.vertices, dtype=np.float64) for m in meshes
-             if hasattr(m, "faces") and len(getattr(m, "faces", [])) > 0]
-    if not verts:
+    meshes = [m for m in meshes if hasattr(m, "faces") and len(getattr(m, "faces", [])) > 0]
+    if not meshes:
         raise InputError("mesh has no faces (empty, a point cloud or unreadable)", where=str(path))
-    vertices = np.concatenate(verts, axis=0)
-    if not np.all(np.isfinite(vertices)):
-        raise GeometryError("mesh has non-finite vertex coordinates", where=str(path))
+    if not all(np.all(np.isfinite(np.asarray(m.vertices, dtype=np.float64))) for m in meshes):
+        raise GeometryError("mesh has non-finite vertex coordinates (nan or inf)", where=str(path))
+    # the vertices faces use (what Blender draws; unreferenced ones would stretch the box)
+    try:
+        vertices = np.concatenate([np.asarray(m.vertices, dtype=np.float64)[np.unique(np.asarray(m.faces))]
+                                   for m in meshes], axis=0)
+    except IndexError:
+        raise InputError("mesh has faces naming vertices it does not have", where=str(path)) from None
     bmin, bmax = vertices.min(axis=0), vertices.max(axis=0)
     if float(np.max(bmax - bmin)) <= 1e-9:
         raise GeometryError("mesh has zero size", where=str(path))

@@ -15,6 +15,14 @@ Protocol between this module and a script in ``zcomp_cli/blender/scripts/``:
 * If the process dies (segfault, out of memory) in the middle of an item, that item is
   reported failed ("Blender crashed ...") and a fresh process takes the remaining items,
   so a bad mesh never loses the rest of the batch.
+* The child dies with zcomp: it is started through ``zcomp_cli.blender.launch``, which
+  arms Linux's parent-death signal before bpy loads, so even ``kill -9`` of zcomp ends
+  Blender (it would otherwise go on rendering into folders a later run has swept). An
+  interrupted batch (Ctrl-C, SIGTERM, SIGHUP) kills its child at once.
+* Blender's log (``/tmp/zcomp-blender-<pid>-*.log`` by default) is deleted when nothing
+  went wrong; a batch with a failed item keeps it (the item's error names it) and marks
+  it so (``KEEP_MARK``); the log of a killed run is removed by a later run's sweep
+  (``pipeline.outguard.sweep_dead_temporaries``).
 """
 
 from __future__ import annotations
@@ -35,6 +43,52 @@ from typing import Callable
 from zcomp_cli.errors import RenderError
 
 EVENT_PREFIX = "@@ZCOMP@@ "
+LOG_PREFIX = "zcomp-blender-"
+# The last line of a log kept on purpose (an item failed and its error names the log):
+# a later run's sweep leaves such a log alone.
+KEEP_MARK = "[zcomp] log kept: an item failed"
+
+
+def _temporary_log() -> Path:
+    from zcomp_cli.interrupts import deferred
+
+    # the pid in the name lets a later run remove it if this process is killed
+    with deferred():
+        fd, tmp = tempfile.mkstemp(prefix=f"{LOG_PREFIX}{os.getpid()}-", suffix=".log")
+        os.close(fd)
+    return Path(tmp)
+
+
+def _spawn(path: Path, arg: str, **popen_kw) -> subprocess.Popen:
+    """Start ``python -m zcomp_cli.blender.launch SCRIPT ARG`` (the script then dies
+    with this process: ``launch``)."""
+    from zcomp_cli.blender.launch import PARENT_ENV
+
+    env = dict(os.environ)
+    env.setdefault("PYTHONUNBUFFERED", "1")
+    env[PARENT_ENV] = str(os.getpid())
+    # -P: no current folder on the child's sys.path (launch puts the script's folder there)
+    return subprocess.Popen([sys.executable, "-P", "-m", "zcomp_cli.blender.launch", str(path), arg],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, errors="replace",
+                            env=env, bufsize=1, **popen_kw)
+
+
+def _end(proc: subprocess.Popen, *, kill: bool, timeout_s: float = 60.0) -> None:
+    """Wait for ``proc`` (``kill``: kill it first, for an interrupted batch)."""
+    if kill and proc.poll() is None:
+        with contextlib.suppress(OSError):
+            proc.kill()
+    try:
+        proc.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
+def _keep_log(log) -> None:
+    with contextlib.suppress(OSError, ValueError):
+        log.write(f"\n{KEEP_MARK}\n")
+        log.flush()
 
 
 def script_path(name: str) -> Path:
@@ -105,33 +159,35 @@ def run_blender_batch(
     path = script_path(script)
     result = BatchResult()
     temporary_log = log_path is None
-    if log_path is None:
-        fd, tmp = tempfile.mkstemp(prefix=f"zcomp-blender-{os.getpid()}-", suffix=".log")
-        os.close(fd)
-        log_path = tmp
-    result.log_path = Path(log_path)
     pending = list(items)
     max_restarts = len(items) if max_restarts is None else max_restarts
-    with open(result.log_path, "a", encoding="utf-8", errors="replace") as log:
-        while pending:
-            started = _run_one_process(path, pending, common or {}, on_event, log, result, item_timeout_s)
-            pending = [it for it in pending if str(it["id"]) not in result.results]
-            if not pending:
-                break
-            # The process ended early: the item it was working on crashed it.
-            pending = _fail_after_death(result, pending, started, result.log_path, on_event)
-            result.restarts += 1
-            if result.restarts > max_restarts and pending:
-                for it in pending:
-                    ev = {"event": "error", "id": str(it["id"]), "error": "too many Blender crashes"}
-                    result.results[str(it["id"])] = ev
-                pending = []
-    if temporary_log and result.restarts == 0 and all(
-            ev.get("event") == "done" for ev in result.results.values()):
-        # Nothing went wrong: nobody will read the log. (A failed batch keeps it: its
-        # errors name it.)
-        with contextlib.suppress(OSError):
-            result.log_path.unlink()
+    clean = False
+    result.log_path = _temporary_log() if log_path is None else Path(log_path)
+    try:
+        with open(result.log_path, "a", encoding="utf-8", errors="replace") as log:
+            while pending:
+                started = _run_one_process(path, pending, common or {}, on_event, log, result, item_timeout_s)
+                pending = [it for it in pending if str(it["id"]) not in result.results]
+                if not pending:
+                    break
+                # The process ended early: the item it was working on crashed it.
+                pending = _fail_after_death(result, pending, started, result.log_path, on_event)
+                result.restarts += 1
+                if result.restarts > max_restarts and pending:
+                    for it in pending:
+                        ev = {"event": "error", "id": str(it["id"]), "error": "too many Blender crashes"}
+                        result.results[str(it["id"])] = ev
+                    pending = []
+            clean = result.restarts == 0 and all(ev.get("event") == "done" for ev in result.results.values())
+            if not clean:
+                _keep_log(log)  # the failed items' errors name it
+    except BaseException:
+        clean = True  # interrupted: nobody will read the log either
+        raise
+    finally:
+        if temporary_log and clean:  # nothing went wrong: nobody will read the log
+            with contextlib.suppress(OSError):
+                result.log_path.unlink()
     return result
 
 
@@ -142,26 +198,13 @@ def _run_one_process(path, items, common, on_event, log, result, item_timeout_s)
     with tempfile.TemporaryDirectory(prefix=f"zcomp-job-{os.getpid()}-") as tmpdir:
         job = Path(tmpdir) / "job.json"
         job.write_text(json.dumps({"common": common, "items": items}))
-        env = dict(os.environ)
-        env.setdefault("PYTHONUNBUFFERED", "1")
-        proc = subprocess.Popen(
-            [sys.executable, str(path), str(job)],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            stdin=subprocess.DEVNULL,
-            text=True,
-            errors="replace",
-            env=env,
-            bufsize=1,
-        )
+        proc = _spawn(path, str(job), stdin=subprocess.DEVNULL)
         try:
             current = _pump(proc, on_event, log, result, item_timeout_s)
-        finally:
-            try:
-                proc.wait(timeout=60)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        except BaseException:  # interrupted (Ctrl-C, SIGTERM): Blender stops now
+            _end(proc, kill=True)
+            raise
+        _end(proc, kill=False)
         if proc.returncode not in (0, None):
             log.write(f"\n[zcomp] Blender process exited with code {proc.returncode}\n")
         return current
@@ -229,22 +272,15 @@ class BlenderSession:
     def __init__(self, script: str, *, log_path: str | Path | None = None, item_timeout_s: float = 1800.0):
         self.path = script_path(script)
         self._temporary_log = log_path is None
-        if log_path is None:
-            fd, log_path = tempfile.mkstemp(prefix="zcomp-blender-", suffix=".log")
-            os.close(fd)
-        self.log_path = Path(log_path)
+        self.log_path = _temporary_log() if log_path is None else Path(log_path)
         self._troubled = False  # an item failed or a process died: keep the log
         self.item_timeout_s = item_timeout_s
         self.proc: subprocess.Popen | None = None
         self.starts = 0
 
     def _start(self) -> None:
-        env = dict(os.environ)
-        env.setdefault("PYTHONUNBUFFERED", "1")
         self._log = open(self.log_path, "a", encoding="utf-8", errors="replace")
-        self.proc = subprocess.Popen([sys.executable, str(self.path), "-"], stdin=subprocess.PIPE,
-                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                                     errors="replace", env=env, bufsize=1)
+        self.proc = _spawn(self.path, "-", stdin=subprocess.PIPE)
         self.starts += 1
 
     def run(self, items: list[dict], *, common: dict | None = None,
@@ -268,6 +304,10 @@ class BlenderSession:
                 started = _pump(self.proc, on_event, self._log, result, self.item_timeout_s, until_batch_done=True)
             except (BrokenPipeError, OSError):
                 started = None
+            except BaseException:  # interrupted: Blender stops now
+                self._troubled = True
+                self._reap(kill=True)
+                raise
             pending = [it for it in pending if str(it["id"]) not in result.results]
             if not pending:
                 break
@@ -282,14 +322,12 @@ class BlenderSession:
             self._troubled = True
         return result
 
-    def _reap(self) -> None:
+    def _reap(self, *, kill: bool = False) -> None:
         if self.proc is not None:
-            try:
-                self.proc.wait(timeout=60)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+            _end(self.proc, kill=kill)
             self._log.write(f"\n[zcomp] Blender process exited with code {self.proc.returncode}\n")
+            if self._troubled and not kill:
+                _keep_log(self._log)
             self._log.close()
         self.proc = None
 

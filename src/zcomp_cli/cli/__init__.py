@@ -8,6 +8,7 @@ traceback is shown only with ``-v``.
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import logging
 import sys
@@ -16,7 +17,53 @@ import click
 
 from zcomp_cli import __version__
 
+from zcomp_cli.interrupts import Interrupted  # noqa: F401 - re-exported
+
 EXIT_INTERRUPTED = 130  # 128 + SIGINT
+
+
+def exit_code_of(exc: KeyboardInterrupt) -> int:
+    """128 + the signal number, the shell's convention (130 for Ctrl-C)."""
+    return 128 + int(getattr(exc, "signum", 2))
+
+
+@contextlib.contextmanager
+def signals_as_interrupts():
+    """While a command runs: SIGINT, SIGTERM and SIGHUP raise ``Interrupted`` (a
+    KeyboardInterrupt), at once or at the end of a step that must run whole
+    (``interrupts.deferred``); a repeated one is ignored so that the clean-up it
+    triggered finishes. A signal the parent told zcomp to ignore (``nohup`` ignores
+    SIGHUP) stays ignored. The previous handlers come back afterwards. Main thread only
+    (elsewhere, e.g. in a Ray worker, nothing changes)."""
+    import signal
+    import threading
+
+    from zcomp_cli.interrupts import interrupt
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    seen = []
+
+    def handler(signum, frame):
+        if seen:
+            return
+        seen.append(signum)
+        interrupt(signum)
+
+    old = {}
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        try:
+            if signal.getsignal(sig) is signal.SIG_IGN:  # `nohup zcomp ...`: a hang-up is ignored, as asked
+                continue
+            old[sig] = signal.signal(sig, handler)
+        except (ValueError, OSError):  # pragma: no cover - not the main interpreter
+            pass
+    try:
+        yield
+    finally:
+        for sig, h in old.items():
+            signal.signal(sig, h)
 
 # command name -> (module, attribute, one-line help shown by `zcomp --help`)
 _COMMANDS: dict[str, tuple[str, str, str]] = {
@@ -67,7 +114,8 @@ class LazyGroup(click.Group):
         from zcomp_cli.errors import ZcompError
 
         try:
-            return super().invoke(ctx)
+            with signals_as_interrupts():
+                return super().invoke(ctx)
         except ZcompError as exc:
             if (ctx.obj or {}).get("verbose"):
                 import traceback
@@ -75,10 +123,11 @@ class LazyGroup(click.Group):
                 traceback.print_exc()
             click.secho(f"Error: {exc}", fg="red", err=True)
             ctx.exit(exc.exit_code)
-        except KeyboardInterrupt:
-            # Ctrl-C: the shell convention 128 + SIGINT, not click's "Aborted!" and 1.
+        except KeyboardInterrupt as exc:
+            # Ctrl-C, SIGTERM, SIGHUP: the shell convention 128 + the signal, not
+            # click's "Aborted!" and 1.
             click.echo("\nInterrupted.", err=True)
-            ctx.exit(EXIT_INTERRUPTED)
+            ctx.exit(exit_code_of(exc))
 
     def format_commands(self, ctx, formatter):
         # Short help from the table: listing commands must not import them.
@@ -108,13 +157,32 @@ def cli(ctx, verbose: int, quiet: bool):
     ctx.obj["quiet"] = quiet
 
 
+def _ignore_signals_from_now() -> None:
+    """The command is over (its outputs and summary are written or it has failed): a
+    SIGTERM or SIGHUP during the interpreter's tear-down (a fraction of a second; Ray's
+    shutdown) is ignored and the process exits with the command's own code. (No Python
+    handler runs during finalization, where the default action would kill the process
+    with the signal, as if the finished run had been interrupted; an ignored signal
+    stays ignored there.)"""
+    import signal
+
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        with contextlib.suppress(ValueError, OSError):
+            signal.signal(sig, signal.SIG_IGN)
+
+
 def main(argv: list[str] | None = None) -> None:
     """Entry point: run the group, turning typed errors into exit codes."""
     from zcomp_cli.errors import ZcompError
 
     verbose = any(a in ("-v", "-vv", "--verbose") for a in (argv or sys.argv[1:]))
     try:
-        rv = cli.main(args=argv, prog_name="zcomp", standalone_mode=False)
+        try:
+            with signals_as_interrupts():  # from the start: option callbacks write probe files too
+                rv = cli.main(args=argv, prog_name="zcomp", standalone_mode=False)
+        finally:
+            if argv is None:  # the `zcomp` process itself (not a caller's process): it ends now
+                _ignore_signals_from_now()
     except ZcompError as exc:
         if verbose:
             import traceback
@@ -125,15 +193,15 @@ def main(argv: list[str] | None = None) -> None:
     except click.exceptions.Abort as exc:
         if isinstance(exc.__cause__, KeyboardInterrupt):
             click.echo("Interrupted.", err=True)
-            sys.exit(EXIT_INTERRUPTED)
+            sys.exit(exit_code_of(exc.__cause__))
         click.echo("Aborted.", err=True)
         sys.exit(1)
     except click.ClickException as exc:
         exc.show()
         sys.exit(exc.exit_code)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         click.echo("Interrupted.", err=True)
-        sys.exit(EXIT_INTERRUPTED)
+        sys.exit(exit_code_of(exc))
     except click.exceptions.Exit as exc:
         sys.exit(exc.exit_code)
     # With standalone_mode=False, click returns ctx.exit()'s code instead of exiting.

@@ -27,12 +27,15 @@ from zcomp_cli.cli.options import (cache_dir_opt, debug_opt, out_dir_opt, overwr
                    "CPUs, or GPUs for zerocomp, allow).")
 @seed_opt
 @resume_opt
+@click.option("--redo-changed", is_flag=True,
+              help="With --resume: redo the finished jobs whose inputs or settings changed (exactly "
+                   "those; the unchanged ones are skipped). Without it, --resume refuses to go on.")
 @overwrite_opt
 @debug_opt
 @cache_dir_opt
 @click.pass_context
 def composite(ctx, manifest, out_dir, renderer, renderer_flags, jobs_subset, shard, executor, address, workers,
-              seed, resume, overwrite, debug, cache_dir):
+              seed, resume, redo_changed, overwrite, debug, cache_dir):
     """Composite objects into scenes for every job of MANIFEST (jobs.yaml).
 
     Each job writes OUT/<job>/composite.png (sRGB), composite.exr (linear) and
@@ -46,6 +49,8 @@ def composite(ctx, manifest, out_dir, renderer, renderer_flags, jobs_subset, sha
 
     if resume and overwrite:
         raise UsageError("--resume and --overwrite exclude each other")
+    if redo_changed and not resume:
+        raise UsageError("--redo-changed goes with --resume (--overwrite redoes every job)")
     shard_ix = parse_shard(shard)
     if executor == "local" and (address is not None or workers is not None):
         raise UsageError("--address and --workers apply to --executor ray")
@@ -65,7 +70,7 @@ def composite(ctx, manifest, out_dir, renderer, renderer_flags, jobs_subset, sha
 
     with StageProgress(disable=quiet) as prog:
         summary = run_batch(m, out_dir, renderer_spec=spec, jobs_subset=jobs_subset, resume=resume,
-                            overwrite=overwrite, debug=debug, cache_dir=cache_dir, shard=shard_ix,
+                            redo_changed=redo_changed, overwrite=overwrite, debug=debug, cache_dir=cache_dir, shard=shard_ix,
                             executor=runner, progress=prog.update)
     _print_summary(summary, out_dir, quiet)
     if not summary.ok:

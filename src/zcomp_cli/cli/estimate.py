@@ -12,7 +12,10 @@ from __future__ import annotations
 
 import click
 
-from zcomp_cli.cli.options import cache_dir_opt, out_dir_opt
+from zcomp_cli.cli.options import cache_dir_opt, out_dir_opt, overwrite_opt
+
+# What estimate writes per scene (an existing one is replaced only with --overwrite).
+OUTPUTS = ("depth.exr", "normals.exr", "albedo.exr", "shading.exr", "preview.png", "sources.json")
 
 AGREEMENT_DISPLAY_MAX_DEG = 90.0  # the agreement tile's colour scale: 0 .. 90 degrees
 
@@ -58,14 +61,16 @@ def preview_sheet(image, depth, normals, albedo, shading, *, roughness=None, met
 @click.option("--scenes", "scene_names", default=None, metavar="NAMES",
               help="Only these scenes (comma-separated names).")
 @click.option("--native", is_flag=True, help="Estimate at each image's own size, not the manifest's resolution.")
+@overwrite_opt
 @cache_dir_opt
 @click.pass_context
-def estimate(ctx, manifest, out_dir, scene_names, native, cache_dir):
+def estimate(ctx, manifest, out_dir, scene_names, native, overwrite, cache_dir):
     """Estimate the missing depth, normals and albedo of MANIFEST's scenes.
 
     Provided maps are copied through unchanged; missing ones come from the estimators
     named in the manifest (e.g. depth: {proxy: ground_plane, camera_height: 1.5,
-    pitch_deg: -10}). Writes OUT/<scene>/*.exr, sources.json and preview.png.
+    pitch_deg: -10}). Writes OUT/<scene>/*.exr, sources.json and preview.png; an
+    existing scene folder is replaced only with --overwrite.
     """
     from pathlib import Path
 
@@ -92,6 +97,10 @@ def estimate(ctx, manifest, out_dir, scene_names, native, cache_dir):
 
     for name in names:  # every folder written must stay inside --out
         check_inside(out, out / name, f"scenes.{name}")
+    existing = [n for n in names if any((out / n / f).exists() for f in OUTPUTS)]
+    if existing and not overwrite:  # the rule of every command: nothing replaced unasked
+        raise UsageError(f"estimates already exist for scene(s) {', '.join(existing[:5])}"
+                         f"{' ...' if len(existing) > 5 else ''} in {out}; pass --overwrite to replace them")
     quiet = bool(ctx.obj and ctx.obj.get("quiet"))
     for name in names:
         spec = m.scenes[name]

@@ -92,7 +92,8 @@ def eval_cmd(ctx, pred, ref, metrics, refs_dir, linear, mask, background, out_pr
                              "(zcomp import and make-benchmark write one)")
     result = evaluate(pairs, setup["metrics"], linear=linear, lpips_backbone=lpips_backbone,
                       lpips_weights=lpips_weights, region=region, encoding=setup["encoding"])
-    result.unscored = unscored
+    result.unscored = {**unscored, **result.unscored}
+    unscored = result.unscored
     result.protocol = setup["info"]
     prefix = Path(out_prefix) if out_prefix else pred_dir / "eval"
     csv_path, json_path = write_outputs(result, prefix)

@@ -61,10 +61,41 @@ overwrite_opt = click.option(
 resume_opt = click.option(
     "--resume", is_flag=True, help="Skip items whose outputs are already complete."
 )
+def _check_fov(ctx, param, value):
+    import math
+
+    if value is not None and not (math.isfinite(value) and 0 < value < 180):
+        raise click.BadParameter(f"expected degrees in (0, 180), got {value}", ctx=ctx, param=param)
+    return value
+
+
+def _check_resolution(ctx, param, value):
+    """[W, H]: at least MIN_RENDER_SIDE pixels a side (Blender's smallest image) and
+    within the pixel budget -- refused here, before Blender starts."""
+    if value is None:
+        return value
+    from zcomp_cli.errors import UsageError
+    from zcomp_cli.limits import pixel_budget_problem
+    from zcomp_cli.pipeline.manifest import MIN_RENDER_SIDE
+
+    w, h = value
+    if min(w, h) < MIN_RENDER_SIDE:
+        raise click.BadParameter(f"{w}x{h} is too small: Blender renders at least {MIN_RENDER_SIDE}x"
+                                 f"{MIN_RENDER_SIDE} pixels", ctx=ctx, param=param)
+    try:
+        budget = pixel_budget_problem(w, h)
+    except UsageError as exc:  # a bad $ZCOMP_MAX_PIXELS
+        raise click.BadParameter(str(exc), ctx=ctx, param=param) from None
+    if budget:
+        raise click.BadParameter(budget, ctx=ctx, param=param)
+    return value
+
+
 fov_opt = click.option(
     "--fov-deg",
     type=float,
     default=None,
+    callback=_check_fov,
     help="Horizontal field of view in degrees (default 50).",
 )
 K_opt = click.option(
@@ -79,6 +110,7 @@ resolution_opt = click.option(
     type=(int, int),
     default=None,
     metavar="W H",
+    callback=_check_resolution,
     help="Image size in pixels.",
 )
 seed_opt = click.option("--seed", type=click.IntRange(min=0), default=None,
@@ -122,19 +154,40 @@ def parse_K(text: str | None):
         raise click.BadParameter(f"expected 'fx,fy,cx,cy': {exc}", param_hint="--K") from exc
 
 
-def renderer_options(f):
-    """``--renderer NAME`` plus every renderer's own flags, from the one table
-    ``renderers.registry.RENDERERS``. The command receives ``renderer`` (a name or None)
-    and ``renderer_flags`` ({flag: value} for the flags given); :func:`renderer_spec`
-    turns them into the settings of the chosen renderer."""
+# Flags of the commands that take renderer flags: a plugin renderer's option may not
+# take one of these names.
+COMMAND_FLAGS = {"out", "renderer", "jobs", "shard", "executor", "address", "workers", "seed", "resume",
+                 "redo-changed", "overwrite", "debug", "cache-dir", "help", "h", "version", "verbose", "quiet"}
+
+
+def _renderer_flags():
+    """{flag: (RendererOption, [renderer names offering it])} over ``RENDERERS``. A
+    plugin's flag that is a command's own, or that another renderer offers with another
+    type, is left out (with a warning): it would break the command line."""
+    import logging
+
     from zcomp_cli.renderers.registry import RENDERERS
 
-    owners: dict[str, list[str]] = {}
-    first = {}
+    flags: dict[str, tuple] = {}
     for name, entry in RENDERERS.items():
         for opt in entry.options:
-            owners.setdefault(opt.flag, []).append(name)
-            first.setdefault(opt.flag, opt)
+            plugin = entry.source != "zcomp"
+            if plugin and (opt.flag in COMMAND_FLAGS or (opt.flag in flags and flags[opt.flag][0].type != opt.type)):
+                logging.getLogger(__name__).warning(
+                    "renderer %r: option --%s clashes with zcomp's own; left out", name, opt.flag)
+                continue
+            flags.setdefault(opt.flag, (opt, []))[1].append(name)
+    return flags
+
+
+def renderer_options(f):
+    """``--renderer NAME`` plus every renderer's own flags, from the one table
+    ``renderers.registry.RENDERERS`` (plugins included). The command receives
+    ``renderer`` (a name or None) and ``renderer_flags`` ({flag: value} for the flags
+    given); :func:`renderer_spec` turns them into the settings of the chosen renderer."""
+    from zcomp_cli.renderers.registry import RENDERERS
+
+    first = _renderer_flags()
     params = {flag: f"rflag_{flag.replace('-', '_')}" for flag in first}
 
     @functools.wraps(f)
@@ -145,9 +198,9 @@ def renderer_options(f):
         return f(*args, **kwargs)
 
     for flag in reversed(list(first)):
-        opt = first[flag]
+        opt, owners = first[flag]
         wrapper = click.option(f"--{flag}", params[flag], type=opt.type, default=None, metavar=opt.metavar,
-                               help=f"{', '.join(owners[flag])}: {opt.help}.")(wrapper)
+                               help=f"{', '.join(owners)}: {opt.help}.")(wrapper)
     summary = "; ".join(f"{n} = {e.summary}" for n, e in RENDERERS.items())
     return click.option("--renderer", type=click.Choice(list(RENDERERS)), default=None,
                         help=f"Override the manifest's renderer ({summary}).")(wrapper)
@@ -159,16 +212,19 @@ def renderer_spec(manifest_spec, renderer: str | None, flags: dict):
     renderer does not offer is a UsageError naming it."""
     from zcomp_cli.errors import UsageError
     from zcomp_cli.pipeline.manifest import RendererSpec
-    from zcomp_cli.renderers.registry import RENDERERS
 
     spec = manifest_spec
     if renderer is not None and renderer != spec.name:
         spec = RendererSpec(renderer, {})
-    offered = {o.flag: o for o in RENDERERS[spec.name].options} if spec.name in RENDERERS else {}
+    from zcomp_cli.renderers.registry import RENDERERS
+
+    table = _renderer_flags()
+    own = RENDERERS[spec.name].options if spec.name in RENDERERS else ()
+    offered = {o.flag: o for o in own if spec.name in table.get(o.flag, (None, []))[1]}
     settings = dict(spec.settings)
     for flag, value in flags.items():
         if flag not in offered:
-            takers = [n for n, e in RENDERERS.items() if any(o.flag == flag for o in e.options)]
+            takers = table.get(flag, (None, []))[1]
             raise UsageError(f"--{flag} applies to --renderer {' or '.join(takers)}, not {spec.name!r}")
         settings[offered[flag].setting] = value
     return RendererSpec(spec.name, settings)

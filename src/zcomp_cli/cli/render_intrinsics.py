@@ -37,8 +37,8 @@ def _single_job(mesh, position, rotation_deg, quaternion, scale, height, fov_deg
     K = parse_K(K_text)
     camera, err = camera_from_spec(fov_deg, K, resolution or DEFAULT_RESOLUTION,
                                    where="--resolution" if resolution else "camera")
-    if err and "pixel budget" in err:
-        raise UsageError(err)  # refused before Blender starts, like a bad flag
+    if err:
+        raise UsageError(err)  # a bad flag: refused before Blender starts
     return RenderItem(name=Path(mesh).stem, mesh=Path(mesh), pose=pose, camera=camera, error=err)
 
 

@@ -299,6 +299,11 @@ def _job_mask(job: Path, mask) -> Path | None:
 
 
 # ----------------------------------------------------------------------------- scoring
+class SizeMismatch(InputError):
+    """A prediction and its reference differ in size (a composite made at another
+    working resolution): that pair is left unscored, the others are scored."""
+
+
 def load_pair(pair: Pair):
     """Read a pair as linear float32 H x W x 3 (plus mask H x W or None), checking sizes
     and finiteness with errors naming the files."""
@@ -309,7 +314,7 @@ def load_pair(pair: Pair):
         if not np.isfinite(img).all():
             raise InputError(f"{int((~np.isfinite(img)).sum())} non-finite values (NaN/Inf)", where=str(path))
     if pred.shape != ref.shape:
-        raise InputError(
+        raise SizeMismatch(
             f"size mismatch: {pair.pred} is {pred.shape[1]}x{pred.shape[0]}, "
             f"{pair.ref} is {ref.shape[1]}x{ref.shape[0]}"
         )
@@ -431,11 +436,20 @@ def evaluate(pairs: list[Pair], metrics: list[str], *, linear: bool = False,
             unavailable[m] = (f"no background image for {', '.join(no_bg[:5])}"
                               f"{' ...' if len(no_bg) > 5 else ''} (give --background)")
     values = []
+    scored, unscored = [], {}
     for pair in pairs:
-        values.append(score_pair(pair, metrics, linear=linear, lpips_model=model, region=region,
-                                 encoding=encoding))
+        try:
+            values.append(score_pair(pair, metrics, linear=linear, lpips_model=model, region=region,
+                                     encoding=encoding))
+        except SizeMismatch as exc:  # never resampled silently: listed, and the rest is scored
+            unscored[pair.name] = f"{exc} (not scored: composite at another resolution?)"
+            continue
+        scored.append(pair)
         if on_pair is not None:
             on_pair(pair, values[-1])
+    if pairs and not scored:
+        raise InputError("no pair could be scored:\n  " + "\n  ".join(f"{k}: {v}" for k, v in unscored.items()))
+    pairs = scored
     mean = {}
     partial: dict[str, str] = {}
     for m in metrics:
@@ -453,7 +467,8 @@ def evaluate(pairs: list[Pair], metrics: list[str], *, linear: bool = False,
             unavailable[m] = partial.pop(m, "no value")
             continue
         mean[m] = float(np.mean(vals))
-    return EvalResult(list(metrics), list(pairs), values, mean, unavailable, linear, partial=partial)
+    return EvalResult(list(metrics), list(pairs), values, mean, unavailable, linear, unscored=unscored,
+                      partial=partial)
 
 
 

@@ -1,11 +1,20 @@
 """Executors run the job stage of a batch (``pipeline.batch`` stage 4).
 
+:class:`Executor` is the interface ``run_batch`` uses: ``preflight()`` before anything
+is written (refuse what cannot work: Ray not installed, no cluster), ``check(ctx,
+n_jobs)`` once the output folder exists and the plan is made (Ray: every node sees it;
+the workers start), ``run(ctx, works)`` the job
+stage, ``renders_objects`` (True: the executor renders the object intrinsics itself,
+stage 3 is left to it) and ``info`` (figures for the summary).
+
 The local executor takes the jobs in chunks of ``ctx.batch_size``: each job of a chunk is
 prepared (steps 1-4 of ``pipeline.job``), the chunk's passes go to the renderer in ONE
 ``Renderer.render_jobs`` call (a GPU renderer batches them), then each job is finished
 (the compositor) and its outputs written. A job that fails in any step is reported and
 the others go on; if a chunk's shared renderer call fails, its jobs are rendered one by
-one so that the failure stays with the job that caused it.
+one so that the failure stays with the job that caused it. A job holds its lock
+(``outguard.job_lock``) from its preparation until its outputs are written; its scene
+is freed after the scene's last job (``stages.SceneStore``).
 
 A renderer that works on another device (``overlap_prepare = True``, the zerocomp GPU
 renderer) gets the next chunk prepared on a CPU thread while the current chunk renders.
@@ -16,11 +25,36 @@ from __future__ import annotations
 import logging
 import time
 import traceback
+from abc import ABC, abstractmethod
 
 from zcomp_cli.errors import ZcompError
+from zcomp_cli.pipeline.outguard import job_lock, release_job_lock
 from zcomp_cli.pipeline.outputs import JobStatus, job_report, write_job_outputs
+from zcomp_cli.pipeline.stages import BatchContext, JobWork, load_object_bundle
 
 log = logging.getLogger(__name__)
+
+
+class Executor(ABC):
+    """Runs the job stage of a batch (see the module docstring)."""
+
+    name: str = "executor"
+    renders_objects: bool = False
+
+    def __init__(self):
+        self.info: dict = {"name": self.name}
+
+    def preflight(self) -> None:
+        """Before anything is written: raise UsageError for what cannot work."""
+
+    def check(self, ctx: BatchContext, n_jobs: int = 0) -> None:
+        """Once ``ctx.out_root`` exists and the plan is made (``n_jobs`` will run),
+        before any job runs: e.g. Ray's shared-folder probe, and its workers' start."""
+
+    @abstractmethod
+    def run(self, ctx: BatchContext, works: list[JobWork]) -> list[JobStatus]:
+        """Run every work item (each with ``error`` None, or reported failed with it)
+        and return one status per item."""
 
 
 def _failure(exc: BaseException) -> str:
@@ -36,23 +70,12 @@ def _failed(ctx, w, exc: BaseException, started: float) -> JobStatus:
     return JobStatus(w.job, "failed", _failure(exc), time.perf_counter() - started, ctx.out_root / w.job.name)
 
 
-class LocalExecutor:
-    """Runs every job in this process, ``ctx.batch_size`` jobs per renderer call.
+class LocalExecutor(Executor):
+    """Runs every job in this process, ``ctx.batch_size`` jobs per renderer call."""
 
-    The executor interface ``run_batch`` uses: ``check(ctx)`` before any work (refuse
-    what cannot work), ``renders_objects`` (True: the executor renders object
-    intrinsics itself, stage 3 is left to it), ``run(ctx, works) -> [JobStatus]`` and
-    ``info`` (figures for the summary)."""
+    name = "local"
 
-    renders_objects = False
-
-    def __init__(self):
-        self.info: dict = {"name": "local"}
-
-    def check(self, ctx) -> None:
-        pass
-
-    def run(self, ctx, works) -> list[JobStatus]:
+    def run(self, ctx: BatchContext, works: list[JobWork]) -> list[JobStatus]:
         statuses: list[JobStatus] = []
         total = len(works)
         done = 0
@@ -63,12 +86,13 @@ class LocalExecutor:
                 done += 1
             else:
                 todo.append(w)
+        ctx.scenes.expect(w.job.scene for w in todo)
         chunks = [todo[i:i + ctx.batch_size] for i in range(0, len(todo), ctx.batch_size)]
         if getattr(ctx.renderer, "overlap_prepare", False) and len(chunks) > 1:
             from concurrent.futures import ThreadPoolExecutor
 
-            # the prepare thread alone touches the scene store and the bundle caches; this
-            # thread renders, finishes, writes and reports
+            # the prepare thread alone loads scenes and bundles; this thread renders,
+            # finishes, writes and reports
             with ThreadPoolExecutor(max_workers=1) as pool:
                 nxt = pool.submit(prepare_chunk, ctx, chunks[0])
                 for k, chunk in enumerate(chunks):
@@ -87,22 +111,23 @@ class LocalExecutor:
         return statuses
 
 
-def run_chunk(ctx, chunk) -> list[JobStatus]:
+def run_chunk(ctx: BatchContext, chunk: list[JobWork]) -> list[JobStatus]:
     """Prepare, render (one call), finish and write a chunk of jobs."""
     return render_and_finish(ctx, chunk, *prepare_chunk(ctx, chunk))
 
 
-def prepare_chunk(ctx, chunk):
-    """Steps 1-4 of every job of the chunk -> (prepared, statuses, started)."""
-    from zcomp_cli.pipeline.batch import load_object_bundle
+def prepare_chunk(ctx: BatchContext, chunk: list[JobWork]):
+    """Steps 1-4 of every job of the chunk -> (prepared, statuses, started, locks)."""
     from zcomp_cli.pipeline.job import prepare_job
 
     statuses: dict[int, JobStatus] = {}
     started: dict[int, float] = {}
+    locks: dict[int, object] = {}
     prepared = []  # (work, scene, PreparedJob)
     for w in chunk:
         t0 = started[w.job.index] = time.perf_counter()
         try:
+            locks[w.job.index] = job_lock(ctx.out_root, w.job.name)
             scene = ctx.scenes.get(w.job.scene)
             t_load = time.perf_counter() - t0
             bundle = load_object_bundle(ctx, w, scene)
@@ -112,11 +137,23 @@ def prepare_chunk(ctx, chunk):
             prepared.append((w, scene, prep))
         except Exception as exc:  # noqa: BLE001 - reported per job
             statuses[w.job.index] = _failed(ctx, w, exc, t0)
-    return prepared, statuses, started
+    return prepared, statuses, started, locks
 
 
-def render_and_finish(ctx, chunk, prepared, statuses, started) -> list[JobStatus]:
-    """Step 5 (one renderer call for the chunk) and step 6 (compositor, outputs)."""
+def render_and_finish(ctx: BatchContext, chunk, prepared, statuses, started, locks) -> list[JobStatus]:
+    """Step 5 (one renderer call for the chunk) and step 6 (compositor, outputs); then
+    the chunk's job locks are released and its scenes counted down."""
+    try:
+        _render_and_finish(ctx, prepared, statuses, started)
+    finally:
+        prepared.clear()  # the chunk's maps go before its scenes are counted down
+        for w in chunk:
+            release_job_lock(locks.pop(w.job.index, None))
+            ctx.scenes.job_done(w.job.scene)
+    return [statuses[w.job.index] for w in chunk]
+
+
+def _render_and_finish(ctx: BatchContext, prepared, statuses, started) -> None:
     from zcomp_cli.pipeline.job import finish_job
 
     renderer = ctx.renderer
@@ -150,11 +187,11 @@ def render_and_finish(ctx, chunk, prepared, statuses, started) -> list[JobStatus
             continue
         out_dir = ctx.out_root / w.job.name
         try:
-            result = finish_job(prep, outputs[w.job.index], renderer.name, renderer.settings(), debug=ctx.debug)
-            report = job_report(ctx.manifest, w.job, w.fingerprint, scene, w.pose, w.bundle_dir, result)
+            result = finish_job(prep, outputs.pop(w.job.index), renderer.name, renderer.settings(), debug=ctx.debug)
+            report = job_report(ctx.manifest, w.job, w.fingerprint, scene, w.pose, w.bundle_dir, result,
+                                renderer_spec=ctx.renderer_spec)
             write_job_outputs(out_dir, scene, result, report, debug=ctx.debug, started=started[w.job.index])
             statuses[w.job.index] = JobStatus(w.job, "done", None, time.perf_counter() - started[w.job.index],
                                               out_dir)
         except Exception as exc:  # noqa: BLE001
             statuses[w.job.index] = _failed(ctx, w, exc, started[w.job.index])
-    return [statuses[w.job.index] for w in chunk]

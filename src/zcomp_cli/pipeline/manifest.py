@@ -41,11 +41,18 @@ MESH_EXTS = {".obj", ".glb", ".gltf", ".ply", ".stl"}
 IMAGE_EXTS = {".png", ".jpg", ".jpeg", ".exr", ".hdr", ".tif", ".tiff"}
 MAP_CHANNELS = {"depth": 1, "normals": 3, "albedo": 3, "roughness": 1, "metallic": 1}
 DEFAULT_RADIUS = 1.0
-NAME_RE = re.compile(r"^[A-Za-z0-9_.\-]+$")
+NAME_RE = re.compile(r"[A-Za-z0-9_.\-]+")  # matched whole (fullmatch: '$' would let a final newline in)
+# A name that reads as a --jobs index or range ("4", "0-3") would make --jobs ambiguous.
+INDEX_LIKE_RE = re.compile(r"[0-9]+(-[0-9]+)?")
 MIN_SCENE_SIDE = 2  # the estimators' finite differences need two pixels each way
 MAX_SEED = 2**32 - 1  # numpy and torch generators both take [0, 2**32)
-# Files zcomp writes at the top of an output folder: no job may be named like them.
+# Files zcomp writes at the top of an output folder: no job may be named like them
+# (summary.json and every shard's summary.shard-I-of-N.json: summary*.json).
 RESERVED_OUTPUT_NAMES = {"summary.json", "eval.csv", "eval.json"}
+RESERVED_OUTPUT_RE = re.compile(r"summary.*\.json", re.I)
+# Blender renders no image smaller than this on a side (mesh objects are rendered at
+# the scene's working size).
+MIN_RENDER_SIDE = 4
 
 
 def name_problem(name) -> str | None:
@@ -58,13 +65,21 @@ def name_problem(name) -> str | None:
         return f"expected a name, got {type_name(name)} {shorten(name)}"
     if len(name) > MAX_NAME_LEN:
         return f"{shorten(name, 40)} is {len(name)} characters long (at most {MAX_NAME_LEN})"
-    if not NAME_RE.match(name):
+    if not NAME_RE.fullmatch(name):
         return f"{shorten(name)} may only use letters, digits, '_', '-' and '.' (no path separators)"
     if name.startswith("."):
         return f"{name!r} may not start with '.' (names like '.', '..' and hidden names are refused)"
-    if name.lower() in RESERVED_OUTPUT_NAMES:
+    if name.lower() in RESERVED_OUTPUT_NAMES or RESERVED_OUTPUT_RE.fullmatch(name):
         return f"{name!r} is the name of a file zcomp writes in the output folder"
     return None
+
+
+def job_name_problem(name) -> str | None:
+    """``name_problem``, and a job name may not read as a ``--jobs`` index or range."""
+    bad = name_problem(name)
+    if bad is None and INDEX_LIKE_RE.fullmatch(name):
+        bad = f"{name!r} reads as a job index or range: --jobs {name} would be ambiguous"
+    return bad
 
 
 @dataclass
@@ -93,6 +108,9 @@ class SceneSpec:
     maps: dict[str, Path] = field(default_factory=dict)  # provided map files
     estimators: dict[str, dict] = field(default_factory=dict)  # map -> estimator spec
     light: dict | None = None  # known lighting (pipeline/lightspec.py); None = estimate it
+    # every file the scene's settings name (the light's probe...), as the manifest
+    # resolved them: job fingerprints hash their contents (pipeline/fingerprint.py)
+    setting_files: list[Path] = field(default_factory=list)
 
 
 @dataclass
@@ -173,7 +191,26 @@ def _num(v) -> float | None:
     return v if math.isfinite(v) else None
 
 
-def _file(root: Path, value, container, key, where, probs, exts=None) -> Path | None:
+def special_file_problem(p: Path, want: str = "file") -> str | None:
+    """Why ``p`` (which exists) cannot be read as a ``want`` ("file" or "folder"): a
+    FIFO, a device or a socket would hang a reader or be read forever (``/dev/zero``),
+    so only regular files (and folders where a folder is expected) are taken."""
+    import stat
+
+    try:
+        mode = p.stat().st_mode
+    except OSError as exc:
+        return f"cannot use {shorten(str(p), 200)}: {exc.strerror}"
+    if stat.S_ISDIR(mode):
+        return None if want == "folder" else f"{shorten(str(p), 200)} is a folder, expected a file"
+    if stat.S_ISREG(mode):
+        return None if want == "file" else f"{shorten(str(p), 200)} is a file, expected a folder"
+    kind = ("a FIFO (named pipe)" if stat.S_ISFIFO(mode) else "a character device" if stat.S_ISCHR(mode)
+            else "a block device" if stat.S_ISBLK(mode) else "a socket" if stat.S_ISSOCK(mode) else "not a file")
+    return f"{shorten(str(p), 200)} is {kind}, not a regular file"
+
+
+def _file(root: Path, value, container, key, where, probs, exts=None, want: str = "file") -> Path | None:
     if not isinstance(value, str) or not value:
         probs.add(container, key, where, f"expected a file path, got {type_name(value)} {shorten(value)}")
         return None
@@ -189,7 +226,11 @@ def _file(root: Path, value, container, key, where, probs, exts=None) -> Path | 
     if not exists:
         probs.add(container, key, where, f"file not found: {shorten(str(p), 200)}")
         return None
-    if exts and p.suffix.lower() not in exts and not p.is_dir():
+    special = special_file_problem(p, want)
+    if special:
+        probs.add(container, key, where, special)
+        return None
+    if exts and p.suffix.lower() not in exts:
         probs.add(container, key, where, f"unsupported format {p.suffix!r} (supported: {', '.join(sorted(exts))})")
         return None
     return p
@@ -228,9 +269,28 @@ def load_manifest(path, *, check_files: bool = True) -> Manifest:
     objects = _parse_objects(data.get("objects"), data, root, probs, check_files)
     jobs = _parse_jobs(data.get("jobs"), data, root, probs, scenes, objects, defaults, check_files)
     _check_cameras(data, scenes, objects, jobs, defaults, probs)
+    if check_files:
+        _check_renderer(data.get("defaults"), defaults.renderer, probs)
     if probs.items:
         raise ManifestError(probs.items, source=str(path))
     return Manifest(path, defaults, scenes, objects, jobs)
+
+
+def _check_renderer(d, spec: RendererSpec, probs) -> None:
+    """The manifest's renderer exists and takes its settings (it is built: a renderer's
+    constructor checks its settings and loads nothing heavy)."""
+    from zcomp_cli.errors import ZcompError
+    from zcomp_cli.renderers import get_renderer
+
+    container = d if isinstance(d, dict) and "renderer" in d else None
+    try:
+        get_renderer(spec.name, **spec.settings)
+    except (ZcompError, TypeError, ValueError) as exc:
+        where = "defaults.renderer" + (f" ({spec.name})" if container is None else "")
+        if container is None:
+            probs.items.append(f"{probs.path.name}: {where}: {exc}")
+        else:
+            probs.add(container, "renderer", where, str(exc))
 
 
 def _parse_defaults(d, parent, probs) -> Defaults:
@@ -362,7 +422,7 @@ def _parse_scenes(d, parent, root, probs, check_files, defaults) -> dict[str, Sc
                 spec.fov_deg = v
         if "K" in s:
             spec.K = _parse_K(s["K"], s, "K", f"{where}.K", probs)
-        spec.light = _parse_scene_light(s, where, probs, root)
+        spec.light = _parse_scene_light(s, where, probs, root, spec.setting_files, check_files)
         for m, ch in MAP_CHANNELS.items():
             if m not in s:
                 continue
@@ -429,17 +489,42 @@ def _parse_estimator(name, spec, container, where, root, probs, check_files) -> 
     return out
 
 
-def _parse_scene_light(s, where, probs, root) -> dict | None:
+def _no_light(path: Path) -> str | None:
+    """Why an HDR probe cannot light anything (all 0, negative or not finite: the object
+    would be drawn black and the light's direction read as [0, 0, 0]), else None."""
+    from zcomp_cli.errors import ZcompError
+    from zcomp_cli.imageio import read_image
+
+    try:
+        img = read_image(path)
+    except ZcompError as exc:
+        return f"cannot read the probe: {exc}"
+    lit = np.isfinite(img) & (img > 0)
+    if not lit.any():
+        return "the probe holds no light (every pixel is 0, negative or not finite)"
+    return None
+
+
+def _parse_scene_light(s, where, probs, root, files: list, check_files: bool = True) -> dict | None:
     """The scene's light context for the renderer: ``{"lights": [...]}`` from ``light``
     and ``pitch_deg``/``roll_deg`` when given (``pipeline/lightspec.py``); None when the
-    scene has neither (the light is estimated, world up read off the support)."""
+    scene has neither (the light is estimated, world up read off the support). Every
+    file the light names is appended to ``files`` (the resume fingerprint hashes them)."""
     from zcomp_cli.pipeline.lightspec import PROBE_EXTS, parse_light, parse_tilt
 
     def add(container, key, w, msg):  # problems without a container sit on 'light'
         probs.add(s if container is None else container, "light" if container is None else key, w, msg)
 
     def resolve(container, key, w):  # a light probe file, relative to the manifest
-        return _file(root, container[key], container, key, w, probs, PROBE_EXTS)
+        p = _file(root, container[key], container, key, w, probs, PROBE_EXTS)
+        if p is not None and check_files:
+            dark = _no_light(p)
+            if dark:
+                probs.add(container, key, w, dark)
+                return None
+        if p is not None:
+            files.append(p)
+        return p
 
     ctx = parse_tilt(s, where, lambda c, k, w, m: probs.add(c, k, w, m))
     if "light" in s:
@@ -462,10 +547,23 @@ def _parse_objects(d, parent, root, probs, check_files) -> dict[str, ObjectSpec]
         spec = ObjectSpec(name=name, kind=kind)
         if kind == "mesh":
             spec.mesh = _file(root, o["mesh"], o, "mesh", f"{where}.mesh", probs, MESH_EXTS)
+            if spec.mesh is not None and check_files:
+                from zcomp_cli.blender.meshes import mesh_file_problems
+
+                for problem in mesh_file_problems(spec.mesh):
+                    probs.add(o, "mesh", f"{where}.mesh", problem)
+                    spec.mesh = None
         elif kind == "bundle":
-            p = _file(root, o["bundle"], o, "bundle", f"{where}.bundle", probs)
+            p = _file(root, o["bundle"], o, "bundle", f"{where}.bundle", probs, want="folder")
             if p is not None and not (p / "meta.json").is_file():
                 probs.add(o, "bundle", f"{where}.bundle", f"not an intrinsics bundle (no meta.json in {p})")
+                p = None
+            if p is not None:
+                special = next((x for x in (special_file_problem(f, "folder" if f.is_dir() else "file")
+                                            for f in sorted(p.iterdir())) if x), None)
+                if special:
+                    probs.add(o, "bundle", f"{where}.bundle", special)
+                    p = None
             spec.bundle = p
         else:
             spec.image = _file(root, o["image"], o, "image", f"{where}.image", probs, IMAGE_EXTS)
@@ -474,6 +572,7 @@ def _parse_objects(d, parent, root, probs, check_files) -> dict[str, ObjectSpec]
             else:
                 spec.mask = _file(root, o["mask"], o, "mask", f"{where}.mask", probs, IMAGE_EXTS)
             if check_files:
+                sizes = {}
                 for key in ("image", "mask"):
                     p = getattr(spec, key)
                     if p is None:
@@ -488,8 +587,24 @@ def _parse_objects(d, parent, root, probs, check_files) -> dict[str, ObjectSpec]
                     if budget:
                         probs.add(o, key, f"{where}.{key}", f"the image is {budget}")
                         setattr(spec, key, None)
+                        continue
+                    sizes[key] = (ow, oh)
+                if len(sizes) == 2 and sizes["image"] != sizes["mask"]:
+                    (iw, ih), (mw, mh) = sizes["image"], sizes["mask"]
+                    probs.add(o, "mask", f"{where}.mask", f"the mask is {mw}x{mh}, the image {iw}x{ih}")
+                elif "mask" in sizes and _empty_mask(spec.mask):
+                    probs.add(o, "mask", f"{where}.mask", "the mask selects no pixel (all 0: nothing to composite)")
         out[name] = spec
     return out
+
+
+def _empty_mask(path: Path) -> bool:
+    from zcomp_cli.imageio import read_alpha_or_grey
+
+    try:
+        return not (read_alpha_or_grey(path) > 0).any()
+    except Exception:  # noqa: BLE001 - unreadable: the header check has said so, or the job will
+        return False
 
 
 def _parse_jobs(d, parent, root, probs, scenes, objects, defaults, check_files) -> list[JobSpec]:
@@ -532,7 +647,7 @@ def _parse_jobs(d, parent, root, probs, scenes, objects, defaults, check_files) 
             job.placement = _parse_placement(j["placement"], j, f"{where}.placement", probs, scenes.get(scene),
                                              defaults.resolution)
         if "output" in j:
-            bad = name_problem(j["output"])
+            bad = job_name_problem(j["output"])
             if bad:
                 probs.add(j, "output", f"{where}.output", f"expected a folder name inside --out: {bad}")
             else:
@@ -552,6 +667,14 @@ def _parse_jobs(d, parent, root, probs, scenes, objects, defaults, check_files) 
                 probs.add(j, "seed", f"{where}.seed", f"expected an integer in [0, {MAX_SEED}], got {shorten(j['seed'])}")
             else:
                 job.seed = seed
+        ospec = objects.get(obj) if isinstance(obj, str) else None
+        if ospec is not None and ospec.kind == "image":  # a photo: no 3D pose, no scale of its own
+            if has_pose and not has_place:
+                probs.add(j, "pose", f"{where}.pose",
+                          f"image object {obj!r} needs a 'placement' (pixel, height), not a 'pose'")
+            elif has_place and isinstance(j.get("placement"), dict) and "height" not in j["placement"]:
+                probs.add(j, "placement", f"{where}.placement",
+                          f"image object {obj!r} needs 'placement.height' (metres): a photo has no scale")
         if not job.name:
             job.name = f"{i:03d}_{job.scene}_{job.object}"
         if job.name in names:
@@ -608,6 +731,15 @@ def _check_cameras(data, scenes, objects, jobs, defaults, probs) -> None:
             users.setdefault(job.scene, []).append(job.index)
     for name, idx in users.items():
         sc = scenes[name]
+        shown = ", ".join(f"jobs[{i}]" for i in idx[:5]) + (" ..." if len(idx) > 5 else "")
+        W, H = defaults.resolution or (sc.width, sc.height)
+        if W and H and min(W, H) < MIN_RENDER_SIDE:
+            where, container = ("defaults.resolution", data.get("defaults")) if defaults.resolution else (
+                f"scenes.{name}.image", data["scenes"][name])
+            probs.add(container, "resolution" if defaults.resolution else "image", where,
+                      f"the working size of scene {name!r} is {W}x{H}: Blender renders mesh objects at least "
+                      f"{MIN_RENDER_SIDE}x{MIN_RENDER_SIDE} pixels ({shown} use a mesh object in this scene)")
+            continue
         if sc.K is None:
             continue
         fx, fy = sc.K[0, 0], sc.K[1, 1]
@@ -616,7 +748,6 @@ def _check_cameras(data, scenes, objects, jobs, defaults, probs) -> None:
             fy *= defaults.resolution[1] / sc.height
         if abs(fx - fy) > 1e-6 * max(fx, fy):
             entry = data["scenes"][name]
-            shown = ", ".join(f"jobs[{i}]" for i in idx[:5]) + (" ..." if len(idx) > 5 else "")
             probs.add(entry, "K", f"scenes.{name}.K",
                       f"non-square pixels (fx={fx:g} != fy={fy:g}) at the working size: Blender renders "
                       f"mesh objects with square pixels ({shown} use a mesh object in this scene)")

@@ -49,15 +49,22 @@ def camera_from_spec(fov_deg, K, resolution, where: str) -> tuple[Camera | None,
     try:
         from zcomp_cli.limits import pixel_budget_problem
 
+        from zcomp_cli.pipeline.manifest import MIN_RENDER_SIDE
+
         w, h = (int(v) for v in resolution)
         if w <= 0 or h <= 0:
             return None, f"{where}: resolution must be positive, got {w}x{h}"
+        if min(w, h) < MIN_RENDER_SIDE:
+            return None, (f"{where}: resolution {w}x{h} is too small: Blender renders at least "
+                          f"{MIN_RENDER_SIDE}x{MIN_RENDER_SIDE} pixels")
         budget = pixel_budget_problem(w, h)
         if budget:  # refused before Blender allocates anything
             return None, f"{where}: resolution {budget}"
         if K is not None:
             return Camera(K_from_value(K), w, h), None
         fov = DEFAULT_FOV_DEG if fov_deg is None else float(fov_deg)
+        if not 0 < fov < 180:  # (NaN fails this too)
+            return None, f"{where}: fov_deg must be degrees in (0, 180), got {fov_deg}"
         return Camera.from_fov(fov, w, h), None
     except (TypeError, ValueError) as exc:
         return None, f"{where}: invalid camera: {exc}"

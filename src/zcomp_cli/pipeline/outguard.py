@@ -1,14 +1,16 @@
 """Guarding an output folder shared by runs: locks, containment, hashes, litter.
 
-* **Locks.** A run holds ``OUT/.zcomp-job-<name>.lock`` for every job it selected
-  (``fcntl.flock``, released by the kernel when the process dies, even by ``kill -9``:
-  a lock left by a dead process is simply taken over). Two runs (or two ``--shard``
-  runs) never hold the same job, so shards of one manifest write side by side while a
-  second run of the same jobs is refused, naming the first one's pid. Every run also
-  registers ``.zcomp-run-<pid>.lock`` with its manifest: a run of *another* manifest
-  into the same folder at the same time is refused (its outputs would be mixed in).
+* **Locks** (``fcntl.flock``, released by the kernel when the process dies, even by
+  ``kill -9``: a lock left by a dead process is simply taken over). A run registers
+  ``OUT/.zcomp-run-<pid>.lock``, naming its manifest and the jobs it selected, under
+  ``.zcomp-plan.lock``: two runs (or two ``--shard`` runs) never hold the same job, so
+  shards of one manifest write side by side while a second run of the same jobs is
+  refused, naming the first one's pid, and a run of *another* manifest into the same
+  folder at the same time is refused (its outputs would be mixed in). One descriptor
+  per run, whatever the job count. Each job's ``.zcomp-job-<name>.lock`` is held only
+  while the job runs (by the process that runs it: this one, or a Ray worker).
   ``.zcomp-summary.lock`` serialises the read-merge-write of ``summary.json``. Lock
-  files are removed when released: a finished run leaves none.
+  files are removed when released: a finished (or interrupted) run leaves none.
 * **Containment.** Every path zcomp writes must resolve inside its output root: a job
   folder that is a symbolic link (or leads out of the root) is refused.
 * **Digests.** Files are fingerprinted by content (sha256), cached by path, size and
@@ -28,10 +30,12 @@ import json
 import os
 import shutil
 import tempfile
+import threading
 import time
 from pathlib import Path
 
 from zcomp_cli.errors import UsageError
+from zcomp_cli.interrupts import deferred
 
 LOCK_PREFIX = ".zcomp-"
 
@@ -59,7 +63,12 @@ class _FileLock:
         self.fd: int | None = None
 
     def try_acquire(self) -> dict | None:
-        """Take the lock; None on success, else what the current holder wrote."""
+        """Take the lock; None on success, else what the current holder wrote. Whole or
+        not at all: an interrupt waits (a lock file opened but not recorded would stay)."""
+        with deferred():
+            return self._try_acquire()
+
+    def _try_acquire(self) -> dict | None:
         for _ in range(20):
             fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
             try:
@@ -86,25 +95,50 @@ class _FileLock:
     def release(self) -> None:
         if self.fd is None:
             return
-        with contextlib.suppress(OSError):
-            os.unlink(self.path)
-        with contextlib.suppress(OSError):
-            os.close(self.fd)
-        self.fd = None
+        with deferred():
+            with contextlib.suppress(OSError):
+                os.unlink(self.path)
+            with contextlib.suppress(OSError):
+                os.close(self.fd)
+            self.fd = None
 
 
 def _read_holder(fd: int) -> dict | None:
+    """What the holder of a lock file wrote (a run's lock lists its jobs: it can be long)."""
     try:
         os.lseek(fd, 0, os.SEEK_SET)
-        data = os.read(fd, 4096)
-        return json.loads(data.decode() or "null")
+        chunks = []
+        while chunk := os.read(fd, 1 << 20):
+            chunks.append(chunk)
+        doc = json.loads(b"".join(chunks).decode() or "null")
+        return doc if isinstance(doc, dict) else None
     except (OSError, ValueError):
         return None
 
 
+@contextlib.contextmanager
+def _exclusive(path: Path, what: str, timeout_s: float = 60.0):
+    """Hold ``path``'s flock (waiting up to ``timeout_s``) for a short critical section."""
+    lock = _FileLock(path, {"pid": os.getpid()})
+    deadline = time.monotonic() + timeout_s
+    while lock.try_acquire() is not None:
+        if time.monotonic() > deadline:
+            raise UsageError(f"{path.parent}: another run holds the {what} lock for over {timeout_s:.0f} s")
+        time.sleep(0.02)
+    try:
+        yield
+    finally:
+        lock.release()
+
+
 class OutputLock:
-    """Locks of one run on ``out_root`` (see the module docstring). Use as a context
-    manager, or ``acquire()`` / ``release()``."""
+    """One run's hold on ``out_root`` (see the module docstring): a single lock file,
+    ``.zcomp-run-<pid>.lock``, held (``flock``) for the whole run and naming its
+    manifest and the jobs it selected. Registration happens under
+    ``.zcomp-plan.lock``: a run whose jobs overlap a live run's, or a run of another
+    manifest, is refused. One file descriptor per run, whatever the job count; each
+    job's own lock (:func:`job_lock`) is held only while that job runs. Use as a
+    context manager, or ``acquire()`` / ``release()``."""
 
     def __init__(self, out_root: Path, manifest_path: Path, manifest_id: str, job_names: list[str],
                  what: str = "zcomp composite"):
@@ -114,7 +148,7 @@ class OutputLock:
         self.manifest_id = manifest_id
         self.job_names = list(job_names)
         self.what = what
-        self._locks: list[_FileLock] = []
+        self._run: _FileLock | None = None
 
     def _info(self, **extra) -> dict:
         return {"pid": os.getpid(), "command": self.what, "manifest": self.manifest_path,
@@ -123,21 +157,12 @@ class OutputLock:
     def acquire(self) -> "OutputLock":
         self.dir.mkdir(parents=True, exist_ok=True)
         try:
-            run = _FileLock(self.dir / f"{LOCK_PREFIX}run-{os.getpid()}.lock", self._info())
-            if run.try_acquire() is not None:  # our own pid: only a forked copy of us
-                raise UsageError(f"{self.out_root} is already locked by this process")
-            self._locks.append(run)
-            self._check_other_runs()
-            for name in self.job_names:
-                lk = _FileLock(self.dir / f"{LOCK_PREFIX}job-{name}.lock", self._info(job=name))
-                holder = lk.try_acquire()
-                if holder is not None:
-                    pid = holder.get("pid")
-                    raise UsageError(
-                        f"job {name!r} in {self.out_root} is being made by another zcomp run "
-                        f"(pid {pid}{', ' + str(holder.get('command')) if holder.get('command') else ''}); "
-                        "wait for it to finish, or use another --out")
-                self._locks.append(lk)
+            with _exclusive(self.dir / f"{LOCK_PREFIX}plan.lock", "plan"):
+                self._check_other_runs()
+                run = _FileLock(self.dir / f"{LOCK_PREFIX}run-{os.getpid()}.lock", self._info(jobs=self.job_names))
+                if run.try_acquire() is not None:  # our own pid: only a forked copy of us
+                    raise UsageError(f"{self.out_root} is already locked by this process")
+                self._run = run
             self._sweep_stale_job_locks()
         except BaseException:
             self.release()
@@ -145,6 +170,7 @@ class OutputLock:
         return self
 
     def _check_other_runs(self) -> None:
+        mine = set(self.job_names)
         for p in sorted(self.dir.glob(f"{LOCK_PREFIX}run-*.lock")):
             if p.name == f"{LOCK_PREFIX}run-{os.getpid()}.lock":
                 continue
@@ -153,28 +179,35 @@ class OutputLock:
             if holder is None:  # nobody holds it: a dead run's file
                 probe.release()
                 continue
+            pid = holder.get("pid")
             if holder.get("manifest_id") not in (None, self.manifest_id):
                 raise UsageError(
-                    f"{self.out_root} is being written by another zcomp run (pid {holder.get('pid')}) "
+                    f"{self.out_root} is being written by another zcomp run (pid {pid}) "
                     f"from another manifest ({holder.get('manifest')}); outputs of two manifests would "
                     "be mixed: wait for it, or use another --out")
+            theirs = holder.get("jobs")
+            both = sorted(mine & set(theirs)) if isinstance(theirs, list) else sorted(mine)
+            if both:
+                cmd = holder.get("command")
+                raise UsageError(
+                    f"job {both[0]!r}{f' and {len(both) - 1} more' if len(both) > 1 else ''} in {self.out_root} "
+                    f"is being made by another zcomp run (pid {pid}{', ' + str(cmd) if cmd else ''}); "
+                    "wait for it to finish, or use another --out")
 
     def _sweep_stale_job_locks(self) -> None:
-        """Lock files of jobs this run does not take, left by killed runs: removed when
-        nobody holds them (a live run's locks cannot be taken, so they stay)."""
-        mine = {lk.path.name for lk in self._locks}
+        """Job lock files left by killed runs: removed when nobody holds them (a live
+        run's job locks cannot be taken, so they stay)."""
         for p in self.dir.glob(f"{LOCK_PREFIX}job-*.lock"):
-            if p.name in mine:
-                continue
             probe = _FileLock(p, {})
             with contextlib.suppress(OSError):
                 if probe.try_acquire() is None:
                     probe.release()
 
     def release(self) -> None:
-        for lk in reversed(self._locks):
-            lk.release()
-        self._locks.clear()
+        release_job_locks(self.out_root)
+        if self._run is not None:
+            self._run.release()
+            self._run = None
 
     def __enter__(self):
         return self.acquire()
@@ -184,19 +217,49 @@ class OutputLock:
         return False
 
 
+_HELD_JOB_LOCKS: dict[str, "_FileLock"] = {}  # path -> lock, this process's (see job_lock)
+_HELD_GUARD = threading.Lock()
+
+
+def job_lock(out_root: Path, name: str) -> "_FileLock":
+    """Take ``OUT/.zcomp-job-<name>.lock`` while job ``name`` runs (release it with
+    :func:`release_job_lock`). Raises OutputError naming the holder's pid when another
+    process holds it (a Ray worker of a retried unit, say, while the old one still runs)."""
+    from zcomp_cli.errors import OutputError
+
+    lk = _FileLock(Path(out_root) / f"{LOCK_PREFIX}job-{name}.lock", {"pid": os.getpid(), "job": name})
+    holder = lk.try_acquire()
+    if holder is not None:
+        raise OutputError(f"job {name!r} is being made by another process (pid {holder.get('pid')})")
+    with _HELD_GUARD:
+        _HELD_JOB_LOCKS[str(lk.path)] = lk
+    return lk
+
+
+def release_job_lock(lk: "_FileLock | None") -> None:
+    if lk is None:
+        return
+    with _HELD_GUARD:
+        _HELD_JOB_LOCKS.pop(str(lk.path), None)
+    lk.release()
+
+
+def release_job_locks(out_root: Path) -> None:
+    """Release every job lock this process holds in ``out_root`` (a run that ends,
+    also by an interrupt, leaves none)."""
+    prefix = str(Path(out_root) / f"{LOCK_PREFIX}job-")
+    with _HELD_GUARD:
+        mine = [k for k in _HELD_JOB_LOCKS if k.startswith(prefix)]
+        locks = [_HELD_JOB_LOCKS.pop(k) for k in mine]
+    for lk in locks:
+        lk.release()
+
+
 @contextlib.contextmanager
 def summary_lock(out_root: Path, timeout_s: float = 60.0):
     """Serialise read-merge-write of ``summary.json`` between concurrent runs (shards)."""
-    lock = _FileLock(Path(out_root) / f"{LOCK_PREFIX}summary.lock", {"pid": os.getpid()})
-    deadline = time.monotonic() + timeout_s
-    while lock.try_acquire() is not None:
-        if time.monotonic() > deadline:
-            raise UsageError(f"{out_root}: another run holds the summary lock for over {timeout_s:.0f} s")
-        time.sleep(0.02)
-    try:
+    with _exclusive(Path(out_root) / f"{LOCK_PREFIX}summary.lock", "summary", timeout_s):
         yield
-    finally:
-        lock.release()
 
 
 # ----------------------------------------------------------------------------- containment
@@ -278,8 +341,10 @@ def verify_outputs(job_dir: Path, outputs) -> str | None:
     if not isinstance(outputs, dict) or not outputs:
         return "its report records no output hashes"
     for name, rec in outputs.items():
+        if Path(name).is_absolute() or ".." in Path(name).parts:  # a hostile report: never read outside
+            return f"its report names {name!r}, outside the job folder"
         p = job_dir / name
-        if not isinstance(rec, dict) or not p.is_file():
+        if not isinstance(rec, dict) or not p.is_file():  # (a FIFO is not a file: never opened)
             return f"{name} is missing"
         size = p.stat().st_size
         if size == 0 or size != rec.get("bytes"):
@@ -320,11 +385,24 @@ def _pid_of(name: str, prefix: str) -> int | None:
     return int(head) if head.isdigit() else None
 
 
+def _kept_log(p: Path) -> bool:
+    """A Blender log kept on purpose (its batch had a failed item, whose error names it)."""
+    from zcomp_cli.blender.runner import KEEP_MARK
+
+    try:
+        with open(p, "rb") as f:
+            f.seek(max(0, f.seek(0, os.SEEK_END) - 200))
+            return KEEP_MARK.encode() in f.read()
+    except OSError:
+        return True
+
+
 def sweep_dead_temporaries(cache_root: Path | None = None) -> int:
-    """Remove ``/tmp/zcomp-job-<pid>-*``, ``/tmp/zcomp-intrinsics-work-<pid>-*`` and
-    ``<cache>/intrinsics/.work-<pid>-*`` whose process is gone."""
+    """Remove ``/tmp/zcomp-job-<pid>-*``, ``/tmp/zcomp-intrinsics-work-<pid>-*``,
+    ``<cache>/intrinsics/.work-<pid>-*`` and Blender's logs ``/tmp/zcomp-blender-<pid>-*.log``
+    (unless kept on purpose: ``blender.runner.KEEP_MARK``) whose process is gone."""
     n = 0
-    places = [(Path(tempfile.gettempdir()), ("zcomp-job-", "zcomp-intrinsics-work-"))]
+    places = [(Path(tempfile.gettempdir()), ("zcomp-job-", "zcomp-intrinsics-work-", "zcomp-blender-"))]
     if cache_root is not None:
         places.append((Path(cache_root) / "intrinsics", (".work-",)))
     for folder, prefixes in places:
@@ -338,6 +416,8 @@ def sweep_dead_temporaries(cache_root: Path | None = None) -> int:
                     continue
                 pid = _pid_of(p.name, prefix)
                 if pid is None or pid_alive(pid):
+                    continue
+                if prefix == "zcomp-blender-" and (not p.name.endswith(".log") or _kept_log(p)):
                     continue
                 with contextlib.suppress(OSError):
                     if p.is_dir() and not p.is_symlink():

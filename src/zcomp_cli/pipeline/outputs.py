@@ -18,20 +18,23 @@ and when it ends, so a killed run never leaves a summary claiming more than is t
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import logging
+
 import numpy as np
 
 from zcomp_cli import __version__
 from zcomp_cli.errors import UsageError
+from zcomp_cli.pipeline.fingerprint import job_fingerprint  # noqa: F401 - re-exported
 from zcomp_cli.pipeline.manifest import JobSpec, Manifest, RendererSpec
 
 REPORT = "report.json"
 SUMMARY = "summary.json"
+log = logging.getLogger(__name__)
 DEBUG_MAPS = ("f_bg", "f_comp", "ratio", "ratio_blurred", "shading_mask", "object_mask", "weight",
               "comp_depth", "comp_normals", "comp_albedo", "shading")
 
@@ -71,78 +74,131 @@ class BatchSummary:
         }
 
 
-def job_fingerprint(manifest: Manifest, job: JobSpec, renderer: RendererSpec, samples: int,
-                    digests=None) -> str:
-    """Identifies a job's inputs: the contents of its files (named relative to the
-    manifest), its pose, settings (not those that only change speed).
-    ``digests`` is a ``outguard.DigestCache``."""
-    from zcomp_cli.pipeline.outguard import DigestCache
-    from zcomp_cli.renderers.registry import RENDERERS
-
-    digests = digests if digests is not None else DigestCache(None)
-    scene = manifest.scenes[job.scene]
-    obj = manifest.objects[job.object]
-    entry = RENDERERS.get(renderer.name)
-    speed_only = set(entry.speed_settings) if entry is not None else set()
-    roles = [("scene.image", scene.image), *((f"scene.{k}", v) for k, v in sorted(scene.maps.items())),
-             ("object.mesh", obj.mesh), ("object.bundle", obj.bundle), ("object.image", obj.image),
-             ("object.mask", obj.mask)]
-    stats = []
-    for role, f in roles:
-        if f is not None and Path(f).exists():
-            stats.append([role, os.path.relpath(f, manifest.root), digests.digest(Path(f))])
-    payload = {
-        "files": stats,
-        "scene": {"fov": scene.fov_deg, "K": None if scene.K is None else scene.K.tolist(),
-                  "estimators": scene.estimators},
-        "pose": None if job.pose is None else job.pose.to_dict(),
-        "placement": None if job.placement is None else [job.placement.pixel, job.placement.yaw_deg,
-                                                          job.placement.height, job.placement.scale],
-        "radius": job.shading_radius, "seed": job.seed,
-        "renderer": {"name": renderer.name, **{k: str(v) for k, v in renderer.settings.items()
-                                               if k not in speed_only}},
-        "resolution": manifest.defaults.resolution, "samples": samples,
-    }
-    return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:16]
-
-
 def read_report(out_dir: Path) -> dict | None:
-    p = out_dir / REPORT
-    if not p.is_file():
-        return None
+    """A job folder's ``report.json`` as a mapping, or None when there is none or it is
+    damaged (not JSON, or JSON that is not a mapping: ``[]``, ``"done"``, ``3``)."""
+    return read_report_noted(out_dir)[0]
+
+
+def read_report_noted(out_dir: Path) -> tuple[dict | None, str | None]:
+    """(report, note): the note says why an existing ``report.json`` was not usable."""
+    p = Path(out_dir) / REPORT
     try:
-        return json.loads(p.read_text())
-    except (OSError, json.JSONDecodeError):
-        return None
+        if not p.is_file():
+            return None, None
+        doc = json.loads(p.read_text())
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        return None, f"{p}: unreadable ({type(exc).__name__}), treated as missing"
+    if not isinstance(doc, dict):
+        return None, f"{p}: holds {type(doc).__name__}, not a job report; treated as missing"
+    return doc, None
+
+
+# What zcomp writes in a job folder (and its debug/ folder): a folder holding anything
+# else is not a job folder, and a run refuses to write into it.
+JOB_FILES = {REPORT, "composite.png", "composite.exr", "grid.png", "shading_mask.png", "debug"}
+DEBUG_FILES = {f"{n}.exr" for n in DEBUG_MAPS}
+
+
+def foreign_entries(job_dir: Path) -> list[str]:
+    """Entries of ``job_dir`` that zcomp did not write (hidden temporaries count as
+    zcomp's). Empty for a job folder, or one that does not exist."""
+    def theirs(folder: Path, ours: set[str]) -> list[str]:
+        try:
+            names = sorted(os.listdir(folder))
+        except (FileNotFoundError, NotADirectoryError):
+            return []
+        return [n for n in names if n not in ours and not (n.startswith(".") and ".tmp" in n)]
+
+    found = theirs(job_dir, JOB_FILES)
+    debug = job_dir / "debug"
+    if debug.is_dir() and not debug.is_symlink():
+        found += [f"debug/{n}" for n in theirs(debug, DEBUG_FILES)]
+    elif debug.exists() or debug.is_symlink():
+        found.append("debug")
+    return found
+
+
+@dataclass
+class JobState:
+    """What a job folder holds, as ``--resume`` and ``zcomp status`` judge it:
+
+    * ``done``: a report that says done, every output it records intact, made from the
+      expected inputs (when a fingerprint is given);
+    * ``stale``: done, but made from other inputs or settings;
+    * ``damaged``: a done report whose outputs are missing, empty or altered;
+    * ``incomplete``: done, but without what this run asks for (``--debug`` maps);
+    * ``unfinished``: no usable report (never made, interrupted, or a damaged report).
+    """
+
+    state: str
+    reason: str | None = None
+    report: dict | None = None
+    note: str | None = None  # why an existing report.json was not usable
+
+
+def job_state(job_dir: Path, fingerprint: str | None = None, *, need_debug: bool = False,
+              verify: bool = True) -> JobState:
+    """Judge ``job_dir`` (see ``JobState``). ``verify`` False checks output sizes only
+    (no hashing)."""
+    from zcomp_cli.pipeline.outguard import verify_outputs
+
+    rep, note = read_report_noted(job_dir)
+    if rep is None or rep.get("status") != "done":
+        return JobState("unfinished", note or ("no report.json" if rep is None else "its report is not done"),
+                        rep, note)
+    why = verify_outputs(job_dir, rep.get("outputs")) if verify else (
+        None if _sizes_match(job_dir, rep) else "an output is missing or has another size")
+    if why is not None:
+        return JobState("damaged", why, rep)
+    if need_debug and not any(str(k).startswith("debug/") for k in rep["outputs"]):
+        return JobState("incomplete", "made without --debug: no debug maps", rep)
+    if fingerprint is not None and rep.get("fingerprint") != fingerprint:
+        return JobState("stale", "made from other inputs or settings", rep)
+    return JobState("done", None, rep)
 
 
 def plan_outputs(manifest, jobs, out_root: Path, renderer, samples, *, resume: bool, overwrite: bool,
-                 digests=None):
+                 redo_changed: bool = False, debug: bool = False, digests=None):
     """Decide, before any work, which jobs run and which are skipped.
 
     A job counts as finished only when its report says ``done`` and every output it
-    records is still there with its size and hash; a job folder that is a symbolic link
-    (or leads outside ``out_root``) is refused. Returns (to_run as ``[(job,
-    fingerprint)]``, skipped statuses). Raises UsageError when finished outputs exist
-    and neither --resume nor --overwrite says what to do with them (nothing is lost)."""
-    from zcomp_cli.pipeline.outguard import check_inside, verify_outputs
+    records is still there with its size and hash (``job_state``); with ``debug`` it
+    must also hold its debug maps. A job folder that is a symbolic link (or leads
+    outside ``out_root``), or that holds files zcomp did not write, is refused. With
+    ``resume``, finished jobs of the same inputs are skipped; ``redo_changed`` redoes
+    those made from other inputs (else they are refused: nothing is replaced unasked).
+    Returns (to_run as ``[(job, fingerprint)]``, skipped statuses). Raises UsageError
+    when finished outputs exist and the flags do not say what to do with them."""
+    from zcomp_cli.pipeline.outguard import check_inside
 
-    to_run, skipped, clashes, changed = [], [], [], []
+    to_run, skipped, clashes, changed, foreign = [], [], [], [], []
     for job in jobs:
         out_dir = out_root / job.name
         field = f"jobs[{job.index}].output ({job.name})"
         check_inside(out_root, out_dir, field)
         if out_dir.is_dir():
             check_inside(out_root, out_dir / "debug", field)
-        rep = read_report(out_dir)
+        elif out_dir.exists():
+            foreign.append(f"{field}: {out_dir} exists and is not a folder")
+            continue
+        theirs = foreign_entries(out_dir)
+        if theirs:
+            foreign.append(f"{field}: {out_dir} is not a zcomp job folder (it holds "
+                           f"{', '.join(theirs[:4])}{' ...' if len(theirs) > 4 else ''})")
+            continue
         fp = job_fingerprint(manifest, job, renderer, samples, digests)
-        finished = rep is not None and rep.get("status") == "done"
-        if finished and verify_outputs(out_dir, rep.get("outputs")) is not None:
-            finished = False  # a missing, empty or altered output: not finished, redo it
-        if not finished or overwrite:
+        st = job_state(out_dir, fp, need_debug=debug)
+        if st.note:
+            log.warning("%s", st.note)
+        if st.state in ("unfinished", "damaged") or overwrite:
             to_run.append((job, fp))
-        elif resume and rep.get("fingerprint") == fp:
+        elif st.state == "incomplete" and resume:  # --resume --debug: make the debug maps
+            to_run.append((job, fp))
+        elif st.state == "done" and resume:
             skipped.append(JobStatus(job, "skipped", "finished in an earlier run (--resume)", 0.0, out_dir))
+        elif st.state == "stale" and resume and redo_changed:
+            to_run.append((job, fp))
         elif resume:
             changed.append(job.name)
         else:
@@ -151,11 +207,16 @@ def plan_outputs(manifest, jobs, out_root: Path, renderer, samples, *, resume: b
     def shown(names):
         return ", ".join(names[:5]) + (f" and {len(names) - 5} more" if len(names) > 5 else "")
 
+    if foreign:
+        raise UsageError(f"{len(foreign)} job output(s) would be written into something that is not a zcomp job "
+                         f"folder (nothing was written):\n  " + "\n  ".join(foreign[:10])
+                         + ("\n  ..." if len(foreign) > 10 else "")
+                         + "\nname another 'output' for these jobs, or use another --out")
     if changed:
         raise UsageError(
             f"{len(changed)} finished job(s) in {out_root} were made from other inputs or settings: "
-            f"{shown(changed)}. --resume keeps only outputs of the same inputs; pass --overwrite to "
-            "replace them (or use another --out).")
+            f"{shown(changed)}. Add --redo-changed to redo exactly these (the unchanged ones are "
+            "skipped), use --overwrite to redo every job, or use another --out.")
     if clashes:
         raise UsageError(
             f"{len(clashes)} job output(s) already exist in {out_root}: {shown(clashes)}. "
@@ -163,12 +224,17 @@ def plan_outputs(manifest, jobs, out_root: Path, renderer, samples, *, resume: b
     return to_run, skipped
 
 
-def job_report(manifest: Manifest, job: JobSpec, fingerprint: str, scene, pose, bundle_dir, result) -> dict:
-    """The ``report.json`` body of a finished job (timings are completed by the writer)."""
+def job_report(manifest: Manifest, job: JobSpec, fingerprint: str, scene, pose, bundle_dir, result, *,
+               renderer_spec: RendererSpec | None = None) -> dict:
+    """The ``report.json`` body of a finished job (timings are completed by the writer).
+    ``renderer_spec`` (what the run was asked for, with command-line overrides) lets
+    ``zcomp status --manifest`` recompute the fingerprint the job was made with."""
     return {
         "status": "done",
         "zcomp_version": __version__,
         "fingerprint": fingerprint,
+        "renderer_spec": None if renderer_spec is None else {"name": renderer_spec.name,
+                                                             "settings": dict(renderer_spec.settings)},
         "job": {"index": job.index, "name": job.name, "scene": job.scene, "object": job.object,
                 "manifest": str(manifest.path), "line": job.line},
         "pose": None if pose is None else pose.to_dict(),
@@ -244,7 +310,7 @@ def merged_summary(out_root: Path, summary: BatchSummary, manifest: Manifest | N
     prev = {}
     try:
         old = json.loads((out_root / summary_name(summary.shard)).read_text())
-        prev = {j["name"]: j for j in old.get("jobs", []) if isinstance(j, dict) and "name" in j}
+        prev = {j["name"]: j for j in old.get("jobs", []) if isinstance(j, dict) and isinstance(j.get("name"), str)}
     except (OSError, ValueError, AttributeError, TypeError):
         pass
     mine = {s.job.name: s for s in summary.statuses}
@@ -266,10 +332,12 @@ def merged_summary(out_root: Path, summary: BatchSummary, manifest: Manifest | N
                 row["this_run"] = st.status
             rep = read_report(out_root / job.name)
             if rep is not None and rep.get("status") == "done" and _sizes_match(out_root / job.name, rep):
+                timings = rep.get("timings") if isinstance(rep.get("timings"), dict) else {}
+                secs = timings.get("job_total_s")
                 row.update(status="done", reason=st.reason if st is not None else "finished in an earlier run",
-                           seconds=float((rep.get("timings") or {}).get("job_total_s") or 0.0))
+                           seconds=float(secs) if isinstance(secs, (int, float)) else 0.0)
             elif prev.get(job.name, {}).get("status") == "failed":
-                row.update(status="failed", reason=prev[job.name].get("reason"))
+                row.update(status="failed", reason=str(prev[job.name].get("reason") or "failed"))
         rows.append(row)
     count = {k: sum(1 for r in rows if r["status"] == k) for k in ("done", "failed", "pending")}
     return {
@@ -288,6 +356,8 @@ def _sizes_match(job_dir: Path, rep: dict) -> bool:
     if not isinstance(outs, dict) or not outs:
         return False
     for name, rec in outs.items():
+        if Path(name).is_absolute() or ".." in Path(name).parts:
+            return False
         p = job_dir / name
         try:
             if not isinstance(rec, dict) or p.stat().st_size != rec.get("bytes") or rec.get("bytes") == 0:

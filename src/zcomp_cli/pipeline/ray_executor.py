@@ -30,7 +30,9 @@ import uuid
 from pathlib import Path
 
 from zcomp_cli.errors import UsageError
-from zcomp_cli.pipeline.outputs import REPORT, JobStatus, read_report
+from zcomp_cli.pipeline.executor import Executor, run_chunk
+from zcomp_cli.pipeline.outputs import REPORT, JobStatus, job_state, read_report
+from zcomp_cli.pipeline.stages import BatchContext, render_objects
 
 RAY_EXTRA_HINT = "pip install 'zcomp[ray]'"
 # Test hook: when set to a path that does not exist yet, the first worker to finish a
@@ -52,14 +54,11 @@ class _Worker:
     """The body of a Ray actor: one renderer and a scene store for many units."""
 
     def __init__(self, manifest, out_root: str, renderer_spec, debug: bool, cache_root, batch_size: int):
-        from zcomp_cli.cache import cache_dir as cache_folder
-        from zcomp_cli.pipeline.batch import BatchContext, SceneStore
         from zcomp_cli.renderers import get_renderer
 
-        self.ctx = BatchContext(manifest, Path(out_root), renderer_spec,
-                                SceneStore(manifest, cache_folder("estimates", cache_root)), debug=debug,
-                                cache_root=cache_root, batch_size=batch_size)
-        self.ctx.renderer = get_renderer(renderer_spec.name, **renderer_spec.settings)
+        renderer = get_renderer(renderer_spec.name, **renderer_spec.settings)
+        self.ctx = BatchContext.create(manifest, Path(out_root), renderer_spec, renderer, batch_size=batch_size,
+                                       debug=debug, cache_root=cache_root)
         self._session = None
 
     def _blender(self):
@@ -80,16 +79,12 @@ class _Worker:
 
     def run_unit(self, works) -> tuple[int, list[JobStatus]]:
         """Run a unit (jobs of one scene); returns (this process's pid, statuses)."""
-        from zcomp_cli.pipeline.batch import render_objects
-        from zcomp_cli.pipeline.executor import run_chunk
-
         ctx = self.ctx
         statuses: list[JobStatus] = []
         todo = []
         for w in works:
             out_dir = ctx.out_root / w.job.name
-            rep = read_report(out_dir)
-            if rep is not None and rep.get("status") == "done" and rep.get("fingerprint") == w.fingerprint:
+            if job_state(out_dir, w.fingerprint, need_debug=ctx.debug).state == "done":
                 # finished by an earlier attempt of this unit (the driver removed
                 # older reports of every job it sent): do not run it twice
                 statuses.append(JobStatus(w.job, "done", None, 0.0, out_dir))
@@ -97,9 +92,11 @@ class _Worker:
                 statuses.append(JobStatus(w.job, "failed", w.error, 0.0, out_dir))
             else:
                 todo.append(w)
+        # a unit is one scene's: the worker keeps that scene (the next unit is likely of
+        # the same scene) and frees the others
+        ctx.scenes.release_all_but(works[0].job.scene if works else None)
         if any(ctx.manifest.objects[w.job.object].kind == "mesh" for w in todo):
-            ctx.blender_session = self._blender()
-            render_objects(ctx, todo)
+            render_objects(ctx, todo, session=self._blender())
         for w in [w for w in todo if w.error is not None]:
             statuses.append(JobStatus(w.job, "failed", w.error, 0.0, ctx.out_root / w.job.name))
         todo = [w for w in todo if w.error is None]
@@ -113,26 +110,43 @@ class _Worker:
         return os.getpid(), sorted(statuses, key=lambda s: order[s.job.index])
 
 
-class RayExecutor:
+def cpus_per_worker(node_cpus: list[int], workers: int) -> int:
+    """The most CPUs each of ``workers`` actors can ask for so that all of them fit on
+    the nodes (``node_cpus``: each alive node's CPU count): at most an equal share of the
+    cluster, and never more than a node holds (an actor that fits nowhere would wait
+    forever). At least 1."""
+    nodes = [c for c in node_cpus if c > 0]
+    if not nodes or workers < 1:
+        return 1
+    for per in range(min(sum(nodes) // workers, max(nodes)), 1, -1):
+        if sum(c // per for c in nodes) >= workers:
+            return per
+    return 1
+
+
+class RayExecutor(Executor):
     """Runs the job stage on Ray actors. ``address``: ``auto``, ``HOST:PORT`` or
     ``ray://HOST:PORT`` (default ``$RAY_ADDRESS``, else a local Ray, or the Ray already
     initialised in this process); ``workers``: actors to start (default: what the
     cluster's CPUs -- GPUs for zerocomp -- allow)."""
 
+    name = "ray"
     renders_objects = True
 
     def __init__(self, address: str | None = None, workers: int | None = None, *, unit_size: int = 4,
                  max_retries: int = 3, runtime_env: dict | None = None):
+        super().__init__()
         self.address = address
         self.runtime_env = runtime_env
         self.workers = workers
         self.unit_size = max(1, int(unit_size))
         self.max_retries = int(max_retries)
-        self.info: dict = {"name": "ray"}
         self._ray = None
+        self._workers: tuple[list, dict] | None = None  # started by check(), used by run()
 
     # -- before any work ---------------------------------------------------------
-    def check(self, ctx) -> None:
+    def preflight(self) -> None:
+        """Ray is installed and its cluster reachable (before anything is written)."""
         ray = self._ray = import_ray()
         if not ray.is_initialized():
             address = self.address or os.environ.get("RAY_ADDRESS") or None
@@ -141,7 +155,27 @@ class RayExecutor:
             except (ConnectionError, RuntimeError, ValueError) as exc:
                 raise UsageError(f"--executor ray: cannot join the Ray cluster at {address or 'a new local Ray'}: "
                                  f"{exc}") from None
+
+    def check(self, ctx, n_jobs: int = 0) -> None:
+        """``OUT`` is seen by every node; then the workers start, so that their start
+        (a process, zcomp's imports, the renderer) overlaps the driver's own work until
+        the job stage."""
+        if self._ray is None:
+            self.preflight()
         self._check_shared_output(ctx.out_root)
+        if n_jobs:
+            self._workers = self._start_workers(ctx, n_jobs)
+
+    def _start_workers(self, ctx, at_most: int) -> tuple[list, dict]:
+        """(actors, the resources each asked for): at most ``at_most`` workers."""
+        ray = self._ray
+        n, res = self._worker_count(ctx, at_most)
+        opts = dict(max_restarts=self.max_retries, max_task_retries=self.max_retries, **res)
+        if self.runtime_env:
+            opts["runtime_env"] = self.runtime_env
+        actor_cls = ray.remote(**opts)(_Worker)
+        return [actor_cls.remote(ctx.manifest, str(ctx.out_root), ctx.renderer_spec, ctx.debug,
+                                 ctx.cache_root, ctx.batch_size) for _ in range(n)], res
 
     def _check_shared_output(self, out_root: Path) -> None:
         """Every node with Ray workers must see ``out_root``: write a probe, read it
@@ -184,14 +218,21 @@ class RayExecutor:
         return [g[k:k + self.unit_size] for g in by_scene.values() for k in range(0, len(g), self.unit_size)]
 
     def _worker_count(self, ctx, n_units: int) -> tuple[int, dict]:
+        """How many workers, and what each asks Ray for. A CPU worker gets its share of
+        the cluster's cores (``cpus_per_worker``): Ray sets a worker's thread count
+        (OMP_NUM_THREADS) from its CPUs, so a lone worker computes with the threads a
+        local run has, not with one."""
         gpu = ctx.renderer_spec.name == "zerocomp"
-        res = {"num_cpus": 1, "num_gpus": 1 if gpu else 0}
+        total = self._ray.cluster_resources()
         if self.workers is not None:
             n = self.workers
         else:
-            total = self._ray.cluster_resources()
             n = int(total.get("GPU" if gpu else "CPU", 0)) or 1
-        return max(1, min(n, n_units)), res
+        n = max(1, min(n, n_units))
+        if gpu:
+            return n, {"num_cpus": 1, "num_gpus": 1}
+        nodes = [int(nd.get("Resources", {}).get("CPU", 0)) for nd in self._ray.nodes() if nd.get("Alive")]
+        return n, {"num_cpus": cpus_per_worker(nodes, n), "num_gpus": 0}
 
     def run(self, ctx, works) -> list[JobStatus]:
         ray = self._ray or import_ray()
@@ -204,15 +245,18 @@ class RayExecutor:
             if rep is not None and rep.get("status") == "done":
                 (ctx.out_root / w.job.name / REPORT).unlink(missing_ok=True)
         units = self._units(works)
+        started, self._workers = self._workers, None
+        actors, res = started if started is not None else ([], {})
         if not units:
+            for a in actors:
+                ray.kill(a)
             return []
-        n, res = self._worker_count(ctx, len(units))
-        opts = dict(max_restarts=self.max_retries, max_task_retries=self.max_retries, **res)
-        if self.runtime_env:
-            opts["runtime_env"] = self.runtime_env
-        actor_cls = ray.remote(**opts)(_Worker)
-        actors = [actor_cls.remote(ctx.manifest, str(ctx.out_root), ctx.renderer_spec, ctx.debug,
-                                   ctx.cache_root, ctx.batch_size) for _ in range(n)]
+        if not actors:
+            actors, res = self._start_workers(ctx, len(units))
+        for a in actors[len(units):]:  # more workers than units (units hold up to unit_size jobs)
+            ray.kill(a)
+        actors = actors[:len(units)]
+        n = len(actors)
         pending = list(range(len(units)))
         last_scene: dict[int, str] = {}
         in_flight: dict = {}  # ref -> (actor index, unit index)
@@ -233,31 +277,36 @@ class RayExecutor:
             last_scene[a] = units[pick][0].job.scene
             in_flight[actors[a].run_unit.remote(units[pick])] = (a, pick)
 
-        for a in range(n):
-            if pending:
-                submit(a)
-        while in_flight:
-            ready, _ = ray.wait(list(in_flight), num_returns=1)
-            ref = ready[0]
-            a, u = in_flight.pop(ref)
-            try:
-                pid, got = ray.get(ref)
-                pids.add(pid)
-            except ray.exceptions.RayError as exc:  # retries exhausted, or a bug in the worker
-                reason = f"Ray worker failed after {self.max_retries} retries: {type(exc).__name__}: {exc}"
-                got = [JobStatus(w.job, "failed", reason.splitlines()[0][:500], 0.0, ctx.out_root / w.job.name)
-                       for w in units[u]]
-            statuses.extend(got)
-            done += len(got)
-            ctx.report("jobs", done, total, got[-1].job.name if got else "")
-            if pending:
-                submit(a)
         try:
-            ray.get([a.close.remote() for a in actors], timeout=60)
-        except ray.exceptions.RayError:
-            pass  # a worker that cannot close is killed below all the same
-        for a in actors:
-            ray.kill(a)
-        self.info.update(workers=n, units=len(units), worker_pids=sorted(pids),
+            # two units per worker in flight: the next one waits in the actor's queue, so
+            # a worker never idles while the driver collects a result and sends more
+            for _ in range(2):
+                for a in range(n):
+                    if pending:
+                        submit(a)
+            while in_flight:
+                ready, _ = ray.wait(list(in_flight), num_returns=1)
+                ref = ready[0]
+                a, u = in_flight.pop(ref)
+                try:
+                    pid, got = ray.get(ref)
+                    pids.add(pid)
+                except ray.exceptions.RayError as exc:  # retries exhausted, or a bug in the worker
+                    reason = f"Ray worker failed after {self.max_retries} retries: {type(exc).__name__}: {exc}"
+                    got = [JobStatus(w.job, "failed", reason.splitlines()[0][:500], 0.0, ctx.out_root / w.job.name)
+                           for w in units[u]]
+                statuses.extend(got)
+                done += len(got)
+                ctx.report("jobs", done, total, got[-1].job.name if got else "")
+                if pending:
+                    submit(a)
+            try:
+                ray.get([a.close.remote() for a in actors], timeout=60)
+            except ray.exceptions.RayError:
+                pass  # a worker that cannot close is killed below all the same
+        finally:  # also when interrupted: no worker (and no Blender of theirs) goes on
+            for a in actors:
+                ray.kill(a)
+        self.info.update(workers=n, cpus_per_worker=res["num_cpus"], units=len(units), worker_pids=sorted(pids),
                          seconds=time.perf_counter() - t0)
         return statuses

@@ -94,6 +94,28 @@ def sanitize_maps(image, depth, normals, albedo, where: str) -> tuple[np.ndarray
     return image.astype(np.float32), depth, normals, albedo, notes
 
 
+def scene_camera(spec: SceneSpec, resolution: tuple[int, int] | None, native: tuple[int, int] | None = None) -> Camera:
+    """The scene's camera at the working ``resolution`` (W, H; None = the image's own
+    size), from its K or horizontal FOV, without reading its pixels. ``native`` is the
+    image's (W, H) when known; else the manifest's, else the image file's header."""
+    if native is None:
+        native = (spec.width, spec.height)
+        if not (native[0] and native[1]):
+            from zcomp_cli.imageio import image_header
+
+            try:
+                native = image_header(spec.image)[:2]
+            except ValueError as exc:
+                raise InputError(f"cannot read image: {exc}", where=str(spec.image)) from exc
+    w0, h0 = (int(v) for v in native)
+    if spec.K is not None:
+        camera = Camera(spec.K, w0, h0)
+    else:
+        camera = Camera.from_fov(spec.fov_deg if spec.fov_deg is not None else DEFAULT_FOV_DEG, w0, h0)
+    size = resolution or (w0, h0)
+    return camera.resized(*size) if size != (w0, h0) else camera
+
+
 def load_scene(spec: SceneSpec, resolution: tuple[int, int] | None, *, cache_dir=None) -> Scene:
     """Read a scene's files, resample to the working ``resolution`` (W, H) if given, and
     fill missing maps from estimators."""
@@ -105,14 +127,10 @@ def load_scene(spec: SceneSpec, resolution: tuple[int, int] | None, *, cache_dir
     where = f"scene {spec.name!r}"
     image = read_image(spec.image)
     h0, w0 = image.shape[:2]
-    if spec.K is not None:
-        camera = Camera(spec.K, w0, h0)
-    else:
-        camera = Camera.from_fov(spec.fov_deg if spec.fov_deg is not None else DEFAULT_FOV_DEG, w0, h0)
+    camera = scene_camera(spec, resolution, native=(w0, h0))
     size = resolution or (w0, h0)
     if size != (w0, h0):
         image = _resize(image, size, "image")
-        camera = camera.resized(*size)
     W, H = size
     maps: dict[str, np.ndarray] = {}
     sources: dict[str, str] = {}

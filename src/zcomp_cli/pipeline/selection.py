@@ -2,8 +2,14 @@
 
 from __future__ import annotations
 
+import heapq
+
 from zcomp_cli.errors import UsageError
 from zcomp_cli.pipeline.manifest import JobSpec
+
+# The most shards a batch may be cut into (a job array of a million tasks is a typo);
+# `zcomp status` treats a summary claiming more as damaged.
+MAX_SHARD_COUNT = 100_000
 
 
 def select_jobs(jobs: list[JobSpec], subset: str | None) -> list[JobSpec]:
@@ -51,6 +57,8 @@ def parse_shard(text: str | None) -> tuple[int, int] | None:
         raise UsageError(f"--shard: expected I/N such as 0/3, got {text!r}") from None
     if n < 1 or not 0 <= i < n:
         raise UsageError(f"--shard: need N >= 1 and 0 <= I < N (shards count from 0), got {text!r}")
+    if n > MAX_SHARD_COUNT:
+        raise UsageError(f"--shard: at most {MAX_SHARD_COUNT:,} shards, got {n:,}")
     return i, n
 
 
@@ -77,11 +85,19 @@ def shard_jobs(jobs: list[JobSpec], index: int, count: int) -> list[JobSpec]:
         for k in range(0, len(group), cap):
             pieces.append((len(group[k:k + cap]), order * 10**6 + k, group[k:k + cap]))
     pieces.sort(key=lambda p: (-p[0], p[1]))
-    load = [0] * count
+    # The least-loaded shard (lowest index on ties), in O(log) per piece: shards not used
+    # yet have load 0 and beat every used one (a piece holds at least one job), so they
+    # are taken in index order; the used ones sit in a heap. Never O(jobs x shards).
+    used: list[tuple[int, int]] = []  # (load, shard)
+    fresh = 0  # the lowest shard not used yet
     mine: list[JobSpec] = []
     for size, _, piece in pieces:
-        s = min(range(count), key=lambda i: (load[i], i))
-        load[s] += size
+        if fresh < count:
+            s, fresh = fresh, fresh + 1
+            heapq.heappush(used, (size, s))
+        else:
+            load, s = heapq.heappop(used)
+            heapq.heappush(used, (load + size, s))
         if s == index:
             mine.extend(piece)
     return sorted(mine, key=lambda j: j.index)

@@ -1,11 +1,22 @@
 """The state of an output folder, merged over every run and shard that wrote to it.
 
-Sources, in ``OUT/``: each job folder's ``report.json`` (``status: done`` marks a
-finished job: the truth), and the summaries (``summary.json``,
-``summary.shard-I-of-N.json``): they list the jobs each run or shard took, and why the
-failed ones failed. A job is ``done`` (its report says so), ``failed`` (a summary says
-so and no report says done; the most recent summary's reason wins) or ``missing``
-(expected -- listed by a shard, or in the manifest when one is given -- but neither).
+Sources, in ``OUT/``: each job folder's ``report.json`` with the outputs it records (the
+truth), and the summaries (``summary.json``, ``summary.shard-I-of-N.json``): they list
+the jobs each run or shard took, and why the failed ones failed. Each job is judged as
+``--resume`` judges it (``outputs.job_state``):
+
+* ``done``: its report says done and every output it records is intact (sizes and
+  sha256), and, when a manifest is given, it was made from the manifest's current inputs;
+* ``damaged``: its report says done, but an output is missing, empty or altered
+  (``--resume`` redoes it);
+* ``changed``: done, but made from other inputs or settings than the manifest's now
+  (``--resume --redo-changed`` redoes it);
+* ``failed``: a summary says so and no report says done (the newest summary's reason wins);
+* ``missing``: expected -- listed by a shard, or in the manifest when one is given -- but
+  none of the above.
+
+Damaged summaries and reports (not JSON, or JSON of another shape) are skipped with a
+note; a shard count beyond ``MAX_SHARD_COUNT`` marks its summary damaged.
 """
 
 from __future__ import annotations
@@ -15,7 +26,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from zcomp_cli.errors import UsageError
-from zcomp_cli.pipeline.outputs import read_report
+from zcomp_cli.pipeline.outputs import job_state
+from zcomp_cli.pipeline.selection import MAX_SHARD_COUNT
 
 
 @dataclass
@@ -23,33 +35,77 @@ class FolderStatus:
     done: list[str] = field(default_factory=list)
     failed: dict[str, str] = field(default_factory=dict)  # name -> reason
     missing: list[str] = field(default_factory=list)
+    damaged: dict[str, str] = field(default_factory=dict)  # name -> what is wrong with its outputs
+    changed: list[str] = field(default_factory=list)  # made from other inputs than the manifest's
     shards: dict = field(default_factory=dict)  # "i/n" -> "finished" | "no summary"
     summaries: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)  # damaged files that were skipped
 
     @property
     def complete(self) -> bool:
         """Every expected job done, and every shard seen has written its summary."""
-        return not self.failed and not self.missing and all(v == "finished" for v in self.shards.values())
+        return (not self.failed and not self.missing and not self.damaged and not self.changed
+                and all(v == "finished" for v in self.shards.values()))
 
     def to_dict(self) -> dict:
         return {"done": len(self.done), "failed": len(self.failed), "missing": len(self.missing),
+                "damaged": len(self.damaged), "changed": len(self.changed),
                 "complete": self.complete, "shards": self.shards, "summaries": self.summaries,
-                "jobs": {"done": self.done, "failed": self.failed, "missing": self.missing}}
+                "notes": self.notes,
+                "jobs": {"done": self.done, "failed": self.failed, "missing": self.missing,
+                         "damaged": self.damaged, "changed": self.changed}}
 
 
-def _summaries(out: Path) -> list[tuple[float, Path, dict]]:
+def _int(v) -> int | None:
+    return int(v) if isinstance(v, int) and not isinstance(v, bool) else None
+
+
+def _summaries(out: Path, notes: list[str]) -> list[tuple[float, Path, dict]]:
+    """Every summary of ``out`` that has the shape zcomp writes, oldest first."""
     found = []
     for p in sorted(out.glob("summary*.json")):
         try:
-            found.append((p.stat().st_mtime, p, json.loads(p.read_text())))
-        except (OSError, json.JSONDecodeError):
+            doc = json.loads(p.read_text())
+            mtime = p.stat().st_mtime
+        except (OSError, UnicodeDecodeError, ValueError):
             continue  # a summary being replaced right now: the reports still tell
+        problem = _summary_problem(doc)
+        if problem:
+            notes.append(f"{p.name}: {problem}; skipped")
+            continue
+        found.append((mtime, p, doc))
     return sorted(found, key=lambda t: (t[0], t[1].name))
 
 
-def folder_status(out, expected: list[str] | None = None) -> FolderStatus:
+def _summary_problem(doc) -> str | None:
+    if not isinstance(doc, dict):
+        return f"holds {type(doc).__name__}, not a summary"
+    jobs = doc.get("jobs")
+    if jobs is not None and not (isinstance(jobs, list) and all(
+            isinstance(j, dict) and isinstance(j.get("name"), str) for j in jobs)):
+        return "its 'jobs' is not a list of jobs with names"
+    shard = doc.get("shard")
+    if shard is not None:
+        if not isinstance(shard, dict):
+            return "its 'shard' is not a mapping"
+        i, n = _int(shard.get("index")), _int(shard.get("count"))
+        if i is None or n is None or not 0 <= i < n:
+            return "its 'shard' has no valid index and count"
+        if n > MAX_SHARD_COUNT:
+            return f"its shard count {n} is over {MAX_SHARD_COUNT}"
+        names = shard.get("jobs")
+        if names is not None and not (isinstance(names, list) and all(isinstance(x, str) for x in names)):
+            return "its 'shard.jobs' is not a list of names"
+    return None
+
+
+def folder_status(out, expected: list[str] | None = None, *, fingerprints: dict[str, object] | None = None,
+                  verify: bool = True) -> FolderStatus:
     """Merge ``out``'s reports and summaries. ``expected``: every job name that should
-    be there (e.g. the manifest's); without it, the jobs the summaries list."""
+    be there (e.g. the manifest's); without it, the jobs the summaries list.
+    ``fingerprints``: name -> ``fingerprint(report) -> str``, the fingerprint the job
+    would have now (a job made from other inputs is then ``changed``). ``verify``:
+    hash every recorded output (False: sizes only)."""
     out = Path(out)
     if not out.is_dir():
         raise UsageError(f"{out} is not a folder")
@@ -58,7 +114,7 @@ def folder_status(out, expected: list[str] | None = None) -> FolderStatus:
     listed: list[str] = []
     counts = set()
     seen_shards = set()
-    for _, p, summ in _summaries(out):
+    for _, p, summ in _summaries(out, st.notes):
         st.summaries.append(p.name)
         shard = summ.get("shard")
         if shard:
@@ -68,7 +124,7 @@ def folder_status(out, expected: list[str] | None = None) -> FolderStatus:
         for j in summ.get("jobs") or []:
             listed.append(j["name"])
             if j.get("status") == "failed":
-                reasons[j["name"]] = j.get("reason") or "failed"  # later summaries win
+                reasons[j["name"]] = str(j.get("reason") or "failed")  # later summaries win
             elif j.get("status") in ("done", "skipped"):
                 reasons.pop(j["name"], None)
     for n in sorted(counts):
@@ -79,9 +135,17 @@ def folder_status(out, expected: list[str] | None = None) -> FolderStatus:
         names += [d.name for d in sorted(out.iterdir()) if d.is_dir() and (d / "report.json").exists()
                   and d.name not in names]
     for name in names:
-        rep = read_report(out / name)
-        if rep is not None and rep.get("status") == "done":
+        js = job_state(out / name, verify=verify)
+        if js.note:
+            st.notes.append(js.note)
+        if js.state == "done" and fingerprints is not None and name in fingerprints:
+            if js.report.get("fingerprint") != fingerprints[name](js.report):
+                st.changed.append(name)
+                continue
+        if js.state == "done":
             st.done.append(name)
+        elif js.state == "damaged":
+            st.damaged[name] = js.reason or "damaged"
         elif name in reasons:
             st.failed[name] = reasons[name]
         else:

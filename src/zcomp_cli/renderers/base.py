@@ -101,3 +101,8 @@ class Renderer(ABC):
     def settings(self) -> dict:
         """Settings recorded in each job report (and part of cache keys)."""
         return {"name": self.name}
+
+    def check(self) -> None:
+        """Called once before a batch writes anything: raise (``WeightsError``,
+        ``UsageError``) for what would fail every job, such as missing weights. Must be
+        cheap: load nothing heavy here."""

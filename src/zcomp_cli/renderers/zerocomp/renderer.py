@@ -80,6 +80,12 @@ class ZeroCompRenderer(Renderer):
                 "window": self.window, "context_margin": self.context_margin,
                 "resolution": self.resolution}
 
+    def check(self) -> None:
+        """Every weight file is where it is looked for (nothing is loaded)."""
+        from zcomp_cli.renderers.zerocomp.loading import resolve_paths
+
+        resolve_paths(self.controlnet, self.base)
+
     def models(self):
         """Load once per renderer object (a batch of jobs shares them)."""
         if self._models is None:

@@ -1,0 +1,254 @@
+"""What the stages of a batch share, and the per-job stages before the renderer.
+
+* :class:`BatchContext`: what every stage of one batch shares, built once
+  (:meth:`BatchContext.create`) when the renderer is known, and never changed after;
+* :class:`SceneStore`: the batch's scenes, each loaded on first use and freed after
+  its last job (memory stays flat in the number of scenes);
+* :class:`JobWork`: one job on its way through the stages;
+* the stages themselves: :func:`resolve_poses` (stage 2), :func:`render_objects`
+  (stage 3: every mesh job's object intrinsics in one Blender batch) and
+  :func:`load_object_bundle` (a job's object maps, for the job stage).
+
+``pipeline.batch`` orders the stages; ``pipeline.executor`` runs the job stage.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+from zcomp_cli.errors import InputError, UsageError, ZcompError
+from zcomp_cli.pipeline.manifest import JobSpec, Manifest, RendererSpec
+
+Progress = Callable[[str, int, int, str], None]
+
+
+class SceneStore:
+    """Scenes of one batch, each loaded once while it is in use.
+
+    ``expect(names)`` counts the jobs that will use each scene; ``job_done(name)``
+    counts one down, and the scene is dropped after its last job (a later ``get``
+    loads it again). A scene that fails to load fails every job that needs it with the
+    same message, without retrying. Safe to use from the executor's prepare thread."""
+
+    def __init__(self, manifest: Manifest, estimates_dir: Path | None):
+        self.manifest = manifest
+        self.estimates_dir = estimates_dir
+        self._scenes: dict[str, object] = {}
+        self._errors: dict[str, str] = {}
+        self._uses: dict[str, int] = {}
+        self._lock = threading.RLock()
+        self.loads = 0  # scene loads (a scene needed again after it was freed counts twice)
+
+    def get(self, name: str):
+        from zcomp_cli.pipeline.scene import load_scene
+
+        with self._lock:
+            if name in self._scenes:
+                return self._scenes[name]
+            if name in self._errors:
+                raise InputError(self._errors[name])
+            try:
+                sc = load_scene(self.manifest.scenes[name], self.manifest.defaults.resolution,
+                                cache_dir=self.estimates_dir)
+            except ZcompError as exc:
+                self._errors[name] = f"scene {name!r}: {exc}"
+                raise InputError(self._errors[name]) from exc
+            self.loads += 1
+            self._scenes[name] = sc
+            return sc
+
+    def expect(self, names) -> None:
+        """The jobs to come will use these scenes (one name per job)."""
+        with self._lock:
+            for n in names:
+                self._uses[n] = self._uses.get(n, 0) + 1
+
+    def job_done(self, name: str) -> None:
+        """A job of scene ``name`` ended (done or failed): its scene is freed after the
+        last of the jobs ``expect`` announced (a scene never announced is kept: its
+        owner frees it, as a Ray worker does between units)."""
+        with self._lock:
+            if name not in self._uses:
+                return
+            left = self._uses[name] - 1
+            self._uses[name] = max(0, left)
+            if left <= 0:
+                self.release(name)
+
+    def release(self, name: str) -> None:
+        """Drop a loaded scene now (it is loaded again if needed)."""
+        with self._lock:
+            self._scenes.pop(name, None)
+
+    def release_all_but(self, keep: str | None) -> None:
+        with self._lock:
+            for n in [n for n in self._scenes if n != keep]:
+                del self._scenes[n]
+
+    @property
+    def loaded(self) -> list[str]:
+        with self._lock:
+            return list(self._scenes)
+
+
+@dataclass
+class JobWork:
+    """One job on its way through the stages: the plan sets ``fingerprint``, stage 2
+    the ``pose``, stage 3 the ``bundle_dir``; any stage may set ``error`` (the job is
+    then reported failed and skipped by the later stages)."""
+
+    job: JobSpec
+    fingerprint: str
+    pose: object | None = None
+    bundle_dir: Path | None = None
+    error: str | None = None
+
+
+def resolve_batch_size(requested: int | None, renderer) -> int:
+    """Jobs per renderer call: ``requested``, else the renderer's own ``batch_size``
+    (zerocomp's GPU batch), else 1."""
+    value = requested if requested is not None else getattr(renderer, "batch_size", 1)
+    try:
+        n = int(value)
+    except (TypeError, ValueError):
+        raise UsageError(f"batch size must be an integer >= 1, got {value!r}") from None
+    if n < 1:
+        raise UsageError(f"batch size must be an integer >= 1, got {value!r}")
+    return n
+
+
+@dataclass(frozen=True)
+class BatchContext:
+    """What every stage of one batch shares; built once by :meth:`create`."""
+
+    manifest: Manifest
+    out_root: Path
+    renderer_spec: RendererSpec
+    renderer: object  # a renderers.base.Renderer, built before any stage runs
+    scenes: SceneStore
+    batch_size: int = 1
+    debug: bool = False
+    cache_root: Path | None = None
+    progress: Progress | None = None
+
+    @classmethod
+    def create(cls, manifest: Manifest, out_root, renderer_spec: RendererSpec, renderer, *,
+               batch_size: int | None = None, debug: bool = False, cache_root=None,
+               progress: Progress | None = None) -> "BatchContext":
+        from zcomp_cli.cache import cache_dir as cache_folder
+
+        return cls(manifest, Path(out_root), renderer_spec, renderer,
+                   SceneStore(manifest, cache_folder("estimates", cache_root)),
+                   batch_size=resolve_batch_size(batch_size, renderer), debug=debug,
+                   cache_root=cache_root, progress=progress)
+
+    @property
+    def samples(self) -> int:
+        return self.manifest.defaults.samples
+
+    def report(self, stage: str, done: int, total: int, label: str = "") -> None:
+        if self.progress is not None:
+            self.progress(stage, done, total, label)
+
+
+def by_scene(works: list[JobWork]) -> list[JobWork]:
+    """The works with each scene's jobs together (scenes in order of first use, jobs in
+    manifest order within a scene): a scene is then in memory for one stretch only."""
+    first: dict[str, int] = {}
+    for k, w in enumerate(works):
+        first.setdefault(w.job.scene, k)
+    return sorted(works, key=lambda w: (first[w.job.scene], w.job.index))
+
+
+def resolve_poses(ctx: BatchContext, works: list[JobWork]) -> None:
+    """Stage 2: a ``pose`` is taken as given; a ``placement`` stands the object on the
+    scene surface (image objects are placed later, from their own mask). ``works`` go
+    scene by scene; each scene is freed after its placements (the job stage loads it
+    again), so this stage holds one scene at a time."""
+    from zcomp_cli.pipeline.placement import pose_from_placement
+
+    current = None
+    for w in works:
+        try:
+            if w.job.pose is not None:
+                w.pose = w.job.pose
+            elif ctx.manifest.objects[w.job.object].kind != "image":
+                if current not in (None, w.job.scene):
+                    ctx.scenes.release(current)
+                current = w.job.scene
+                sc = ctx.scenes.get(w.job.scene)
+                w.pose = pose_from_placement(w.job.placement, sc.maps.depth, sc.maps.normals, sc.camera)
+        except ZcompError as exc:
+            w.error = str(exc)
+    if current is not None:
+        ctx.scenes.release(current)
+
+
+def render_objects(ctx: BatchContext, works: list[JobWork], *, session=None) -> dict:
+    """Stage 3: every mesh job's object intrinsics in one Blender batch (cached), in a
+    kept ``runner.BlenderSession`` when one is given. Sets ``bundle_dir`` (or ``error``)
+    on each mesh job; returns Blender's figures."""
+    from zcomp_cli.blender.intrinsics import IntrinsicsRequest, render_object_intrinsics
+    from zcomp_cli.pipeline.scene import scene_camera
+
+    requests, owners = [], []
+    for w in works:
+        obj = ctx.manifest.objects[w.job.object]
+        if w.error is not None or obj.kind != "mesh":
+            continue
+        try:
+            camera = scene_camera(ctx.manifest.scenes[w.job.scene], ctx.manifest.defaults.resolution)
+        except ZcompError as exc:
+            w.error = str(exc)
+            continue
+        requests.append(IntrinsicsRequest(id=f"job{w.job.index}", mesh=obj.mesh, pose=w.pose,
+                                          camera=camera, out_dir=None))
+        owners.append(w)
+    info: dict = {"requests": len(requests)}
+    if not requests:
+        return info
+
+    def _cb(done, total, ident):
+        ctx.report("objects", done, total, str(ident))
+
+    results = render_object_intrinsics(requests, cache_dir=ctx.cache_root, samples=ctx.samples, progress=_cb,
+                                       session=session)
+    for w, res in zip(owners, results):
+        if res.ok:
+            w.bundle_dir = res.bundle_dir
+        else:
+            w.error = f"object {w.job.object!r}: {res.error}"
+    info["cached"] = sum(1 for r in results if getattr(r, "cached", False))
+    info["render_s"] = [round(float(getattr(r, "seconds", 0.0)), 3) for r in results]
+    return info
+
+
+def load_object_bundle(ctx: BatchContext, w: JobWork, scene):
+    """The job's object intrinsics: a rendered or given bundle, or a 2D object (image +
+    mask) stood on the support surface at its placement."""
+    from zcomp_cli.bundle import ObjectBundle
+
+    obj = ctx.manifest.objects[w.job.object]
+    if obj.kind == "mesh":
+        return ObjectBundle.load(w.bundle_dir)
+    if obj.kind == "bundle":
+        return ObjectBundle.load(obj.bundle)
+    from zcomp_cli.estimators.object2d import object_bundle_from_image
+    from zcomp_cli.imageio import read_alpha_or_grey, read_image
+
+    job = w.job
+    # (the manifest refuses an image object without placement.height; kept for callers
+    # that build specs by hand)
+    if job.placement is None or job.placement.height is None:
+        raise InputError(f"image object {job.object!r} needs 'placement' with 'height' (metres)")
+    img = read_image(obj.image)
+    mask = read_alpha_or_grey(obj.mask)
+    if img.shape[:2] != mask.shape:
+        raise InputError(f"mask is {mask.shape[1]}x{mask.shape[0]}, image is {img.shape[1]}x{img.shape[0]}",
+                         where=str(obj.mask))
+    return object_bundle_from_image(
+        img, mask, scene.camera, job.placement.pixel, job.placement.height,
+        scene.maps.depth, scene.maps.normals)
