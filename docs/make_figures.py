@@ -7,7 +7,8 @@
                                                                         # docs/coffee_estimated.png
 
 ``demo``: OUT_DEMO is ``zcomp composite examples/jobs.yaml --out OUT_DEMO`` (``make demo``);
-top row background / job 0 / its Cycles reference, bottom row jobs 1-3.
+top row background / job 0 (the light estimated) / job 4 (the same, the light given) /
+their Cycles reference, bottom row jobs 1-3.
 ``cases``: BENCH is a ``make-benchmark`` folder whose ``results/METHOD`` (default
 ``physical``) holds the composites; IDS comma-separated case ids; one row per case:
 background, the method's composite, GT; written to OUT (default
@@ -53,9 +54,10 @@ def demo(out_dir: Path):
     bg = read_image(root / "scenes/room/image.png")
     comp = [read_image(j / "composite.exr") for j in jobs]
     ref = read_image(root / "refs/vase_pose.exr")
-    top = _row([bg, comp[0], ref])
-    bottom = _row([_resize(c, bg.shape[1]) for c in comp[1:4]])
-    write_png("docs/demo.png", np.concatenate([top, bottom], 0))
+    top = _row([bg, comp[0], comp[4], ref])
+    bottom = _row([_resize(c, bg.shape[1] * 4 // 3) for c in comp[1:4]])
+    bottom = np.pad(bottom, ((0, 0), (0, max(0, top.shape[1] - bottom.shape[1])), (0, 0)), constant_values=1.0)
+    write_png("docs/demo.png", np.concatenate([top, bottom[:, :top.shape[1]]], 0))
 
 
 def cases(bench: Path, ids: list[str], method: str = "physical", out: str = "docs/benchmark_cases.png"):

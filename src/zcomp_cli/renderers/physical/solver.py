@@ -16,15 +16,14 @@ the shading by k multiplies the weights by k (exposure invariance).
 
 **Shadows the frame does not show.** Screen-space visibility can miss an occluder (one
 outside the frame, or hidden behind other surfaces) but never invent one: a pixel darker
-than the model may lie in the shadow of something unseen -- down to losing all of the
-lights' direct part ``d`` of its prediction -- while a pixel brighter than the model
-contradicts it. So a residual is drawn from a mixture: noise (Huber, scale sigma) with
-probability ``1 - pi``, or an unseen shadow, uniform on ``[-d, 0]``, with probability
-``pi``; each IRLS step weighs a pixel by the noise's responsibility for it and refits
-``pi`` to their mean (EM), capped at ``MAX_UNSEEN``. A pixel in an unseen shadow costs
-what a one-sigma residual does (``unseen_loss``), so fits are ranked by how much they
-explain of the rest. The atoms whose share an unseen occluder can take are named by
-``direct`` (the suns and lamps; not the sky).
+than the model may lie in the shadow of something unseen, where it keeps the sky and
+loses the lights' direct part ``d`` of its prediction. So each pixel is either lit as
+the model says (probability ``1 - pi``) or in an unseen shadow (``pi``), its shading the
+model's less ``d``, both with the same noise (Huber, scale sigma). EM: each IRLS step
+fits the lit responsibility's share of a pixel to the whole model and the shadowed share
+to the model without its direct atoms (the sky still explains it: an unseen shadow says
+how bright the sky is), then refits ``pi`` (at most ``MAX_UNSEEN``). The atoms an unseen
+occluder can hide are named by ``direct`` (the suns and lamps; not the sky).
 
 ``score_candidates`` scores many one-atom extensions of a base dictionary at once (the
 light direction search): batched normal equations, the candidate's weight clamped at 0.
@@ -46,20 +45,23 @@ MAX_UNSEEN = 0.5
 UNSEEN_INIT = 0.1
 
 
+def _huber_density(r, sig):
+    c = HUBER_C * sig
+    a = np.abs(r)
+    return np.exp(-np.where(a <= c, 0.5 * (a / sig) ** 2, (c / sig) * (a / sig) - 0.5 * (c / sig) ** 2))
+
+
 def unseen_responsibility(r, d, sigma, pi):
-    """The noise's responsibility for residuals ``r`` under the mixture of the module
-    docstring (``d`` >= 0 the direct part of each prediction): in [0, 1], 1 outside
-    ``[-d, 0)``."""
+    """The responsibility of "lit as the model says" for residuals ``r`` (``d`` >= 0 the
+    direct part of each prediction) under the mixture of the module docstring: noise
+    around the full prediction (1 - pi), or around the prediction less its direct
+    part (an unseen shadow, pi). In [0, 1]; 1 where ``d`` is 0 (nothing to lose)."""
     r = np.asarray(r, np.float64)
     d = np.asarray(d, np.float64)
     sig = np.maximum(sigma, 1e-300)
-    c = HUBER_C * sig
-    a = np.abs(r)
-    # the noise's density (Huber's: Gaussian core, exponential tails)
-    hub = np.where(a <= c, 0.5 * (a / sig) ** 2, (c / sig) * (a / sig) - 0.5 * (c / sig) ** 2)
-    noise = (1.0 - pi) * np.exp(-hub) / (sig * np.sqrt(2 * np.pi))
-    unseen = np.where((r < 0) & (r >= -d) & (d > 1e-12), pi / np.maximum(d, 1e-300), 0.0)
-    return noise / np.maximum(noise + unseen, 1e-300)
+    lit = (1.0 - pi) * _huber_density(r, sig)
+    shadowed = np.where(d > 1e-12, pi * _huber_density(r + d, sig), 0.0)
+    return lit / np.maximum(lit + shadowed, 1e-300)
 
 
 def unseen_loss(sigma):
@@ -164,36 +166,47 @@ def fit(atoms, target: np.ndarray, *, train: np.ndarray | None = None, prior: di
     is_direct = np.zeros(X.shape[1], bool)
     for a, (c0, k) in zip(atoms, spans):
         is_direct[c0:c0 + k] = a.name in set(direct)
-    w = np.ones(tr.sum())
-    beta = np.zeros(X.shape[1])
+    Xt, yt = X[tr], yv[tr]
+    Xs = np.where(is_direct[None], 0.0, Xt)  # an unseen shadow: the sky alone
+    mix = bool(is_direct.any())
+    beta = p0.copy() if (mix and p0.any()) else np.zeros(X.shape[1])
     sigma = fixed_sigma
-    pi = UNSEEN_INIT if is_direct.any() else 0.0
+    pi = UNSEEN_INIT if mix else 0.0
     resp = np.ones(tr.sum())
-    if is_direct.any() and p0.any():
+    w_lit = w_sh = None
+    if mix and p0.any():
         # the EM starts from the prior's light: from a fit with no light, every pixel of
         # a shadow the frame does not show would be an outlier, and it would stay there
-        r0 = yv[tr] - X[tr] @ p0
+        r0 = yt - Xt @ p0
         s0 = robust_scale(r0, scale)
-        resp = unseen_responsibility(r0, X[tr][:, is_direct] @ p0[is_direct], s0, pi)
-        w = huber_weights(r0, s0)[0] * resp
+        resp = unseen_responsibility(r0, Xt[:, is_direct] @ p0[is_direct], s0, pi)
+        w_lit = huber_weights(r0, s0)[0] * resp
+        w_sh = huber_weights(r0 + Xt[:, is_direct] @ p0[is_direct], s0)[0] * (1.0 - resp)
     for _ in range(IRLS_ITERS):
-        sw = np.sqrt(w)
-        A = np.concatenate([X[tr] * sw[:, None], np.diag(lam)], 0)
-        b = np.concatenate([yv[tr] * sw, lam * p0])
+        if w_lit is None:
+            w_lit, w_sh = np.ones(len(yt)), np.zeros(len(yt))
+        A = np.concatenate([Xt * np.sqrt(w_lit)[:, None], Xs * np.sqrt(w_sh)[:, None], np.diag(lam)], 0)
+        b = np.concatenate([yt * np.sqrt(w_lit), yt * np.sqrt(w_sh), lam * p0])
         beta, _ = nnls(A, b, maxiter=50 * A.shape[1])
-        r = yv[tr] - X[tr] @ beta
-        sigma = robust_scale(r[resp > 0.5], scale) if fixed_sigma is None and (resp > 0.5).any() else (
-            fixed_sigma if fixed_sigma is not None else robust_scale(r, scale))
-        hw, _ = huber_weights(r, sigma)
-        if is_direct.any():
-            resp = unseen_responsibility(r, X[tr][:, is_direct] @ beta[is_direct], sigma, pi)
+        r = yt - Xt @ beta
+        d = Xt[:, is_direct] @ beta[is_direct] if mix else np.zeros_like(r)
+        if mix:
+            resp = unseen_responsibility(r, d, sigma if sigma is not None else robust_scale(r, scale), pi)
+        near = np.where(resp >= 0.5, r, r + d)  # each pixel's residual under its likelier case
+        sigma = robust_scale(near, scale) if fixed_sigma is None else fixed_sigma
+        if mix:
+            resp = unseen_responsibility(r, d, sigma, pi)
             pi = float(np.clip(1.0 - resp.mean(), 1e-3, MAX_UNSEEN))
-        w = hw * resp
+        w_lit = huber_weights(r, sigma)[0] * resp
+        w_sh = huber_weights(r + d, sigma)[0] * (1.0 - resp)
     r_all = yv - X @ beta
     _, loss = huber_weights(r_all, sigma)
-    if is_direct.any():
-        g = unseen_responsibility(r_all, X[:, is_direct] @ beta[is_direct], sigma, pi)
-        loss = g * loss + (1.0 - g) * unseen_loss(sigma)
+    if mix:
+        d_all = X[:, is_direct] @ beta[is_direct]
+        g = unseen_responsibility(r_all, d_all, sigma, pi)
+        # a pixel in an unseen shadow costs its residual against the sky alone, and the
+        # one-sigma price of being a shadow nothing in the frame casts
+        loss = g * loss + (1.0 - g) * (huber_weights(r_all + d_all, sigma)[1] + unseen_loss(sigma))
     loss = loss.reshape(C, N).mean(0) if C > 1 else loss
     held = ~train
     lt = float(loss[train].mean()) / scale ** 2
