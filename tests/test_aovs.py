@@ -25,3 +25,33 @@ def test_the_layers_recombine_into_the_composite():
     data, names = channel_names(layers)
     assert data.shape == (H, W, len(names)) and "object.A" in names and "shadow.Y" in names
     assert len(set(names)) == len(names)
+
+
+def test_composite_aovs_writes_layers_that_recombine(tmp_path):
+    """Through the CLI: ``--aovs`` writes aovs.exr per job, its layers recombine into
+    composite.exr, the report records it, and ``--resume --aovs`` adds it to jobs made
+    without it."""
+    import json
+
+    from hostile_project import make_project, run_composite
+    from zcomp_cli.imageio import read_exr_channels, read_map
+
+    make_project(tmp_path)
+    out = tmp_path / "out"
+    assert run_composite(tmp_path / "jobs.yaml", out).exit_code == 0
+    assert not (out / "000_room_ball" / "aovs.exr").exists()
+    assert run_composite(tmp_path / "jobs.yaml", out, "--resume", "--aovs").exit_code == 0
+    for job in ("000_room_ball", "001_room_card"):
+        ch = read_exr_channels(out / job / "aovs.exr")
+        layers = {}
+        for name in LAYERS:
+            chans = sorted((k for k in ch if k.split(".")[0] == name), key=lambda k: "RGBAY".index(k[-1]))
+            layers[name] = np.stack([ch[k] for k in chans], -1)
+        comp = read_map(out / job / "composite.exr", channels=3)
+        assert np.allclose(layers["composite"], comp, atol=1e-6)
+        assert np.allclose(recombine(layers), comp, atol=1e-5)
+        assert layers["object"][..., 3].max() > 0.5  # the object is in its layer
+        assert "aovs.exr" in json.loads((out / job / "report.json").read_text())["outputs"]
+    assert run_composite(tmp_path / "jobs.yaml", out, "--resume", "--aovs").exit_code == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert {j["this_run"] for j in summary["jobs"]} == {"skipped"}

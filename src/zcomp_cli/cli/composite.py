@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from zcomp_cli.cli.options import (cache_dir_opt, debug_opt, out_dir_opt, overwrite_opt, renderer_options,
+from zcomp_cli.cli.options import (aovs_opt, cache_dir_opt, debug_opt, out_dir_opt, overwrite_opt, renderer_options,
                                    renderer_spec, resume_opt, seed_opt)
 
 
@@ -32,14 +32,16 @@ from zcomp_cli.cli.options import (cache_dir_opt, debug_opt, out_dir_opt, overwr
                    "those; the unchanged ones are skipped). Without it, --resume refuses to go on.")
 @overwrite_opt
 @debug_opt
+@aovs_opt
 @cache_dir_opt
 @click.pass_context
 def composite(ctx, manifest, out_dir, renderer, renderer_flags, jobs_subset, shard, executor, address, workers,
-              seed, resume, redo_changed, overwrite, debug, cache_dir):
+              seed, resume, redo_changed, overwrite, debug, aovs, cache_dir):
     """Composite objects into scenes for every job of MANIFEST (jobs.yaml).
 
     Each job writes OUT/<job>/composite.png (sRGB), composite.exr (linear) and
-    report.json; a failed job is reported and the batch goes on (exit code 1 at the end).
+    report.json (with --aovs also aovs.exr, the render passes); a failed job is reported
+    and the batch goes on (exit code 1 at the end).
     """
     from zcomp_cli.errors import UsageError
     from zcomp_cli.pipeline.batch import run_batch
@@ -70,7 +72,7 @@ def composite(ctx, manifest, out_dir, renderer, renderer_flags, jobs_subset, sha
 
     with StageProgress(disable=quiet) as prog:
         summary = run_batch(m, out_dir, renderer_spec=spec, jobs_subset=jobs_subset, resume=resume,
-                            redo_changed=redo_changed, overwrite=overwrite, debug=debug, cache_dir=cache_dir, shard=shard_ix,
+                            redo_changed=redo_changed, overwrite=overwrite, debug=debug, aovs=aovs, cache_dir=cache_dir, shard=shard_ix,
                             executor=runner, progress=prog.update)
     _print_summary(summary, out_dir, quiet)
     if not summary.ok:

@@ -140,6 +140,11 @@ cache_dir_opt = click.option(
 debug_opt = click.option(
     "--debug", is_flag=True, help="Also write intermediate maps and a debug grid."
 )
+aovs_opt = click.option(
+    "--aovs", is_flag=True,
+    help="Also write OUT/<job>/aovs.exr: the render passes as layers (composite, background, shadow, "
+         "object, render_bg, render_comp) that recombine into the composite in Nuke or Blender.",
+)
 
 
 def parse_K(text: str | None):
@@ -157,7 +162,7 @@ def parse_K(text: str | None):
 # Flags of the commands that take renderer flags: a plugin renderer's option may not
 # take one of these names.
 COMMAND_FLAGS = {"out", "renderer", "jobs", "shard", "executor", "address", "workers", "seed", "resume",
-                 "redo-changed", "overwrite", "debug", "cache-dir", "help", "h", "version", "verbose", "quiet"}
+                 "redo-changed", "overwrite", "debug", "aovs", "cache-dir", "help", "h", "version", "verbose", "quiet"}
 
 
 def _renderer_flags():

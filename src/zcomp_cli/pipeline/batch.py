@@ -60,6 +60,7 @@ def run_batch(
     overwrite: bool = False,
     redo_changed: bool = False,
     debug: bool = False,
+    aovs: bool = False,
     cache_dir=None,
     batch_size: int | None = None,
     shard: tuple[int, int] | None = None,
@@ -92,7 +93,7 @@ def run_batch(
     executor.preflight()
     spec = renderer_spec or manifest.defaults.renderer
     ctx = BatchContext.create(manifest, out_root, spec, build_renderer(spec), batch_size=batch_size,
-                              debug=debug, cache_root=cache_dir, progress=progress)
+                              debug=debug, aovs=aovs, cache_root=cache_dir, progress=progress)
 
     created = not out_root.exists()
     try:
@@ -107,7 +108,7 @@ def run_batch(
             sweep_dead_temporaries(cache_root(cache_dir))
             digests = DigestCache(_digest_store(cache_dir))
             to_run, skipped = plan_outputs(manifest, jobs, out_root, spec, ctx.samples, resume=resume,
-                                           overwrite=overwrite, redo_changed=redo_changed, debug=debug,
+                                           overwrite=overwrite, redo_changed=redo_changed, debug=debug, aovs=aovs,
                                            digests=digests)
             digests.save()
             if to_run:

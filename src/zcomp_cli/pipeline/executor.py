@@ -187,10 +187,11 @@ def _render_and_finish(ctx: BatchContext, prepared, statuses, started) -> None:
             continue
         out_dir = ctx.out_root / w.job.name
         try:
-            result = finish_job(prep, outputs.pop(w.job.index), renderer.name, renderer.settings(), debug=ctx.debug)
+            result = finish_job(prep, outputs.pop(w.job.index), renderer.name, renderer.settings(), debug=ctx.debug,
+                                aovs=ctx.aovs)
             report = job_report(ctx.manifest, w.job, w.fingerprint, scene, w.pose, w.bundle_dir, result,
                                 renderer_spec=ctx.renderer_spec)
-            write_job_outputs(out_dir, scene, result, report, debug=ctx.debug, started=started[w.job.index])
+            write_job_outputs(out_dir, scene, result, report, debug=ctx.debug, aovs=ctx.aovs, started=started[w.job.index])
             statuses[w.job.index] = JobStatus(w.job, "done", None, time.perf_counter() - started[w.job.index],
                                               out_dir)
         except Exception as exc:  # noqa: BLE001

@@ -41,11 +41,13 @@ ROI_CONTEXT_PX = 16
 
 @dataclass
 class JobOutput:
-    """Everything a job produced: the composite and, for --debug, the intermediates."""
+    """Everything a job produced: the composite and, for --debug, the intermediates,
+    for --aovs, the render passes (``compositing.aovs``)."""
 
     image: np.ndarray  # (H, W, 3) linear composite
     report: dict
     debug: dict = field(default_factory=dict)
+    aovs: dict = field(default_factory=dict)
 
 
 def roi_around(mask: np.ndarray, margin: int) -> tuple[int, int, int, int]:
@@ -168,7 +170,7 @@ def prepare_job(
 
 
 def finish_job(prep: PreparedJob, out: RenderOutput, renderer_name: str, renderer_settings: dict,
-               *, debug: bool = False) -> JobOutput:
+               *, debug: bool = False, aovs: bool = False) -> JobOutput:
     """Check the renderer's two images (step 5's output) and run step 6, the compositor."""
     H, W = prep.scene.camera.height, prep.scene.camera.width
     f_bg, f_comp = (np.asarray(im, dtype=np.float32) for im in out.images)
@@ -208,7 +210,13 @@ def finish_job(prep: PreparedJob, out: RenderOutput, renderer_name: str, rendere
     if debug:
         dbg = {**prep.debug_maps, "shading_mask": s.astype(np.float32), "f_bg": f_bg, "f_comp": f_comp, "ratio": res.ratio,
                "ratio_blurred": res.ratio_blurred, "weight": res.weight}
-    return JobOutput(res.image, report, dbg)
+    layers = {}
+    if aovs:
+        from zcomp_cli.compositing.aovs import aov_layers
+
+        layers = aov_layers(prep.scene.image, f_bg, f_comp, res.ratio_blurred, prep.object_mask, res.balance,
+                            res.image)
+    return JobOutput(res.image, report, dbg, layers)
 
 
 def run_job(
@@ -219,6 +227,7 @@ def run_job(
     shading_radius: float = 1.0,
     seed: int = DEFAULT_SEED,
     debug: bool = False,
+    aovs: bool = False,
 ) -> JobOutput:
     """Composite one object bundle into one scene (steps 1-6). Raises ZcompError
     subclasses for per-job failures (the batch records them and goes on)."""
@@ -227,4 +236,4 @@ def run_job(
     t = time.perf_counter()
     out = renderer.render(prep.requests, seed=seed)
     prep.timings["render_s"] = time.perf_counter() - t
-    return finish_job(prep, out, renderer.name, renderer.settings(), debug=debug)
+    return finish_job(prep, out, renderer.name, renderer.settings(), debug=debug, aovs=aovs)

@@ -2,7 +2,8 @@
 
 Per job, ``OUT/<job name>/``: ``composite.png`` (sRGB 8-bit), ``composite.exr``
 (linear), ``report.json`` (written last: its presence with ``status: done`` marks a
-finished job), and with ``--debug`` the intermediate maps and ``grid.png``. The batch
+finished job), with ``--debug`` the intermediate maps and ``grid.png``, with ``--aovs``
+``aovs.exr`` (the render passes as layers). The batch
 ends with ``OUT/summary.json``. Every file is written atomically (``imageio``).
 
 ``report.json`` records the size and sha256 of every file of the job (``outputs``);
@@ -34,6 +35,7 @@ from zcomp_cli.pipeline.manifest import JobSpec, Manifest, RendererSpec
 
 REPORT = "report.json"
 SUMMARY = "summary.json"
+AOVS = "aovs.exr"  # --aovs: the render passes, one multi-layer EXR (compositing.aovs)
 log = logging.getLogger(__name__)
 DEBUG_MAPS = ("f_bg", "f_comp", "ratio", "ratio_blurred", "shading_mask", "object_mask", "weight",
               "comp_depth", "comp_normals", "comp_albedo", "shading")
@@ -96,7 +98,7 @@ def read_report_noted(out_dir: Path) -> tuple[dict | None, str | None]:
 
 # What zcomp writes in a job folder (and its debug/ folder): a folder holding anything
 # else is not a job folder, and a run refuses to write into it.
-JOB_FILES = {REPORT, "composite.png", "composite.exr", "grid.png", "shading_mask.png", "debug"}
+JOB_FILES = {REPORT, "composite.png", "composite.exr", AOVS, "grid.png", "shading_mask.png", "debug"}
 DEBUG_FILES = {f"{n}.exr" for n in DEBUG_MAPS}
 
 
@@ -138,7 +140,7 @@ class JobState:
 
 
 def job_state(job_dir: Path, fingerprint: str | None = None, *, need_debug: bool = False,
-              verify: bool = True) -> JobState:
+              need_aovs: bool = False, verify: bool = True) -> JobState:
     """Judge ``job_dir`` (see ``JobState``). ``verify`` False checks output sizes only
     (no hashing)."""
     from zcomp_cli.pipeline.outguard import verify_outputs
@@ -153,13 +155,15 @@ def job_state(job_dir: Path, fingerprint: str | None = None, *, need_debug: bool
         return JobState("damaged", why, rep)
     if need_debug and not any(str(k).startswith("debug/") for k in rep["outputs"]):
         return JobState("incomplete", "made without --debug: no debug maps", rep)
+    if need_aovs and AOVS not in rep["outputs"]:
+        return JobState("incomplete", f"made without --aovs: no {AOVS}", rep)
     if fingerprint is not None and rep.get("fingerprint") != fingerprint:
         return JobState("stale", "made from other inputs or settings", rep)
     return JobState("done", None, rep)
 
 
 def plan_outputs(manifest, jobs, out_root: Path, renderer, samples, *, resume: bool, overwrite: bool,
-                 redo_changed: bool = False, debug: bool = False, digests=None):
+                 redo_changed: bool = False, debug: bool = False, aovs: bool = False, digests=None):
     """Decide, before any work, which jobs run and which are skipped.
 
     A job counts as finished only when its report says ``done`` and every output it
@@ -188,12 +192,12 @@ def plan_outputs(manifest, jobs, out_root: Path, renderer, samples, *, resume: b
                            f"{', '.join(theirs[:4])}{' ...' if len(theirs) > 4 else ''})")
             continue
         fp = job_fingerprint(manifest, job, renderer, samples, digests)
-        st = job_state(out_dir, fp, need_debug=debug)
+        st = job_state(out_dir, fp, need_debug=debug, need_aovs=aovs)
         if st.note:
             log.warning("%s", st.note)
         if st.state in ("unfinished", "damaged") or overwrite:
             to_run.append((job, fp))
-        elif st.state == "incomplete" and resume:  # --resume --debug: make the debug maps
+        elif st.state == "incomplete" and resume:  # --resume --debug/--aovs: make what is missing
             to_run.append((job, fp))
         elif st.state == "done" and resume:
             skipped.append(JobStatus(job, "skipped", "finished in an earlier run (--resume)", 0.0, out_dir))
@@ -247,7 +251,7 @@ def job_report(manifest: Manifest, job: JobSpec, fingerprint: str, scene, pose, 
     }
 
 
-def write_job_outputs(out_dir: Path, scene, result, report: dict, *, debug: bool,
+def write_job_outputs(out_dir: Path, scene, result, report: dict, *, debug: bool, aovs: bool = False,
                       started: float | None = None) -> float:
     """Write a finished job's files, ``report.json`` last. Returns the seconds spent.
     ``started`` (a ``time.perf_counter()`` value) adds ``job_total_s`` to the report."""
@@ -265,6 +269,11 @@ def write_job_outputs(out_dir: Path, scene, result, report: dict, *, debug: bool
     write_png(out_dir / "composite.png", result.image)
     if debug:
         write_debug(out_dir, scene, result)
+    if aovs:
+        from zcomp_cli.compositing.aovs import channel_names
+
+        data, names = channel_names(result.aovs)
+        write_exr(out_dir / AOVS, data, channel_names=names)
     t_write = time.perf_counter() - t
     from zcomp_cli.pipeline.outguard import output_record
 

@@ -53,12 +53,13 @@ def import_ray():
 class _Worker:
     """The body of a Ray actor: one renderer and a scene store for many units."""
 
-    def __init__(self, manifest, out_root: str, renderer_spec, debug: bool, cache_root, batch_size: int):
+    def __init__(self, manifest, out_root: str, renderer_spec, debug: bool, cache_root, batch_size: int,
+                 aovs: bool = False):
         from zcomp_cli.renderers import get_renderer
 
         renderer = get_renderer(renderer_spec.name, **renderer_spec.settings)
         self.ctx = BatchContext.create(manifest, Path(out_root), renderer_spec, renderer, batch_size=batch_size,
-                                       debug=debug, cache_root=cache_root)
+                                       debug=debug, aovs=aovs, cache_root=cache_root)
         self._session = None
 
     def _blender(self):
@@ -84,7 +85,7 @@ class _Worker:
         todo = []
         for w in works:
             out_dir = ctx.out_root / w.job.name
-            if job_state(out_dir, w.fingerprint, need_debug=ctx.debug).state == "done":
+            if job_state(out_dir, w.fingerprint, need_debug=ctx.debug, need_aovs=ctx.aovs).state == "done":
                 # finished by an earlier attempt of this unit (the driver removed
                 # older reports of every job it sent): do not run it twice
                 statuses.append(JobStatus(w.job, "done", None, 0.0, out_dir))
@@ -175,7 +176,7 @@ class RayExecutor(Executor):
             opts["runtime_env"] = self.runtime_env
         actor_cls = ray.remote(**opts)(_Worker)
         return [actor_cls.remote(ctx.manifest, str(ctx.out_root), ctx.renderer_spec, ctx.debug,
-                                 ctx.cache_root, ctx.batch_size) for _ in range(n)], res
+                                 ctx.cache_root, ctx.batch_size, ctx.aovs) for _ in range(n)], res
 
     def _check_shared_output(self, out_root: Path) -> None:
         """Every node with Ray workers must see ``out_root``: write a probe, read it

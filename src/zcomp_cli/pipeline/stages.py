@@ -131,19 +131,20 @@ class BatchContext:
     scenes: SceneStore
     batch_size: int = 1
     debug: bool = False
+    aovs: bool = False  # also write aovs.exr (compositing.aovs)
     cache_root: Path | None = None
     progress: Progress | None = None
 
     @classmethod
     def create(cls, manifest: Manifest, out_root, renderer_spec: RendererSpec, renderer, *,
-               batch_size: int | None = None, debug: bool = False, cache_root=None,
+               batch_size: int | None = None, debug: bool = False, aovs: bool = False, cache_root=None,
                progress: Progress | None = None) -> "BatchContext":
         from zcomp_cli.cache import cache_dir as cache_folder
 
         return cls(manifest, Path(out_root), renderer_spec, renderer,
                    SceneStore(manifest, cache_folder("estimates", cache_root)),
                    batch_size=resolve_batch_size(batch_size, renderer), debug=debug,
-                   cache_root=cache_root, progress=progress)
+                   aovs=aovs, cache_root=cache_root, progress=progress)
 
     @property
     def samples(self) -> int:
