@@ -83,6 +83,9 @@ def small_example():
         for s in m["scenes"].values():
             for k in ("image", "depth", "normals", "albedo"):
                 s[k] = str(EXAMPLES / s[k])
+            for light in s.get("light") or []:
+                if "hdr" in light:
+                    light["hdr"] = str(EXAMPLES / light["hdr"])
         for o in m["objects"].values():
             o["mesh"] = str(EXAMPLES / o["mesh"])
         for j in m["jobs"]:
