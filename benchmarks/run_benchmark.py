@@ -226,8 +226,6 @@ def _probe_spec(case: dict) -> tuple[dict, dict]:
     its env frame where the generator's world shader had it) and the camera's tilt."""
     import math
 
-    import numpy as np
-
     from zcomp_cli.benchsuite.scenes import BenchScene, bundled_hdr_path
     from zcomp_cli.worldframe import ground_frame
 
@@ -243,7 +241,6 @@ def _probe_spec(case: dict) -> tuple[dict, dict]:
 
 
 def _hdr_sources(case: dict):
-    from zcomp_cli.benchsuite.scenes import BenchScene
     from zcomp_cli.renderers.physical.probe import load_probe
     from zcomp_cli.worldframe import ground_frame, up_from_pitch_roll
 

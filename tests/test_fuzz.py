@@ -22,9 +22,7 @@ until done) is marked ``slow``.
 
 from __future__ import annotations
 
-import copy
 import json
-import math
 import os
 import random
 import shutil
@@ -240,7 +238,7 @@ def _check_far_background(case_dir: Path, manifest: Path, job_dir: Path, report:
 def _run_case(root: Path, shared: Path, case, n: int) -> None:
     text, maps, bundle, renderer = case
     from zcomp_cli.bundle import ObjectBundle
-    from zcomp_cli.imageio import read_image, read_map, write_exr, write_png
+    from zcomp_cli.imageio import read_image, read_map, write_exr
 
     case_dir = root / f"case{n}"
     if case_dir.exists():

@@ -20,7 +20,7 @@ from click.testing import CliRunner
 
 from hostile_project import base_manifest, make_project, run_composite, write_manifest
 from zcomp_cli.cli import cli
-from zcomp_cli.errors import ManifestError, OutputError
+from zcomp_cli.errors import ManifestError
 from zcomp_cli.imageio import verify_image, write_exr, write_json_atomic, write_png
 from zcomp_cli.pipeline.manifest import load_manifest
 from zcomp_cli.yamlloc import load_yaml

@@ -377,8 +377,6 @@ def test_out_probe_of_a_new_folder_touches_nothing(tmp_path):
 def test_exr_bytes_do_not_depend_on_the_write_time(tmp_path):
     import time
 
-    import numpy as np
-
     from zcomp_cli.imageio import write_exr
 
     img = np.linspace(0, 1, 4 * 5 * 3, dtype=np.float32).reshape(4, 5, 3)

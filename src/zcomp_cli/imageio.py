@@ -162,7 +162,6 @@ def verify_image(path) -> tuple[int, int, int]:
     w, h, c = image_header(path)
     if w <= 0 or h <= 0:
         raise ValueError(f"empty image ({w}x{h})")
-    ext = Path(path).suffix.lower()
     real = sniff_format(path)  # the content decides, not the name (a JPEG named .png)
     if real in ("PNG", "JPEG"):
         with open(path, "rb") as f:
