@@ -1,6 +1,6 @@
 """An HDR light probe as the renderer's light: its compact bright sources as lights (each
 with its measured direction, size and power), the rest as a sky, and a prefiltered copy
-for glossy reflections.
+for the sky's glossy reflection.
 
 Frames: the probe's up is gravity (``worldframe``), its columns are placed by its
 convention and rotation (``equirect``). Only the upper hemisphere lights the scene: below
@@ -67,7 +67,8 @@ class ProbeLights:
 
 @dataclass(frozen=True)
 class PrefilteredProbe:
-    """The radiance above the horizon (sources included) blurred by GGX lobes of several
+    """The radiance above the horizon (without the compact sources, which are lights of
+    their own) blurred by GGX lobes of several
     roughness levels: ``maps`` (levels, h, w, 4) equirectangular in the probe's
     convention, RGB and the lobe's share above the horizon (below it the support is
     seen: ``lookup``'s ``ground``); ``frame``/``convention``/``rotation_deg`` to look
@@ -221,7 +222,9 @@ def split_probe(img: np.ndarray, frame, *, convention: str = equirect.DEFAULT_CO
     om_s = equirect.solid_angles(h, w)
     m = (d_s @ up) > 0
     sky_sh = sh.project(d_s[m], small[m], om_s[m])
-    gloss = prefilter(img, frame, convention=convention, rotation_deg=rotation_deg, name=name)
+    # the sky's reflection: the sources are reflected each with its own visibility
+    # (``gloss.ggx_direct``), so the prefiltered copy holds the rest
+    gloss = prefilter(work, frame, convention=convention, rotation_deg=rotation_deg, name=name)
     return ProbeLights(sources=tuple(sources), sky_radiance_sh=sky_sh, name=name, gloss=gloss)
 
 

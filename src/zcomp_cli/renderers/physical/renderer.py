@@ -277,7 +277,8 @@ class PhysicalRenderer(Renderer):
     def _parts(self, d, n, todo, camera, model: LightModel, albedo_mean, occluder):
         """The two parts of the diffuse shading of the ``todo`` pixels: (sky and the
         ground's bounce (M, 3), the suns' and lamps' (M, 3), the sky's visible share
-        (M, 3), unit normals (M, 3))."""
+        (M, 3), unit normals (M, 3), each sun and lamp as (light, directions (M, 3),
+        facing shading (M, 3), visibility (M,)))."""
         H, W = d.shape
         ys, xs = np.nonzero(todo)
         geo_all = (d > 0) & (np.abs(np.linalg.norm(n, axis=-1) - 1) < 0.2)
@@ -292,6 +293,7 @@ class PhysicalRenderer(Renderer):
         sky = np.maximum(shm.evaluate(shm.shading_coeffs(model.sky.radiance_sh), nv), 0.0)
         ambient = sky * vis_sky + ground_view(nv, model.up)[:, None] * model.sky.ground[None]
         direct = np.zeros_like(ambient)
+        lit = []
         if model.shadows is ShadowKind.CAST:
             box = _window(ys, xs, H, W, WINDOW_MARGIN_PX, even=(H * W > FULL_RES_PIXELS))
             P = camera.ray(xs + 0.5, ys + 0.5) * d[ys, xs][:, None]
@@ -300,14 +302,15 @@ class PhysicalRenderer(Renderer):
                 v_t = self._soft_visibility(d, n, geo_all, camera, light, box, ys, xs, occluder, scene_only,
                                             model.walls)
                 direct += (np.maximum(0.0, np.sum(nv * L, 1)) * v_t)[:, None] * E
-        return ambient, direct, vis_sky, nv
+                lit.append((light, L, E, v_t))
+        return ambient, direct, vis_sky, nv, lit
 
     def _synthesise(self, d, n, todo, camera, model: LightModel, albedo_mean, occluder, albedo, coverage,
                     roughness=None, metallic=None):
         """(diffuse shading (M, 3), glossy radiance (M, 3)) of the ``todo`` pixels under
         ``model`` (module docstring, step 3)."""
         ys, xs = np.nonzero(todo)
-        ambient, direct, vis_sky, nv = self._parts(d, n, todo, camera, model, albedo_mean, occluder)
+        ambient, direct, vis_sky, nv, lit = self._parts(d, n, todo, camera, model, albedo_mean, occluder)
         out = ambient + direct
         cov = coverage[ys, xs]
         if model.albedo_offset > 0:
@@ -317,16 +320,18 @@ class PhysicalRenderer(Renderer):
             out = out * (1.0 + (1.0 - cov)[:, None] * (np.where(a > 1e-3, gain, 1.0) - 1.0))
         glossy = np.zeros((len(ys), 3))
         if roughness is not None and (cov > 0).any():
-            glossy = self._glossy(model, camera, d, nv, ys, xs, cov, albedo, roughness, metallic, vis_sky)
-            met = 0.0 if metallic is None else np.clip(np.asarray(metallic, np.float64)[ys, xs], 0, 1)
-            out = out * (1.0 - cov * met)[:, None]
+            glossy, keep = self._glossy(model, camera, d, nv, ys, xs, cov, albedo, roughness, metallic, vis_sky, lit)
+            out = out * (1.0 - cov * (1.0 - keep))[:, None]
         return out, glossy
 
-    def _glossy(self, model, camera, d, nv, ys, xs, cov, albedo, roughness, metallic, vis_sky):
-        """(M, 3) the object's glossy reflection: the prefiltered light toward the mirror
-        direction times the split-sum environment BRDF (Karis's analytic fit), F0 0.04
-        for a dielectric and the albedo for a metal; the sky's visibility occludes it."""
-        from zcomp_cli.renderers.physical.gloss import env_brdf, prefiltered_light
+    def _glossy(self, model, camera, d, nv, ys, xs, cov, albedo, roughness, metallic, vis_sky, lit=()):
+        """((M, 3) the object's glossy reflection, (M,) the diffuse layer's weight beneath
+        it) (``gloss`` module docstring): the prefiltered sky toward the mirror direction
+        times the split-sum environment BRDF, occluded by the sky's visibility, plus
+        each sun and lamp of ``lit`` (``_parts``) through the GGX BRDF times its own
+        visibility; F0 0.04 for a dielectric, the albedo for a metal. The diffuse
+        beneath keeps what the specular layer does not reflect (a metal none)."""
+        from zcomp_cli.renderers.physical.gloss import ggx_direct, prefiltered_light, specular_albedo
 
         P = camera.ray(xs + 0.5, ys + 0.5) * d[ys, xs][:, None]
         v = -P / np.maximum(np.linalg.norm(P, axis=1, keepdims=True), 1e-12)
@@ -335,9 +340,15 @@ class PhysicalRenderer(Renderer):
         rough = np.clip(np.nan_to_num(np.asarray(roughness, np.float64)[ys, xs]), 0.0, 1.0)
         met = np.zeros(len(ys)) if metallic is None else np.clip(np.nan_to_num(np.asarray(metallic)[ys, xs]), 0, 1)
         f0 = 0.04 * (1.0 - met)[:, None] + np.clip(albedo[ys, xs], 0, 1) * met[:, None]
-        a, b = env_brdf(rough, ndv)
         L = prefiltered_light(model).lookup(r, rough, ground=model.sky.ground)
-        return cov[:, None] * vis_sky.mean(1, keepdims=True) * L * (f0 * a[:, None] + b[:, None])
+        out = vis_sky.mean(1, keepdims=True) * L * specular_albedo(rough, ndv, f0)
+        for light, Ld, E, v_t in lit:
+            # E is the shading of a facing surface: its irradiance over pi
+            out = out + (np.pi * v_t)[:, None] * E * ggx_direct(nv, v, Ld, rough, f0, light.tan_radius(P))
+        # Cycles' Principled layering: the diffuse gets one minus the dielectric
+        # layer's directional albedo toward the viewer
+        keep = (1.0 - met) * (1.0 - specular_albedo(rough, ndv, np.full((len(ys), 1), 0.04))[:, 0])
+        return cov[:, None] * out, keep
 
     def _soft_visibility(self, d, n, geo_all, camera, light, box, ys, xs, occluder,
                          scene_only=None, walls=()) -> np.ndarray:
