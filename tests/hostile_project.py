@@ -83,3 +83,13 @@ def base_manifest(width: int = W, height: int = H) -> dict:
             {"scene": "room", "object": "card", "placement": {"pixel": [width / 2, height * 0.8], "height": 0.4}},
         ],
     }
+
+
+def default_signals() -> None:
+    """``preexec_fn`` for a child the test will signal: SIGINT, SIGTERM and SIGHUP at their
+    default dispositions, whatever the test runner inherited (a shell's background job
+    ignores SIGINT, ``nohup`` SIGHUP, and zcomp rightly keeps an ignored signal ignored)."""
+    import signal
+
+    for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(s, signal.SIG_DFL)

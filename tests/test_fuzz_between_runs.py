@@ -41,7 +41,7 @@ from click.testing import CliRunner
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from hostile_project import base_manifest, make_project, textured_quad
+from hostile_project import base_manifest, default_signals, make_project, textured_quad
 from zcomp_cli.cli import cli
 from zcomp_cli.imageio import read_image, read_map, write_exr, write_png
 
@@ -316,7 +316,8 @@ def test_fuzz_a_signal_then_resume(signal_project, sig, after, delay):
     shutil.rmtree(case, ignore_errors=True)
     case.mkdir()
     p = subprocess.Popen(_zcomp(manifest, "--out", out, "--cache-dir", cache), env=_env(),
-                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                         preexec_fn=default_signals)
     t = time.monotonic()
     while p.poll() is None and len(list(out.glob("*/report.json"))) < after and time.monotonic() - t < 120:
         time.sleep(0.02)

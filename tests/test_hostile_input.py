@@ -396,8 +396,10 @@ def test_sigint_to_a_real_process_exits_130(project):
             "m.load_manifest = slow\n"
             "from zcomp_cli.cli import main\n"
             f"main(['composite', {str(project / 'jobs.yaml')!r}, '--out', {str(project / 'o')!r}])\n")
+    from hostile_project import default_signals
+
     p = subprocess.Popen([sys.executable, "-c", code], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                         text=True)
+                         text=True, preexec_fn=default_signals)
     assert p.stdout.readline().strip() == "ready"
     time.sleep(0.1)
     p.send_signal(signal.SIGINT)

@@ -24,7 +24,7 @@ import pytest
 import yaml
 from click.testing import CliRunner
 
-from hostile_project import base_manifest, make_project, run_composite, textured_quad, write_manifest
+from hostile_project import base_manifest, default_signals, make_project, run_composite, textured_quad, write_manifest
 from zcomp_cli.cli import cli
 from zcomp_cli.imageio import write_exr, write_png
 
@@ -277,7 +277,7 @@ def test_sigterm_and_sighup_clean_up_like_ctrl_c(tmp_path, sig):
     m = _long_batch(tmp_path)
     out = tmp_path / "out"
     p = subprocess.Popen(_zcomp("-q", "composite", m, "--out", out), env=_env(), stdout=subprocess.PIPE,
-                         stderr=subprocess.PIPE, text=True)
+                         stderr=subprocess.PIPE, text=True, preexec_fn=default_signals)
     _wait_for_reports(out, 3, p)
     p.send_signal(sig)
     _, err = p.communicate(timeout=60)
@@ -353,7 +353,7 @@ def test_the_blender_child_dies_with_its_parent(tmp_path, sig):
     of zcomp), re-creating its work folder after the next run's sweep."""
     (tmp_path / "sleeper.py").write_text(SLEEPER)
     p = subprocess.Popen([sys.executable, "-c", HARNESS, str(tmp_path / "sleeper.py")], env=_env(),
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=default_signals)
     child = int(p.stdout.readline())
     try:
         p.send_signal(sig)
