@@ -62,8 +62,8 @@ PRIOR_SKY_SHARE = 0.46
 # The ridge toward the prior split, per fit pixel over the data scale squared: a
 # departure from the prior as large as the prior itself costs what a noise-floor
 # residual on every pixel does; where the pixels tell the split (a shadow: a residual
-# of tens of percent on its pixels) they decide. (4e-6, a hundredth of it, let model
-# errors decide the split of a bare floor: 0.1 dB less on development seed 1618.)
+# of tens of percent on its pixels) they decide. (A weaker ridge lets model errors
+# decide a bare floor's split: docs/physical.md, "What was tried".)
 PRIOR_RIDGE = SIGMA_FLOOR ** 2
 MAX_LIGHTS = 3
 # Angular radii (degrees) a sun's size is chosen among.
