@@ -23,6 +23,8 @@ more than it receives (a light rim at grazing angles).
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from zcomp_cli import equirect
@@ -43,15 +45,12 @@ MIN_ALPHA = 1e-3
 ENV_LUT_SIZE = 32
 ENV_LUT_SAMPLES = 1024
 
-_LUT: list = []
 
-
+@functools.cache
 def _env_lut() -> np.ndarray:
     """(ENV_LUT_SIZE, ENV_LUT_SIZE, 2) the split-sum (A, B) of ``ggx_direct``'s BRDF,
     integrated by GGX importance sampling as Karis 2013 precomputes it: row roughness,
     column n.v, both from 0 to 1 (computed once)."""
-    if _LUT:
-        return _LUT[0]
     k = ENV_LUT_SAMPLES
     i = np.arange(k)
     u1 = (i + 0.5) / k
@@ -82,7 +81,7 @@ def _env_lut() -> np.ndarray:
             g = np.where(ok, _smith_g(alpha, nv, np.clip(nl, 1e-6, 1.0)) * vh / np.maximum(ch * nv, 1e-12), 0.0)
             fc = (1.0 - np.clip(vh, 0.0, 1.0)) ** 5
             out[a_i, v_i] = (float(np.mean(g * (1.0 - fc))), float(np.mean(g * fc)))
-    _LUT.append(out)
+    out.setflags(write=False)
     return out
 
 
