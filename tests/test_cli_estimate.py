@@ -34,6 +34,21 @@ def test_estimate_writes_maps_and_preview(tmp_path, photo_manifest):
     assert any((tmp_path / "cache" / "estimates").iterdir())
 
 
+def test_estimate_writes_every_scene_of_the_manifest(tmp_path, photo_manifest):
+    """Each scene of a manifest gets its maps (the second one used to crash: a loop
+    variable shadowed the manifest)."""
+    m = photo_manifest(tmp_path, "naive")
+    m.write_text(m.read_text().replace(
+        "objects:", "  table2:\n    image: photo.png\n    fov_deg: 50\n"
+        "    depth: {proxy: ground_plane, camera_height: 0.6, pitch_deg: -30}\nobjects:"))
+    r = CliRunner().invoke(cli, ["estimate", str(m), "--out", str(tmp_path / "out"),
+                                 "--cache-dir", str(tmp_path / "cache"), "--native"])
+    assert r.exit_code == 0, r.output
+    for name in ("table", "table2"):
+        assert (tmp_path / "out" / name / "sources.json").is_file()
+        assert (tmp_path / "out" / name / "preview.png").is_file()
+
+
 def test_estimate_unknown_scene_is_usage_error(tmp_path, photo_manifest):
     photo_manifest(tmp_path, "naive")
     r = CliRunner().invoke(cli, ["estimate", str(tmp_path / "jobs.yaml"), "--out", str(tmp_path / "o"),

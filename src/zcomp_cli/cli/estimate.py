@@ -115,9 +115,9 @@ def estimate(ctx, manifest, out_dir, scene_names, native, overwrite, cache_dir):
         write_exr(d / "shading.exr", shading)
         est = scene.estimated or {}
         agree = est.get("agreement")
-        for m, arr in (("roughness", mp.roughness), ("metallic", mp.metallic), ("agreement", agree)):
+        for key, arr in (("roughness", mp.roughness), ("metallic", mp.metallic), ("agreement", agree)):
             if arr is not None:
-                write_exr(d / f"{m}.exr", np.nan_to_num(arr, nan=-1.0) if m == "agreement" else arr)
+                write_exr(d / f"{key}.exr", np.nan_to_num(arr, nan=-1.0) if key == "agreement" else arr)
         write_png(d / "preview.png", preview_sheet(scene.image, mp.depth, mp.normals, mp.albedo, shading,
                                                    roughness=mp.roughness, metallic=mp.metallic,
                                                    agreement=agree), srgb_encode=False)
