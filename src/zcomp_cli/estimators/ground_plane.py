@@ -100,12 +100,10 @@ def pitch_from_horizon(camera: Camera, horizon_row: float) -> float:
 
 def floor_normal(camera: Camera, spec: GroundPlaneSpec) -> np.ndarray:
     """The floor's up normal in the camera frame, (3,) float64 unit."""
-    p = math.radians(spec.pitch_deg if spec.pitch_deg is not None
-                     else pitch_from_horizon(camera, spec.horizon_row))
-    r = math.radians(spec.roll_deg)
-    up = np.array([0.0, math.cos(p), -math.sin(p)])
-    rz = np.array([[math.cos(r), -math.sin(r), 0.0], [math.sin(r), math.cos(r), 0.0], [0, 0, 1.0]])
-    return rz.T @ up  # the world turns opposite to the camera
+    from zcomp_cli.worldframe import up_from_pitch_roll
+
+    pitch = spec.pitch_deg if spec.pitch_deg is not None else pitch_from_horizon(camera, spec.horizon_row)
+    return up_from_pitch_roll(pitch, spec.roll_deg)
 
 
 def ground_plane_depth(camera: Camera, spec: GroundPlaneSpec) -> tuple[np.ndarray, np.ndarray]:

@@ -35,7 +35,7 @@ from zcomp_cli.conventions import REC601
 from zcomp_cli.renderers.physical import sh
 from zcomp_cli.renderers.physical.lightmodel import ground_view
 from zcomp_cli.renderers.physical.sampling import fibonacci_sphere, orthonormal
-from zcomp_cli.renderers.physical.softshadow import pixel_jitter, sky_samples, weighted_visibility
+from zcomp_cli.renderers.physical.softshadow import sky_samples, weighted_visibility
 from zcomp_cli.renderers.physical.visibility import march_visibility
 
 # A pixel is on the support when its normal is within this of up (the support's
@@ -110,7 +110,8 @@ def fit_pixels(depth, normals, shading, known, albedo, camera: Camera, up, *, ma
         idx = idx[np.linspace(0, len(idx) - 1, max_fit_pixels).astype(np.int64)]
     h, w = depth.shape
     ys, xs = np.divmod(idx, w)
-    P = camera.unproject(depth).reshape(-1, 3)[idx].astype(np.float64)
+    pts = camera.unproject(depth)
+    P = pts.reshape(-1, 3)[idx].astype(np.float64)
     N = normals.reshape(-1, 3)[idx].astype(np.float64)
     N /= np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-12)
     S = shading.reshape(-1, 3)[idx].astype(np.float64)
@@ -123,7 +124,7 @@ def fit_pixels(depth, normals, shading, known, albedo, camera: Camera, up, *, ma
 
     geo = (depth > 0) & (np.abs(nn - 1) < 0.2)
     nrm = normals / np.maximum(nn, 1e-12)[..., None]
-    walls = find_walls(camera.unproject(depth), nrm, geo, up)
+    walls = find_walls(pts, nrm, geo, up)
     fp = FitPixels(points=P, normals=N, ys=ys, xs=xs, albedo=A, train=train, support=support,
                    depth=np.asarray(depth, np.float32), camera=camera, up=up, walls=walls)
     return fp, S
@@ -292,10 +293,6 @@ def lamp_candidates(fp: FitPixels, n_directions: int, distances_rel) -> np.ndarr
     W = W[W @ fp.up > 0.1]
     R = scale * np.asarray(distances_rel, np.float64)
     return (aim[None, None] + R[None, :, None] * W[:, None, :]).reshape(-1, 3)
-
-
-def jitter_for(fp: FitPixels, salt: int = 0) -> np.ndarray:
-    return pixel_jitter(fp.ys, fp.xs, salt=salt)
 
 
 __all__ = ["FitPixels", "working_copy", "fit_pixels", "ground_radiance", "bounce", "sky_visibility",

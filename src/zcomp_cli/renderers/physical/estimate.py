@@ -33,7 +33,7 @@ The direction's uncertainty is that same likelihood's RMS angle around the chose
 direction. Its temperature counts the held-out blocks, not pixels: residuals are
 correlated within a block, so a block is one observation.
 
-A manifest light freezes its atoms' parameters in the same solver (``fit_frozen``).
+A manifest light freezes its atoms' parameters in the same solver (``known_light.fit_known``).
 """
 
 from __future__ import annotations

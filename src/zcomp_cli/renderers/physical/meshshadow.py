@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from zcomp_cli.posed_mesh import PosedMesh  # (geometry: it lives below the renderers)
+from zcomp_cli.renderers.physical.sampling import orthonormal
 
 # Shadow-map samples of the mesh's surface: per cell's area of it, and at most.
 MESH_SAMPLE_DENSITY = 8.0
@@ -91,13 +92,6 @@ def _sample_triangles(tri: np.ndarray, p: np.ndarray, n: int):
     return pick, pts
 
 
-def _basis(l):
-    a = np.array([1.0, 0, 0]) if abs(l[0]) < 0.9 else np.array([0, 1.0, 0])
-    u = np.cross(l, a)
-    u /= np.linalg.norm(u)
-    return u, np.cross(l, u)
-
-
 def _splat(su, sv, sh, cell):
     """Max-splat samples (u, v, height toward the light) into a grid of ``cell``, the
     gaps between samples closed by a 3x3 max filter: (grid (H, W), u0, v0)."""
@@ -138,7 +132,7 @@ def mesh_shadow(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, light_
     """
     l = np.asarray(light_dir, np.float64)
     l = l / np.linalg.norm(l)
-    u, v = _basis(l)
+    u, v = orthonormal(l)
     # a non-finite corner drops its triangle (as the silhouette and the sky's elements
     # do); a mesh left without area shadows nothing (sampling it raised a ValueError)
     _, _, area, _ = _area_triangles(mesh)
@@ -182,7 +176,7 @@ def mesh_shadow_point(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, 
     if dist_c < 1e-9:
         return np.ones(len(P)), np.full(len(P), np.inf)
     axis /= dist_c
-    u, v = _basis(axis)
+    u, v = orthonormal(axis)
     fwd = (V - q) @ axis
     if not (fwd > 1e-6).any():
         return np.ones(len(P)), np.full(len(P), np.inf)

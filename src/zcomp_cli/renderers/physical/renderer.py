@@ -130,7 +130,8 @@ class PhysicalRenderer(Renderer):
         t1 = time.perf_counter()
         images = [self._render_one(req, model) for req in requests]
         timings["synthesis"] = time.perf_counter() - t1
-        info = {"light": model.to_info(), "fallback": model.to_info()["fallback"], "shadow": str(model.shadows),
+        light = model.to_info()
+        info = {"light": light, "fallback": light["fallback"], "shadow": str(model.shadows),
                 "settings": self.settings()}
         return RenderOutput(images=images, info=info, timings=timings, shading_mask=grown)
 

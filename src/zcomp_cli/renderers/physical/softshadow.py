@@ -221,13 +221,3 @@ def weighted_visibility(dirs: np.ndarray, vis: np.ndarray, radiance_sh: np.ndarr
     return np.where(den > 1e-12, num / np.maximum(den, 1e-300), 1.0)
 
 
-def ambient_occlusion(points: np.ndarray, normals: np.ndarray, ys: np.ndarray, xs: np.ndarray,
-                      depth: np.ndarray, camera: Camera, *, k: int = AO_DIRECTIONS,
-                      steps: int = AO_STEPS, range_rel: float = AO_RANGE_REL,
-                      occluder_mask: np.ndarray | None = None) -> np.ndarray:
-    """Cosine-weighted ambient visibility in [0, 1] of (N,) points (``sky_samples``
-    averaged: a uniform sky's visible share). Unfiltered: filter it."""
-    if len(points) == 0:
-        return np.zeros(0)
-    return sky_samples(points, normals, ys, xs, depth, camera, k=k, steps=steps, range_rel=range_rel,
-                       occluder_mask=occluder_mask)[1].mean(0)

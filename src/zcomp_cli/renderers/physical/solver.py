@@ -129,7 +129,7 @@ class FitResult:
 
 
 def fit(atoms, target: np.ndarray, *, train: np.ndarray | None = None, prior: dict | None = None,
-        ridge: float = 0.0, fixed_sigma: float | None = None, direct=()) -> FitResult:
+        ridge: float = 0.0, direct=()) -> FitResult:
     """Robust NNLS of ``target`` (N, 3) RGB or (N,) grey on ``atoms``.
 
     Args:
@@ -139,7 +139,6 @@ def fit(atoms, target: np.ndarray, *, train: np.ndarray | None = None, prior: di
             are held out and only scored.
         prior: per atom name the (C,) weight the ridge pulls toward (missing: 0).
         ridge: the ridge's strength, per fit pixel, relative to the data's scale.
-        fixed_sigma: the Huber scale, instead of the residuals' own.
         direct: names of the atoms an unseen occluder can hide (module docstring).
     """
     from scipy.optimize import nnls
@@ -170,7 +169,7 @@ def fit(atoms, target: np.ndarray, *, train: np.ndarray | None = None, prior: di
     Xs = np.where(is_direct[None], 0.0, Xt)  # an unseen shadow: the sky alone
     mix = bool(is_direct.any())
     beta = p0.copy() if (mix and p0.any()) else np.zeros(X.shape[1])
-    sigma = fixed_sigma
+    sigma = None
     pi = UNSEEN_INIT if mix else 0.0
     resp = np.ones(tr.sum())
     w_lit = w_sh = None
@@ -193,7 +192,7 @@ def fit(atoms, target: np.ndarray, *, train: np.ndarray | None = None, prior: di
         if mix:
             resp = unseen_responsibility(r, d, sigma if sigma is not None else robust_scale(r, scale), pi)
         near = np.where(resp >= 0.5, r, r + d)  # each pixel's residual under its likelier case
-        sigma = robust_scale(near, scale) if fixed_sigma is None else fixed_sigma
+        sigma = robust_scale(near, scale)
         if mix:
             resp = unseen_responsibility(r, d, sigma, pi)
             pi = float(np.clip(1.0 - resp.mean(), 1e-3, MAX_UNSEEN))
@@ -220,24 +219,20 @@ def fit(atoms, target: np.ndarray, *, train: np.ndarray | None = None, prior: di
 
 
 def score_candidates(base: np.ndarray, cands: np.ndarray, y: np.ndarray, train: np.ndarray, *,
-                     ridge_base: np.ndarray | None = None, sigma: float | None = None,
-                     iters: int = 4, unseen: bool = False) -> tuple[np.ndarray, np.ndarray]:
+                     sigma: float | None = None, iters: int = 4) -> tuple[np.ndarray, np.ndarray]:
     """Held-out and training loss of ``y`` (N,) fitted on ``base`` (N, B) plus each
     candidate column of ``cands`` (N, K), for K candidates at once.
 
-    The same IRLS as ``fit`` on the training pixels, by batched normal equations: Huber
-    weights and, with ``unseen``, the responsibilities of the unseen-shadow mixture, the
-    candidate being the direct light (module docstring), each candidate with its own
-    noise scale (from ``sigma``, None: the base's robust fit's) and share of unseen
-    shadows; without, every candidate at the scale ``sigma``, so that their losses
-    compare. (The mixture is off by default for the direction search: a direction whose shadow
+    The same Huber IRLS as ``fit`` on the training pixels, by batched normal equations,
+    every candidate at the one scale ``sigma`` (None: the base's robust fit's), so that
+    their losses compare. Without the unseen-shadow mixture: a direction whose shadow
     misses the visible one could call the visible shadow unseen, and the shadows of the
-    visible geometry are what the search must follow.) A negative candidate weight is clamped to 0 (no negative light); a
-    negative base weight is left (the base's non-negativity is ``fit``'s business: here
-    only the ranking of candidates matters). ``ridge_base`` (B,): ridge per base
-    column, per pixel. The loss is the mixture's energy (``fit``), comparable across
-    candidates. Returns (held-out loss (K,), training loss (K,)), over the data scale
-    squared.
+    visible geometry are what the direction search must follow (with it, measured on
+    the development seeds, the search lost 0.06-0.35 dB: docs/physical.md). A negative
+    candidate weight is clamped to 0 (no negative light); a negative base weight is
+    left (the base's non-negativity is ``fit``'s business: here only the ranking of
+    candidates matters). Returns (held-out loss (K,), training loss (K,)), over the data
+    scale squared.
     """
     B = np.asarray(base, np.float64)
     D = np.asarray(cands, np.float64)
@@ -246,21 +241,17 @@ def score_candidates(base: np.ndarray, cands: np.ndarray, y: np.ndarray, train: 
     N, nb = B.shape
     K = D.shape[1]
     scale = max(float(np.median(np.abs(y[tr]))), 1e-12)
-    rb = np.zeros(nb) if ridge_base is None else np.asarray(ridge_base, np.float64)
     Bt, Dt, yt = B[tr], D[tr], y[tr]
     nt = len(yt)
     BB = (Bt[:, :, None] * Bt[:, None, :]).reshape(nt, nb * nb)
     By = Bt * yt[:, None]
     if sigma is None:
-        sigma = base_sigma(Bt, yt, rb, scale)
-    sig = np.full(K, float(sigma))
-    pi = np.full(K, UNSEEN_INIT if unseen else 0.0)
+        sigma = base_sigma(Bt, yt, scale=scale)
     w = np.ones((nt, K))
-    floor = SIGMA_FLOOR * scale
     for _ in range(iters):
         wd = w * Dt
         A = np.empty((K, nb + 1, nb + 1))
-        A[:, :nb, :nb] = (BB.T @ w).T.reshape(K, nb, nb) + np.diag(rb * nt)[None]
+        A[:, :nb, :nb] = (BB.T @ w).T.reshape(K, nb, nb)
         bd = (Bt.T @ wd).T
         A[:, :nb, nb] = bd
         A[:, nb, :nb] = bd
@@ -279,22 +270,9 @@ def score_candidates(base: np.ndarray, cands: np.ndarray, y: np.ndarray, train: 
             coef[neg, :nb] = np.linalg.solve(An, rhs[neg, :nb, None])[..., 0]  # (regularised above)
             coef[neg, nb] = 0.0
         r = yt[:, None] - Bt @ coef[:, :nb].T - Dt * coef[:, nb][None]
-        resp = np.ones_like(r)
-        if unseen:
-            resp = unseen_responsibility(r, Dt * coef[:, nb][None], sig[None], pi[None])
-            noise = np.where(resp > 0.5, np.abs(r), np.nan)
-            with np.errstate(all="ignore"):
-                med = np.nanmedian(noise, axis=0)
-            sig = np.maximum(np.where(np.isfinite(med), MAD_TO_SIGMA * med, sig), floor)
-            pi = np.clip(1.0 - resp.mean(0), 1e-3, MAX_UNSEEN)
-        c = HUBER_C * sig[None]
-        a = np.abs(r)
-        w = np.where(a <= c, 1.0, c / np.maximum(a, 1e-300)) * resp
+        w, _ = huber_weights(r, sigma)
     r = y[:, None] - B @ coef[:, :nb].T - D * coef[:, nb][None]
-    g = unseen_responsibility(r, D * coef[:, nb][None], sig[None], pi[None]) if unseen else np.ones_like(r)
-    c = HUBER_C * sig[None]
-    a = np.abs(r)
-    loss = (g * np.where(a <= c, 0.5 * a * a, c * (a - 0.5 * c)) + (1.0 - g) * unseen_loss(sig)[None]) / scale ** 2
+    loss = huber_weights(r, sigma)[1] / scale ** 2
     held = ~tr
     lh = loss[held].mean(0) if held.any() else loss[tr].mean(0)
     return lh, loss[tr].mean(0)
