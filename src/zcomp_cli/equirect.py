@@ -91,15 +91,16 @@ def solid_angles(height: int, width: int) -> np.ndarray:
 
 
 def direction_to_uv(direction, frame, convention: str = DEFAULT_CONVENTION,
-                    rotation_deg: float = 0.0) -> tuple[float, float]:
-    """(u, v) in [0, 1) x [0, 1] of a camera-frame direction: the inverse of
-    ``pixel_directions`` (rows top to bottom)."""
+                    rotation_deg: float = 0.0):
+    """(u, v) in [0, 1) x [0, 1] of camera-frame directions (..., 3): the inverse of
+    ``pixel_directions`` (rows top to bottom); floats for one direction (3,), arrays of
+    the leading shape otherwise."""
     _check(convention)
     right, up, fwd = np.asarray(frame, np.float64)
     d = np.asarray(direction, np.float64)
-    d = d / np.linalg.norm(d)
-    lat = math.asin(float(np.clip(d @ up, -1.0, 1.0)))
-    lon = math.atan2(float(d @ right), float(d @ fwd))
+    d = d / np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-300)
+    lat = np.arcsin(np.clip(d @ up, -1.0, 1.0))
+    lon = np.arctan2(d @ right, d @ fwd)
     rot = math.radians(float(rotation_deg))
     if convention == "mirrored":
         u = 0.5 - (lon - rot) / (2 * math.pi)
@@ -107,7 +108,10 @@ def direction_to_uv(direction, frame, convention: str = DEFAULT_CONVENTION,
         if convention == "blender":
             rot += math.pi / 2
         u = 0.5 + (lon - rot) / (2 * math.pi)
-    return u % 1.0, 0.5 - lat / math.pi
+    u, v = u % 1.0, 0.5 - lat / math.pi
+    if d.ndim == 1:
+        return float(u), float(v)
+    return u, v
 
 
 __all__ = ["CONVENTIONS", "DEFAULT_CONVENTION", "longitude", "pixel_directions", "solid_angles",

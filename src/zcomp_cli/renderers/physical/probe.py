@@ -95,17 +95,10 @@ class PrefilteredProbe:
         ``roughness`` (N,) in [0, 1] (bilinear in direction, linear between levels);
         ``ground`` (3,): the support's radiance, for the lobe's share below the horizon."""
         d = np.asarray(directions, np.float64).reshape(-1, 3)
-        right, up, fwd = self.frame
-        lat = np.arcsin(np.clip(d @ up, -1, 1))
-        lon = np.arctan2(d @ right, d @ fwd)
         _, h, w, _ = self.maps.shape
-        rot = math.radians(self.rotation_deg) + (math.pi / 2 if self.convention == "blender" else 0.0)
-        if self.convention == "mirrored":
-            u = 0.5 - (lon - rot) / (2 * math.pi)
-        else:
-            u = 0.5 + (lon - rot) / (2 * math.pi)
-        x = (u % 1.0) * w - 0.5
-        y = np.clip((0.5 - lat / math.pi) * h - 0.5, 0, h - 1)
+        u, v = equirect.direction_to_uv(d, self.frame, self.convention, self.rotation_deg)
+        x = u * w - 0.5
+        y = np.clip(v * h - 0.5, 0, h - 1)
         x0 = np.floor(x).astype(int)
         y0 = np.floor(y).astype(int)
         fx, fy = (x - x0)[:, None], (y - y0)[:, None]
