@@ -88,11 +88,6 @@ class SceneStore:
             for n in [n for n in self._scenes if n != keep]:
                 del self._scenes[n]
 
-    @property
-    def loaded(self) -> list[str]:
-        with self._lock:
-            return list(self._scenes)
-
 
 @dataclass
 class JobWork:
