@@ -20,7 +20,25 @@
    the floor, more than 10 % darker), against the nearest such light, with their count;
    ``cast_shadow_err_deg`` over the cases where the
    renderer drew a cast shadow rather than a contact shadow, against the nearer of the two,
-   with their count) and the median seconds per job; writes OUT/table.csv, OUT/table.md and OUT/cases.csv (per case).
+   with their count; each of the last three as "median (n)"), the share of those cases under
+   10 and under 20 degrees (``dominant_under_10``, ``dominant_under_20``,
+   ``shown_under_10``, ``shown_under_20``: fractions of the n of ``dominant_light_err_deg``
+   and ``shown_light_err_deg``, what light-estimation papers report beside the median),
+   the light scored apart from the composite (below) and the median seconds per job;
+   writes OUT/table.csv, OUT/table.md and OUT/cases.csv (per case).
+
+**The light on spheres** (``zcomp_cli.metrics.light_spheres``): when OUT/results holds
+the ``physical-oracle-full`` row (its folder exists: run with ``--oracle full``, or left by
+an earlier run and reused with ``--skip-composite``), each method's light (its report's
+``renderer.info.light``) and the full oracle's of the same case are rendered on a
+diffuse and a matte-silver sphere standing at the object's base (where lamps are seen
+from), and scored by the relative scale-invariant RMSE between the two renders (0: the
+same light at any strength; 1: nothing alike). ``sphere_si_rmse_diffuse`` and
+``sphere_si_rmse_silver`` are the means over the cases with both lights, with their
+count; n/a for a method whose report has no light (naive), ``ref`` for the oracle's own
+row; per case in cases.csv. The oracle's light is the truth as the physical renderer
+holds it (the HDR map's SH sky and its sources, the lamps), so this scores the
+estimate, not the renderer's representation of light.
 
 Another checkout of zcomp can be compared as an extra method, e.g. the code before a
 change: ``--extra physical-before=/tmp/old/src`` runs its ``physical`` renderer with
@@ -59,8 +77,16 @@ import sys
 from pathlib import Path
 
 COLUMNS = ["psnr", "rmse", "si-rmse", "ssim", "mae", "lpips", "flip", "shadow-iou", "shadow-darkness"]
-EXTRA = ["psnr_near", "psnr_object", "light_dir_err_deg", "dominant_light_err_deg", "shown_light_err_deg", "cast_shadow_err_deg",
-         "median_s_per_job"]
+EXTRA = ["psnr_near", "psnr_object", "light_dir_err_deg",
+         "dominant_light_err_deg", "dominant_under_10", "dominant_under_20",
+         "shown_light_err_deg", "shown_under_10", "shown_under_20", "cast_shadow_err_deg",
+         "sphere_si_rmse_diffuse", "sphere_si_rmse_silver", "median_s_per_job"]
+# The direction-error thresholds (degrees) whose share of cases the table reports: the
+# ones light-estimation papers report beside the median (issue 37, item 9), so the rows
+# compare with theirs; not tuned to anything.
+UNDER_DEG = (10.0, 20.0)
+# The row whose light is the reference of the sphere metric (module docstring).
+SPHERE_REFERENCE = "physical-oracle-full"
 
 
 def zcomp(*args: str, src: str | None = None) -> subprocess.CompletedProcess:
@@ -190,6 +216,65 @@ def per_case(bench_dir: Path, res_dir: Path, truths: dict[str, dict] | None = No
                 row["shown_light_err_deg"] = min(ang(t["direction"]) for t in shown)
         rows.append(row)
     return rows
+
+
+def _job_dir(res_dir: Path, case_id: str) -> Path | None:
+    """The job folder of ``case_id`` in a results folder (as ``per_case`` finds it)."""
+    return next(iter(sorted(res_dir.glob(f"*{case_id}*"))), None)
+
+
+def _report_light(job: Path | None) -> dict | None:
+    """A job's light as its report gives it (``renderer.info.light``, ``LightModel.to_info``),
+    or None: no job, no report, or a renderer without one (naive)."""
+    if job is None or not (job / "report.json").is_file():
+        return None
+    try:
+        rep = json.loads((job / "report.json").read_text())
+    except (OSError, ValueError):
+        return None
+    light = ((rep.get("renderer") or {}).get("info") or {}).get("light")
+    return light if isinstance(light, dict) and isinstance(light.get("lights"), list) else None
+
+
+def sphere_errors(bench_dir: Path, res_dir: Path, ref_dir: Path) -> dict[str, dict]:
+    """Per case id, the light of ``res_dir``'s job scored against ``ref_dir``'s on the
+    two spheres (``light_spheres.light_sphere_error``, module docstring), standing at the
+    object's base lifted by ``LIGHT_PROBE_HEIGHT`` (where ``true_lights`` sees the lights
+    from): ``{"sphere_si_rmse_diffuse", "sphere_si_rmse_silver"}``, nan where either job
+    has no light (or a malformed one, with a warning)."""
+    import numpy as np
+
+    from zcomp_cli.benchsuite.scenes import LIGHT_PROBE_HEIGHT, BenchScene
+    from zcomp_cli.errors import InputError
+    from zcomp_cli.metrics.light_spheres import light_sphere_error
+
+    bench = json.loads((bench_dir / "benchmark.json").read_text())
+    out = {}
+    for c in bench["cases"]:
+        row = {"sphere_si_rmse_diffuse": float("nan"), "sphere_si_rmse_silver": float("nan")}
+        out[c["id"]] = row
+        est, ref = _report_light(_job_dir(res_dir, c["id"])), _report_light(_job_dir(ref_dir, c["id"]))
+        if est is None or ref is None:
+            continue
+        up = BenchScene.from_dict(c["scene"]).up
+        center = np.asarray(c["pose"]["position"], np.float64) + LIGHT_PROBE_HEIGHT * np.asarray(up, np.float64)
+        try:
+            r = light_sphere_error(est, ref, center=center)
+        except InputError as e:
+            print(f"warning: {res_dir.name} {c['id']}: light not scored on the spheres: {e}", file=sys.stderr)
+            continue
+        row["sphere_si_rmse_diffuse"], row["sphere_si_rmse_silver"] = r["diffuse"], r["silver"]
+    return out
+
+
+def _median_n(vals: list[float]) -> str | None:
+    """"median (n)" of direction errors in degrees, None without any."""
+    return f"{statistics.median(vals):.1f} ({len(vals)})" if vals else None
+
+
+def _share_under(vals: list[float], deg: float) -> float | None:
+    """The fraction of ``vals`` (degrees) under ``deg``; None without any."""
+    return round(sum(v < deg for v in vals) / len(vals), 3) if vals else None
 
 
 # A case's second light joins the oracle's lights when it brings at least this part of
@@ -361,7 +446,7 @@ def main(argv=None) -> int:
         if lv not in ORACLE_LEVELS:
             ap.error(f"unknown oracle level {lv!r} (known: {', '.join(ORACLE_LEVELS)})")
         runs.append((f"physical-oracle-{lv}", "physical", None))
-    rows, case_rows = [], []
+    rows, case_rows, scored = [], [], []
     truths = case_truths(out)
     for name, method, src in runs:
         res_dir = out / "results" / name
@@ -384,6 +469,7 @@ def main(argv=None) -> int:
             return r.returncode
         means = read_means(res_dir / "eval.json")
         cases = per_case(out, res_dir, truths)
+        scored.append((name, res_dir))
         for c in cases:
             case_rows.append({"method": name, **c})
         import math
@@ -405,17 +491,46 @@ def main(argv=None) -> int:
                      "psnr_near": statistics.mean(near) if near else None,
                      "psnr_object": statistics.mean(obj) if obj else None,
                      "light_dir_err_deg": statistics.median(errs) if errs else None,
-                     "dominant_light_err_deg": statistics.median(dom) if dom else None,
-                     "shown_light_err_deg": (f"{statistics.median(shown):.1f} ({len(shown)})" if shown else None),
-                     "cast_shadow_err_deg": (f"{statistics.median(cast):.1f} ({len(cast)})" if cast else None),
+                     "dominant_light_err_deg": _median_n(dom),
+                     **{f"dominant_under_{d:g}": _share_under(dom, d) for d in UNDER_DEG},
+                     "shown_light_err_deg": _median_n(shown),
+                     **{f"shown_under_{d:g}": _share_under(shown, d) for d in UNDER_DEG},
+                     "cast_shadow_err_deg": _median_n(cast),
+                     "sphere_si_rmse_diffuse": None, "sphere_si_rmse_silver": None,
                      "median_s_per_job": median_job_seconds(res_dir)})
+
+    # the light scored apart from the composite, against the full oracle's (module docstring)
+    ref_dir = out / "results" / SPHERE_REFERENCE
+    if ref_dir.is_dir():
+        import math
+
+        if SPHERE_REFERENCE not in {name for name, _ in scored}:
+            print(f"note: scoring the lights on spheres against {ref_dir} (not rerun in this run)", file=sys.stderr)
+        by_case = {(c["method"], c["case"]): c for c in case_rows}
+        for row, (name, res_dir) in zip(rows, scored):
+            if name == SPHERE_REFERENCE:
+                row["sphere_si_rmse_diffuse"] = row["sphere_si_rmse_silver"] = "ref"
+                continue
+            errs = sphere_errors(out, res_dir, ref_dir)
+            for cid, e in errs.items():
+                if (name, cid) in by_case:
+                    by_case[(name, cid)].update(e)
+            for key in ("sphere_si_rmse_diffuse", "sphere_si_rmse_silver"):
+                vals = [e[key] for e in errs.values() if math.isfinite(e[key])]
+                row[key] = f"{statistics.mean(vals):.3f} ({len(vals)})" if vals else None
 
     def fmt(v):
         return "n/a" if v is None else (f"{v:.4f}" if isinstance(v, float) else str(v))
 
+    def fmt_col(h, v):
+        # shares of cases: two decimals are all a table of tens of cases resolves
+        if h.split("_under_")[0] in ("dominant", "shown") and isinstance(v, float):
+            return f"{v:.2f}"
+        return fmt(v)
+
     header = ["method", *COLUMNS, *EXTRA]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    lines += ["| " + " | ".join(fmt(row[h]) for h in header) + " |" for row in rows]
+    lines += ["| " + " | ".join(fmt_col(h, row[h]) for h in header) + " |" for row in rows]
     table = "\n".join(lines)
     print(f"\nBenchmark: {out} (metrics on sRGB [0, 1]; LPIPS at 256x256)\n" + table)
     (out / "table.md").write_text(table + "\n")
@@ -426,7 +541,8 @@ def main(argv=None) -> int:
     with open(out / "cases.csv", "w", newline="") as f:
         keys = ["method", "case", "lamp", "lamp_blocked", "shadow_in_frame", "psnr_near", "psnr_object",
                 "light_dir_err_deg",
-                "dominant_light", "dominant_err_deg", "cast_shadows_shown", "shown_light_err_deg", "fallback"]
+                "dominant_light", "dominant_err_deg", "cast_shadows_shown", "shown_light_err_deg", "fallback",
+                "sphere_si_rmse_diffuse", "sphere_si_rmse_silver"]
         w = csv.DictWriter(f, fieldnames=keys, extrasaction="ignore")
         w.writeheader()
         w.writerows(case_rows)

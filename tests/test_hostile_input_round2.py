@@ -129,15 +129,19 @@ def test_fingerprint_hashes_the_light_and_scene_settings_generically(project):
     def fp():
         return job_fingerprint(m, job, spec, m.defaults.samples)
 
+    import dataclasses
+
+    from zcomp_cli.lightparams import LampParams, Param
+
     base = fp()
     room = m.scenes["room"]
-    probe = dict(room.light)
-    room.light = {"type": "lights", "lights": [probe, {"type": "lamp", "position": [0, 1, -2], "power": 5}]}
+    lamp = LampParams(position=Param.given((0.0, 1.0, -2.0)), power=Param.given(5.0))
+    room.light = dataclasses.replace(room.light, lamps=(lamp,))
     mixed = fp()
     assert mixed != base
-    room.light["lights"][1]["power"] = 6
+    room.light = dataclasses.replace(room.light, lamps=(dataclasses.replace(lamp, power=Param.given(6.0)),))
     assert fp() != mixed
-    room.light["convention"] = "blender"
+    room.light = dataclasses.replace(room.light, probe=dataclasses.replace(room.light.probe, convention="blender"))
     assert fp() not in (base, mixed)
     before = fp()
     write_exr(project / "probe.exr", np.ones((8, 16, 3), np.float32))  # the probe inside the list

@@ -83,7 +83,8 @@ def test_world_up_from_the_support_matches_the_given_tilt(tmp_path):
     bg, comp, sel, _ = _insert(s, [0.0, 0.3, -2.8])
     ctx = light_context({"azimuth_deg": 60, "elevation_deg": 45})
     given = PhysicalRenderer().light(RenderRequest(bg.maps, bg.shading, bg.known, bg.camera,
-                                                   light={**ctx, "pitch_deg": -28.0, "roll_deg": 9.0}))
+                                                   light=light_context({"azimuth_deg": 60, "elevation_deg": 45},
+                                                                       pitch_deg=-28.0, roll_deg=9.0)))
     read = PhysicalRenderer().light(RenderRequest(bg.maps, bg.shading, bg.known, bg.camera, light=ctx))
     assert given.up_from is Origin.MANIFEST and read.up_from is Origin.SUPPORT
     assert np.degrees(np.arccos(np.clip(given.up @ read.up, -1, 1))) < 1.0
@@ -167,6 +168,6 @@ def test_physical_strengths_share_one_exposure():
     b = PhysicalRenderer().light(RenderRequest(bg.maps, 5.0 * bg.shading, bg.known, bg.camera, light=ctx))
     assert np.isclose(b.fit.exposure, 5.0 * a.fit.exposure, rtol=1e-3)
     ratio = a.lamps[0].intensity / a.suns[0].irradiance
-    from zcomp_cli.renderers.physical.known_light import LAMP_SHADING_PER_WATT, SUN_SHADING_PER_IRRADIANCE
+    from zcomp_cli.renderers.physical.lightfit import LAMP_SHADING_PER_WATT, SUN_SHADING_PER_IRRADIANCE
 
     assert np.allclose(ratio, 100.0 * LAMP_SHADING_PER_WATT / (3.0 * SUN_SHADING_PER_IRRADIANCE))

@@ -164,12 +164,13 @@ def test_light_schema_defaults_and_kinds(tmp_path):
                          {"azimuth_deg": 30, "elevation_deg": 40},
                          {"type": "lamp", "position": [0, 1, -2], "power": 60}], tmp_path)
     assert not probs
-    probe, sun, lamp = out["lights"]
-    assert probe["convention"] == "blender" and probe["strength"] == 1.0
-    assert sun["type"] == "sun" and sun["strength"] == "auto" and sun["angular_radius_deg"] is None
-    assert lamp["radius_m"] is None and lamp["power"] == 60.0 and lamp["facing"] is None
+    probe, (sun,), (lamp,) = out.probe, out.suns, out.lamps
+    assert probe.convention == "blender" and probe.strength == 1.0
+    # what is not given is free (fitted), what is given frozen
+    assert sun.angles == (30, 40) and not sun.irradiance.frozen and sun.share is None and not sun.radius_deg.frozen
+    assert not lamp.radius_m.frozen and lamp.power.frozen and lamp.power.value == 60.0 and lamp.facing is None
     out, probs = _parse({"direction": [0, 2, 0], "strength": 3})
-    assert not probs and out["lights"][0]["direction"] == [0, 1, 0]
+    assert not probs and out.suns[0].direction.value == (0.0, 1.0, 0.0) and out.suns[0].direction.frozen
 
 
 @pytest.mark.parametrize("value, where, words", [

@@ -5,6 +5,7 @@ import pytest
 
 from zcomp_cli.errors import ManifestError
 from zcomp_cli.imageio import write_exr, write_png
+from zcomp_cli.lightparams import Param
 from zcomp_cli.pipeline.manifest import load_manifest
 
 
@@ -105,18 +106,18 @@ def test_scene_light_parsed(scene_dir):
     p = scene_dir / "jobs.yaml"
     p.write_text(GOOD.replace("fov_deg: 50", "fov_deg: 50\n    light: {azimuth_deg: 135, elevation_deg: 40, "
                                               "angular_radius_deg: 2, strength: 3}"))
-    light = load_manifest(p).scenes["room"].light["lights"][0]
-    assert light["azimuth_deg"] == 135 and light["elevation_deg"] == 40 and light["strength"] == 3
-    assert light["angular_radius_deg"] == 2 and light["direction"] is None and light["type"] == "sun"
+    light = load_manifest(p).scenes["room"].light.suns[0]
+    assert light.angles == (135, 40) and light.share == 3 and not light.irradiance.frozen
+    assert light.radius_deg == Param.given(2.0) and not light.direction.frozen and light.direction_given
     p.write_text(GOOD.replace("fov_deg: 50", "fov_deg: 50\n    light: {direction: [0, 2, 0]}"))
-    light = load_manifest(p).scenes["room"].light["lights"][0]
-    # no strength: measured from the photo; no size: the Sun's
-    assert light["direction"] == [0.0, 1.0, 0.0] and light["strength"] == "auto"
-    assert light["angular_radius_deg"] is None
-    # the camera's tilt rides with the light context
+    light = load_manifest(p).scenes["room"].light.suns[0]
+    # no strength: measured from the photo (free); no size: the Sun's unless the pixels tell (free)
+    assert light.direction == Param.given((0.0, 1.0, 0.0)) and light.share is None
+    assert not light.irradiance.frozen and not light.radius_deg.frozen
+    # the camera's tilt rides with the light tree (the light itself then estimated)
     p.write_text(GOOD.replace("fov_deg: 50", "fov_deg: 50\n    pitch_deg: -20\n    roll_deg: 4"))
-    ctx = load_manifest(p).scenes["room"].light
-    assert ctx == {"pitch_deg": -20.0, "roll_deg": 4.0}
+    tree = load_manifest(p).scenes["room"].light
+    assert tree.tilt == {"pitch_deg": -20.0, "roll_deg": 4.0} and not tree.given
 
 
 def test_scene_light_problems_name_field_and_line(scene_dir):
@@ -140,9 +141,9 @@ def test_scene_light_probe(scene_dir):
     p = scene_dir / "jobs.yaml"
     p.write_text(GOOD.replace("fov_deg: 50", "fov_deg: 50\n    light: {type: probe, hdr: scenes/probe.exr, "
                                               "rotation_deg: 30}"))
-    light = load_manifest(p).scenes["room"].light["lights"][0]
-    assert light["type"] == "probe" and light["rotation_deg"] == 30 and light["convention"] == "zcomp"
-    assert light["hdr"] == str((scene_dir / "scenes/probe.exr").resolve())
+    probe = load_manifest(p).scenes["room"].light.probe
+    assert probe.rotation_deg == 30 and probe.convention == "zcomp"
+    assert probe.hdr == str((scene_dir / "scenes/probe.exr").resolve())
     p.write_text(GOOD.replace("fov_deg: 50", "fov_deg: 50\n    light: {type: probe, hdr: scenes/nope.exr}"))
     with pytest.raises(ManifestError) as ei:
         load_manifest(p)
@@ -153,8 +154,8 @@ def test_scene_light_probe(scene_dir):
 def test_scene_light_strength_auto(scene_dir):
     p = scene_dir / "jobs.yaml"
     p.write_text(GOOD.replace("fov_deg: 50", "fov_deg: 50\n    light: {direction: [0, 1, 0], strength: auto}"))
-    light = load_manifest(p).scenes["room"].light["lights"][0]
-    assert light["strength"] == "auto" and light["angular_radius_deg"] is None
+    light = load_manifest(p).scenes["room"].light.suns[0]
+    assert not light.irradiance.frozen and light.share is None and not light.radius_deg.frozen
     p.write_text(GOOD.replace("fov_deg: 50", "fov_deg: 50\n    light: {direction: [0, 1, 0], strength: bright}"))
     with pytest.raises(ManifestError) as ei:
         load_manifest(p)
@@ -167,11 +168,11 @@ def test_scene_light_list(scene_dir):
                               "      - {azimuth_deg: 30, elevation_deg: 45, strength: 3}\n"
                               "      - {direction: [-1, 1, 0], strength: 1, angular_radius_deg: 4}"))
     light = load_manifest(p).scenes["room"].light
-    assert len(light["lights"]) == 2
-    assert light["lights"][1]["angular_radius_deg"] == 4 and light["lights"][0]["strength"] == 3
+    assert len(light.suns) == 2
+    assert light.suns[1].radius_deg.value == 4 and light.suns[0].share == 3
     # one item is that light
     p.write_text(GOOD.replace("fov_deg: 50", "fov_deg: 50\n    light: [{direction: [0, 1, 0]}]"))
-    assert load_manifest(p).scenes["room"].light["lights"][0]["type"] == "sun"
+    assert len(load_manifest(p).scenes["room"].light.suns) == 1
     bad = {
         "[{direction: [0, 1, 0]}, {type: lamp, position: [0, 1, -2], power: 50}, {direction: [1, 1, 0], strength: 2}]":
             ("scenes.room.light", "cannot stand beside"),

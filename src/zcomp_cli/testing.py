@@ -381,18 +381,16 @@ def write_floor_batch(folder, n_jobs: int, *, n_scenes: int = 3, size=(96, 72), 
     return path
 
 
-def light_context(*lights, pitch_deg=None, roll_deg=None) -> dict:
-    """The renderer's light context (``RenderRequest.light``) of manifest light mappings
-    (``pipeline/lightspec.py``), validated as the manifest validates them; raises
-    ``InputError`` with the problems."""
-    from zcomp_cli.pipeline.lightspec import parse_light
+def light_context(*lights, pitch_deg=None, roll_deg=None):
+    """The renderer's light tree (``RenderRequest.light``, ``lightparams.LightParams``) of
+    manifest light mappings (``pipeline/lightspec.py``), validated as the manifest
+    validates them; raises ``InputError`` with the problems."""
+    from zcomp_cli.pipeline.lightspec import parse_light, scene_light
 
     probs = []
     value = list(lights) if len(lights) != 1 else lights[0]
     out = parse_light(value, "light", lambda c, k, w, m: probs.append(f"{w}: {m}"))
     if out is None:
         raise InputError("; ".join(probs))
-    if pitch_deg is not None:
-        out["pitch_deg"] = float(pitch_deg)
-        out["roll_deg"] = float(roll_deg or 0.0)
-    return out
+    tilt = {} if pitch_deg is None else {"pitch_deg": float(pitch_deg), "roll_deg": float(roll_deg or 0.0)}
+    return scene_light(out, tilt)

@@ -134,16 +134,28 @@ def prepare_job(
 
     common = dict(shading=shading, known=known, camera=cam, roi=roi, image=scene.image, scene_key=scene.key,
                   light=getattr(scene, "light", None))
-    # the posed mesh (when the bundle references one) casts the object's shadow and
-    # self-shadows it from its real 3D shape; image objects and mesh-less bundles keep
-    # the 2.5D depth alone
-    occluder = None
+    # the object's occluder (its shadow, the sky it hides, its self-shadowing): the posed
+    # mesh when the bundle references one; else, for a bundle of maps, its visible
+    # surface extruded backwards to its footprint's far edge (``maps_occluder``); 2D image
+    # objects keep the 2.5D depth alone
+    occluder, occluder_kind = None, None
     try:
         from zcomp_cli.posed_mesh import load_posed_mesh
 
         occluder = load_posed_mesh(bundle.meta or {}, {"a": alignment.a, "b": alignment.b})
-    except Exception as exc:  # an unreadable mesh must not fail the job: 2.5D shadows
+        occluder_kind = "mesh" if occluder is not None else None
+    except Exception as exc:  # an unreadable mesh must not fail the job: the maps stand in
         notes.append(f"object mesh not used for shadows: {type(exc).__name__}: {exc}")
+    if occluder is None and (bundle.meta or {}).get("source") != "image":
+        try:
+            from zcomp_cli.maps_occluder import occluder_from_maps
+
+            occluder = occluder_from_maps(obj_depth, obj_mask, apply_alignment(bundle.footprint_depth, alignment),
+                                          cam, normals=bundle.normals, up=(bundle.meta or {}).get("up_camera"))
+            occluder_kind = "maps, extruded" if occluder is not None else None
+        except Exception as exc:  # nor must maps that make no solid: 2.5D shadows
+            occluder = None
+            notes.append(f"object maps not used as an occluder: {type(exc).__name__}: {exc}")
     requests = [RenderRequest(maps=bg, **common),
                 RenderRequest(maps=comp, **common, occluder=occluder, coverage=m)]
     x0, y0, x1, y1 = roi
@@ -160,6 +172,7 @@ def prepare_job(
             "lambda": shading_radius,
         },
         "roi": {"box": list(roi), "frac": (x1 - x0) * (y1 - y0) / float(H * W)},
+        "occluder": occluder_kind,
         "seed": seed,
     }
     dbg = {}

@@ -31,14 +31,17 @@ is fitted to the photograph for all of them together; ``auto`` fits that light's
 strength (and colour); a sun's number ``strength`` (the older form) fixes its share
 against the fitted sky: shadow / lit = 1 / (1 + strength * cos).
 
-Validation problems are reported with the field and the manifest line. The result of
-``parse_light`` is ``{"lights": [light, ...]}`` with every key filled (``None`` where not
-given); ``parse_tilt`` reads the scene's ``pitch_deg``/``roll_deg``.
+Validation problems are reported with the field and the manifest line. ``parse_light``
+returns the typed light tree (``zcomp_cli.lightparams.LightParams``: what is given is
+frozen, what is ``auto`` or left out is free); ``parse_tilt`` reads the scene's
+``pitch_deg``/``roll_deg``; ``scene_light`` puts the two together.
 """
 
 from __future__ import annotations
 
 import math
+
+from zcomp_cli.lightparams import LAMP_RADIUS_M, SUN_RADIUS_DEG  # noqa: F401  (re-exported: the defaults)
 
 SUN_KEYS = {"type", "direction", "azimuth_deg", "elevation_deg", "angular_radius_deg", "strength",
             "irradiance", "color"}
@@ -46,11 +49,6 @@ PROBE_KEYS = {"type", "hdr", "rotation_deg", "convention", "strength"}
 LAMP_KEYS = {"type", "position", "radius_m", "power", "facing", "color"}
 PROBE_EXTS = {".exr", ".hdr"}
 MAX_LIGHTS = 3
-# The Sun's angular radius (its mean apparent diameter is 0.53 deg): a directional light
-# given without its size is taken to be the Sun.
-SUN_RADIUS_DEG = 0.265
-# A lamp given without its size: a household bulb (an A19 bulb is 6 cm across).
-LAMP_RADIUS_M = 0.03
 MAX_ANGULAR_RADIUS_DEG = 45.0
 
 
@@ -232,8 +230,7 @@ def parse_light(value, where: str, add, resolve=None) -> dict | None:
         resolve: ``resolve(container, key, where) -> Path | None`` checks a file field
             (the probe's ``hdr``) relative to the manifest.
     Returns:
-        ``{"lights": [...]}``, each light a dict with every key of its type (module
-        docstring; ``None`` where not given), or None when invalid.
+        ``LightParams`` (the tilt left out: ``scene_light``), or None when invalid.
     """
     items = value if isinstance(value, list) else [value]
     if isinstance(value, list) and not value:
@@ -267,7 +264,52 @@ def parse_light(value, where: str, add, resolve=None) -> dict | None:
                                "beside a probe, an irradiance or a lamp's power (give 'irradiance' in W/m^2, "
                                "or strength: auto)")
         return None
-    return {"lights": out}
+    return to_params(out)
+
+
+def to_params(lights: list, tilt: dict | None = None):
+    """The typed tree (``LightParams``) of validated light mappings (``_parse_one``'s)
+    and the camera's tilt (``parse_tilt``'s)."""
+    from zcomp_cli.lightparams import LampParams, LightParams, Param, ProbeParams, SunParams, WHITE
+
+    suns, lamps, probe = [], [], None
+    for x in lights:
+        color = WHITE if x.get("color") is None else tuple(float(v) for v in x["color"])
+        if x["type"] == "probe":
+            probe = ProbeParams(hdr=x["hdr"], rotation_deg=float(x["rotation_deg"]), convention=x["convention"],
+                                strength=float(x["strength"]))
+        elif x["type"] == "sun":
+            r = x["angular_radius_deg"]
+            strength = x["strength"]
+            suns.append(SunParams(
+                direction=Param.given(tuple(x["direction"])) if x["direction"] is not None else Param.free(),
+                angles=(x["azimuth_deg"], x["elevation_deg"]) if x["direction"] is None else None,
+                radius_deg=Param.given(float(r)) if r is not None else Param.free(),
+                irradiance=Param.given(float(x["irradiance"])) if x["irradiance"] is not None else Param.free(),
+                share=float(strength) if isinstance(strength, float) else None, color=color))
+        else:
+            lamps.append(LampParams(
+                position=Param.given(tuple(x["position"])),
+                radius_m=Param.given(float(x["radius_m"])) if x["radius_m"] is not None else Param.free(),
+                power=Param.free() if x["power"] == "auto" else Param.given(float(x["power"])),
+                facing=None if x["facing"] is None else tuple(x["facing"]), color=color))
+    tilt = tilt or {}
+    return LightParams(suns=tuple(suns), lamps=tuple(lamps), probe=probe, pitch_deg=tilt.get("pitch_deg"),
+                       roll_deg=tilt.get("roll_deg") if tilt.get("pitch_deg") is not None else None)
+
+
+def scene_light(params, tilt: dict):
+    """A scene's light tree: ``params`` (``parse_light``'s, or None: estimated) with the
+    camera's ``tilt``; None when the scene gives neither."""
+    import dataclasses
+
+    from zcomp_cli.lightparams import LightParams
+
+    if params is None and not tilt:
+        return None
+    base = LightParams.estimate() if params is None else params
+    return dataclasses.replace(base, pitch_deg=tilt.get("pitch_deg"),
+                               roll_deg=(tilt.get("roll_deg") or 0.0) if tilt.get("pitch_deg") is not None else None)
 
 
 def parse_tilt(scene: dict, where: str, add) -> dict:
@@ -287,4 +329,5 @@ def parse_tilt(scene: dict, where: str, add) -> dict:
     return out
 
 
-__all__ = ["parse_light", "parse_tilt", "SUN_RADIUS_DEG", "LAMP_RADIUS_M", "MAX_LIGHTS", "PROBE_EXTS"]
+__all__ = ["parse_light", "parse_tilt", "scene_light", "to_params", "SUN_RADIUS_DEG", "LAMP_RADIUS_M", "MAX_LIGHTS",
+           "PROBE_EXTS"]

@@ -107,7 +107,7 @@ class SceneSpec:
     K: np.ndarray | None = None
     maps: dict[str, Path] = field(default_factory=dict)  # provided map files
     estimators: dict[str, dict] = field(default_factory=dict)  # map -> estimator spec
-    light: dict | None = None  # known lighting (pipeline/lightspec.py); None = estimate it
+    light: object | None = None  # the light tree (lightparams.LightParams; pipeline/lightspec.py); None: estimated
     # every file the scene's settings name (the light's probe...), as the manifest
     # resolved them: job fingerprints hash their contents (pipeline/fingerprint.py)
     setting_files: list[Path] = field(default_factory=list)
@@ -505,12 +505,13 @@ def _no_light(path: Path) -> str | None:
     return None
 
 
-def _parse_scene_light(s, where, probs, root, files: list, check_files: bool = True) -> dict | None:
-    """The scene's light context for the renderer: ``{"lights": [...]}`` from ``light``
-    and ``pitch_deg``/``roll_deg`` when given (``pipeline/lightspec.py``); None when the
-    scene has neither (the light is estimated, world up read off the support). Every
-    file the light names is appended to ``files`` (the resume fingerprint hashes them)."""
-    from zcomp_cli.pipeline.lightspec import PROBE_EXTS, parse_light, parse_tilt
+def _parse_scene_light(s, where, probs, root, files: list, check_files: bool = True):
+    """The scene's light tree for the renderer (``zcomp_cli.lightparams.LightParams``)
+    from ``light`` and ``pitch_deg``/``roll_deg`` when given (``pipeline/lightspec.py``);
+    None when the scene has neither (the light is estimated, world up read off the
+    support). Every file the light names is appended to ``files`` (the resume
+    fingerprint hashes them)."""
+    from zcomp_cli.pipeline.lightspec import PROBE_EXTS, parse_light, parse_tilt, scene_light
 
     def add(container, key, w, msg):  # problems without a container sit on 'light'
         probs.add(s if container is None else container, "light" if container is None else key, w, msg)
@@ -526,12 +527,9 @@ def _parse_scene_light(s, where, probs, root, files: list, check_files: bool = T
             files.append(p)
         return p
 
-    ctx = parse_tilt(s, where, lambda c, k, w, m: probs.add(c, k, w, m))
-    if "light" in s:
-        parsed = parse_light(s["light"], f"{where}.light", add, resolve)
-        if parsed is not None:
-            ctx.update(parsed)
-    return ctx or None
+    tilt = parse_tilt(s, where, lambda c, k, w, m: probs.add(c, k, w, m))
+    params = parse_light(s["light"], f"{where}.light", add, resolve) if "light" in s else None
+    return scene_light(params, tilt)
 
 
 def _parse_objects(d, parent, root, probs, check_files) -> dict[str, ObjectSpec]:

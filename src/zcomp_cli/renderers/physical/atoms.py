@@ -56,7 +56,8 @@ class FitPixels:
     are fitted on (the others are held out: whole blocks of the frame, so that held-out
     pixels are not the neighbours of fitted ones); ``support`` (N,) on the support;
     ``depth`` (h, w) and ``camera`` of the copy; ``up`` (3,); ``walls`` the scene's walls
-    beyond the frame (``planes``), which occlude every light's rays."""
+    beyond the frame (``planes``), which occlude every light's rays; ``caster`` the
+    ray tracer of the scene's depth mesh (``depthmesh``), None: the screen-space march."""
 
     points: np.ndarray
     normals: np.ndarray
@@ -69,9 +70,24 @@ class FitPixels:
     camera: Camera
     up: np.ndarray
     walls: tuple = ()
+    caster: object | None = None
 
     def __len__(self) -> int:
         return len(self.points)
+
+    def with_caster(self, caster) -> "FitPixels":
+        """The same pixels, their light rays answered by ``caster`` (``raycast.RayCaster``
+        of the depth mesh, walls included) instead of the screen-space march."""
+        import dataclasses
+
+        return dataclasses.replace(self, caster=caster)
+
+    def ray_origins(self) -> np.ndarray:
+        """(N, 3) the points moved off their surface along the normal (a share of their
+        depth, ``shadowcast.BIAS_REL``), where shadow rays start."""
+        from zcomp_cli.renderers.physical.shadowcast import BIAS_REL
+
+        return self.points + self.normals * (BIAS_REL * np.maximum(-self.points[:, 2], 1e-6))[:, None]
 
 
 # The frame is cut into HOLDOUT_BLOCKS x HOLDOUT_BLOCKS blocks (of its long side), in a
@@ -211,6 +227,17 @@ def sun_columns(fp: FitPixels, dirs: np.ndarray, *, steps: int, chunk: int = 32)
     D = np.asarray(dirs, np.float64).reshape(-1, 3)
     out = np.zeros((len(fp), len(D)))
     P, Nr = fp.points, fp.normals
+    if fp.caster is not None:
+        O = fp.ray_origins()
+        for c0 in range(0, len(D), 4 * chunk):
+            Dc = D[c0:c0 + 4 * chunk]
+            ndl = np.maximum(Nr @ Dc.T, 0.0)
+            live = ndl.T.reshape(-1) > 0
+            v = np.zeros(len(Dc) * len(P))
+            if live.any():
+                v[live] = ~fp.caster.occluded(np.tile(O, (len(Dc), 1))[live], np.repeat(Dc, len(P), 0)[live])
+            out[:, c0:c0 + len(Dc)] = ndl * v.reshape(len(Dc), -1).T
+        return out
     for c0 in range(0, len(D), chunk):
         Dc = D[c0:c0 + chunk]
         C = len(Dc)
@@ -275,9 +302,12 @@ def lamp_columns(fp: FitPixels, positions: np.ndarray, *, steps: int | None = No
                 sz = np.sqrt(np.maximum(0, 1 - cz * cz))
                 d = cz[:, None] * l[live] + sz[:, None] * (np.cos(ph[s]) * u + np.sin(ph[s]) * w)
                 d /= np.linalg.norm(d, axis=1, keepdims=True)
-            # the march ends at the lamp: nothing beyond it occludes
-            acc += march_visibility(P[live], Nr[live], d, fp.depth, fp.camera, steps=steps,
-                                    max_distance=r[live], walls=fp.walls)
+            # the ray ends at the lamp: nothing beyond it occludes
+            if fp.caster is not None:
+                acc += ~fp.caster.occluded(fp.ray_origins()[live], d, tmax=r[live])
+            else:
+                acc += march_visibility(P[live], Nr[live], d, fp.depth, fp.camera, steps=steps,
+                                        max_distance=r[live], walls=fp.walls)
         out[live, j] = g[live] * acc / (max(1, cone_samples) if u is not None else 1)
     return out
 

@@ -1,39 +1,45 @@
-"""The light from the photograph as one fit (DESIGN.md section 8).
+"""The light from the photograph (DESIGN.md section 8, "The light from the shadows").
 
-The known shading is linear in the light: ``S(p) = sum_k w_k T_k(p) + bounce(p)``,
-``w_k >= 0``, over a dictionary of atoms (``atoms``): sky lobes and the
-lights -- suns (a direction and an angular radius) and lamps (a position) -- each
-rendered with the renderer's own transport, shadows included. One robust NNLS
-(``solver``) explains the shading; the lights are chosen greedily, each the candidate
-that best explains **held-out** pixels (whole blocks of the frame the weights were not
-fitted on), up to ``MAX_LIGHTS``, while each still improves them by ``MIN_GAIN``
-(``held_out_gain``: the held-out loss of the dictionary without it over that with it,
-minus 1, above the noise floor: a share, the same at any resolution). A lamp is a sun
-with a position: it is taken over the best sun only when it improves on it by
-``MIN_GAIN`` too.
+Where a photograph shows cast shadows, they are what fixes the light's direction; the
+shading of the rest of the frame says little about it and a great deal about things
+the model does not hold (a floor's fall-off, an albedo error, a wall's bounce). So the
+direction is read off the shadows first, the rest of the shading is a second, weaker
+witness, and what neither fixes stays uncertain -- and the composite says so.
 
-Steps of ``estimate_light``:
+Steps of ``estimate_light`` (each returns a dataclass):
 
-1. the working copy and its fit pixels, the sky's visibility, the support's bounce, the
-   albedo's offset (``atoms.albedo_offset``);
-2. the base dictionary: the sky lobes;
-3. each light: score every candidate (hemisphere directions with hard shadows, lamp
-   positions: unshadowed first, then a shortlist with shadows), refine the best on a
-   finer spiral, fit its size (a few angular radii, cone-averaged), keep it when the
-   held-out gain reaches ``MIN_GAIN``;
-4. the weights of the chosen dictionary, per colour channel (the lights' colours), with
-   a ridge toward the prior split of sky and light where the pixels cannot tell them
-   apart (a bare floor shades alike under any split);
-5. the light model: direction, size, colour and the sun/sky split read off the weights.
-   Without a light the held-out pixels ask for, the best candidate's light is spread
-   over the directions the pixels allow (their tempered likelihood) into the sky: the
-   object is shaded from the plausible side and casts a contact shadow only.
+1. ``prepare``: the working copy and its fit pixels (the photometric fit's), world up,
+   the support's bounce, the albedo's offset, the walls beyond the frame, and the scene's
+   **depth mesh** (``depthmesh``: discontinuities cut, occluders extruded backwards) with
+   its ray tracer (``raycast``, Embree): every light ray of the fit is cast through it;
+2. ``shadow_evidence``: the support's cast shadows, tied to the casters that stand on it;
+3. ``search``: a grid of directions on the hemisphere, refined around the best; each
+   scored by **two likelihoods** that multiply: the support's shading under the shadow
+   that direction casts (``shadowcast``: ray cast from the support's pixels) and the
+   photometric fit of the whole frame (the sky lobes plus a sun of that direction,
+   robust NNLS scored on held-out blocks); with a **prior on the elevation** (uniform in
+   the elevation angle) they make one **posterior**, tempered by one constant
+   (``TEMPERATURE``, fitted by ``benchmarks/fit_light_constants.py`` with the log score of
+   the true direction). A lamp is a sun with a distance: lamps along the best direction
+   are scored the same way and taken when the posterior prefers one;
+4. ``size``: the light's angular radius among ``RADII_DEG``, by the same two likelihoods
+   with the visibility averaged over the light's cone;
+5. ``strength``: the sun/sky split from the shadows themselves where they are seen (the
+   shadowed/lit ratio of the support, Madsen and Nielsen), shrunk toward the prior
+   split by how much shadow the posterior's directions cast (``PRIOR_BLOCKS``: the prior
+   counts as one block of evidence); one robust NNLS then fits the exposure and the
+   sky's shape;
+6. the model, **hedged**: one light at the posterior's mean direction, its angular
+   radius grown to cover the posterior's spread (the expectation of the shadow over the
+   posterior, under squared error the best composite): a confident posterior gives a
+   crisp shadow, a vague one a soft and lighter one from the likely side; past
+   ``MAX_RADIUS_DEG`` the light joins the sky (the contact shadow stays).
 
-The direction's uncertainty is that same likelihood's RMS angle around the chosen
-direction. Its temperature counts the held-out blocks, not pixels: residuals are
-correlated within a block, so a block is one observation.
+The stated uncertainty (``fit.direction_uncertainty_deg``) is the posterior's RMS angle
+about its mean direction; ``estimate_light_with_posterior`` also returns the posterior
+(``posterior.DirectionPosterior``) for the audit (``benchmarks/audit_light.py``).
 
-A manifest light freezes its atoms' parameters in the same solver (``known_light.fit_known``).
+A manifest light freezes its atoms' parameters in the same solver (``known_light``).
 """
 
 from __future__ import annotations
@@ -47,54 +53,66 @@ from zcomp_cli.camera import Camera
 from zcomp_cli.conventions import REC601
 from zcomp_cli.renderers.physical import atoms as at
 from zcomp_cli.renderers.physical import sh
-from zcomp_cli.renderers.physical.lightmodel import (FitSummary, Lamp, LightModel, Origin, ShadowKind, Sky,
-                                                     Sun)
+from zcomp_cli.lightparams import Origin
+from zcomp_cli.renderers.physical.lightmodel import MAX_RADIUS_DEG, FitSummary, LightModel, ShadowKind, Sky
+from zcomp_cli.renderers.physical.posterior import DirectionPosterior
 from zcomp_cli.renderers.physical.sampling import fine_spiral, hemisphere, spacing_deg
+from zcomp_cli.renderers.physical.shadowcast import shadow_fit, sun_visibility
 from zcomp_cli.renderers.physical.settings import DEFAULTS, PhysicalSettings
 from zcomp_cli.renderers.physical.solver import SIGMA_FLOOR, Atom, base_sigma, fit, score_candidates
 
 # Calibrated by benchmarks/fit_light_constants.py on the development seeds (its output:
-# docs/fit_light_constants.txt)
-# (benchmarks/seeds.py): the least held-out gain for which a light's cast shadow is drawn,
-# and the sky's share of the support's shading where the pixels do not fix the split.
-MIN_GAIN = 0.05
+# docs/fit_light_constants.txt): the sky's share of the support's light where the photo
+# does not tell it (the median true share), and the posterior's temperature (the value
+# with the best mean log score of the true direction).
 PRIOR_SKY_SHARE = 0.46
-# The ridge toward the prior split, per fit pixel over the data scale squared: a
+PRIOR_SKY_SHARE_SPREAD = 0.15
+TEMPERATURE = 50.0
+# The ridge toward the prior weights, per fit pixel over the data scale squared: a
 # departure from the prior as large as the prior itself costs what a noise-floor
-# residual on every pixel does; where the pixels tell the split (a shadow: a residual
-# of tens of percent on its pixels) they decide. (A weaker ridge lets model errors
-# decide a bare floor's split: docs/physical.md, "What was tried".)
+# residual on every pixel does (the sky's shape where the pixels do not tell it).
 PRIOR_RIDGE = SIGMA_FLOOR ** 2
-MAX_LIGHTS = 3
 # Angular radii (degrees) a sun's size is chosen among.
 RADII_DEG = (0.0, 1.0, 2.0, 4.0, 8.0, 16.0)
-# Lamp candidates: directions above the support's centre, distances in units of its
-# median distance from the camera, the shortlist marched with shadows.
-LAMP_DIRECTIONS = 60
+# Lamps along the best direction: distances in units of the support's median distance
+# from the camera (a relative depth map gives the same candidates).
 LAMP_DISTANCES_REL = (0.3, 0.6, 1.2, 2.4)
-LAMP_SHORTLIST = 8
-# Lowest elevation of a sun candidate (a light in the ground's plane lights nothing on it).
+# Lamps are scored along this many of the best directions (each at every distance).
+LAMP_TOP = 8
+# Lowest elevation of a candidate (a light in the ground's plane lights nothing on it).
 MIN_ELEVATION_DEG = 2.0
+# The soft alternative of each candidate's shadow (the shadow likelihood is marginalised
+# over a hard and a soft one): its light's angular radius in degrees, about the coarse
+# grid's spacing (a sampling resolution).
+SOFT_DEG = 10.0
+# Directions of the refinement around the best coarse one (a sampling resolution).
+REFINE_DIRECTIONS = 40
+# A cone of half-angle a spreads directions with an RMS angle a / sqrt(2) (small angles):
+# the rendered radius that covers a posterior of RMS spread s is sqrt(2) s.
+CONE_PER_RMS = math.sqrt(2.0)
 FEW_PIXELS = 50
 
 
 @dataclass
 class FitLight:
-    """A chosen light while the fit runs: ``kind`` sun/lamp, ``param`` direction or
-    position, ``radius`` (deg for a sun, m for a lamp), its column, how its size came."""
+    """A light while the fit runs: ``kind`` sun/lamp, ``param`` direction or position,
+    ``radius`` (deg for a sun, m for a lamp; None: to be chosen), its column, how its
+    size came, a lamp's panel ``facing`` (None: a sphere)."""
 
     kind: str
     param: np.ndarray
-    radius: float
+    radius: float | None
     column: np.ndarray
     radius_from: Origin = Origin.FIT
+    facing: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
 class Prepared:
-    """Step 1's products: fit pixels, their shading (image over the albedo plus its
-    offset) less the bounce (N, 3), the sky seen from them (``atoms.sky_visibility``),
-    the ground's radiance (3,), the ground frame (3, 3), the albedo's offset."""
+    """Step 1's products: fit pixels (their rays cast through the depth mesh), their
+    shading (image over the albedo plus its offset) less the bounce (N, 3), the sky
+    seen from them (``atoms.sky_visibility``), the ground's radiance (3,), the ground
+    frame (3, 3), the albedo's offset; the shadow grid (``ShadowGrid``) or None."""
 
     fp: at.FitPixels
     shading: np.ndarray
@@ -102,14 +120,38 @@ class Prepared:
     ground: np.ndarray
     frame: np.ndarray
     albedo_offset: float = 0.0
+    grid: object | None = None
 
     @property
     def lum(self) -> np.ndarray:
         return self.shading @ REC601.astype(np.float64)
 
+    @property
+    def anchor(self) -> np.ndarray:
+        """(3,) the support's centre (median of its fit pixels), where a lamp's direction
+        is measured from."""
+        fp = self.fp
+        pts = fp.points[fp.support] if fp.support.sum() >= 3 else fp.points
+        return np.median(pts, 0) if len(pts) else np.zeros(3)
+
+
+@dataclass(frozen=True)
+class ShadowGrid:
+    """The copy the shadows are read on (``settings.shadow_resolution``): its depth mesh
+    (``depthmesh.DepthMesh``), its ray tracer, the luminance of its shading (image over
+    albedo plus offset), its albedo's luminance and known pixels."""
+
+    mesh: object
+    caster: object
+    shading: np.ndarray
+    albedo: np.ndarray
+    known: np.ndarray
+
 
 def prepare(depth, normals, shading, known, albedo, camera: Camera, up, settings: PhysicalSettings) -> Prepared:
     """Step 1 (module docstring)."""
+    from zcomp_cli.renderers.physical.depthmesh import build_depth_mesh
+    from zcomp_cli.renderers.physical.planes import find_walls
     from zcomp_cli.worldframe import ground_frame
 
     d, n, s, k, a, cam = at.working_copy(depth, normals, shading, known, albedo, camera, settings.max_resolution)
@@ -118,27 +160,32 @@ def prepare(depth, normals, shading, known, albedo, camera: Camera, up, settings
     if len(fp) == 0:
         return Prepared(fp=fp, shading=S, sky_vis=(np.zeros((1, 0, 3)), np.zeros((1, 0))), ground=np.zeros(3),
                         frame=frame)
+    # the shadows' copy and its mesh (walls beyond the frame included)
+    d2, n2, s2, k2, a2, cam2 = at.working_copy(depth, normals, shading, known, albedo, camera,
+                                               settings.shadow_resolution)
+    nn = np.linalg.norm(n2, axis=-1)
+    geo = (d2 > 0) & (np.abs(nn - 1) < 0.2)
+    walls = find_walls(cam2.unproject(d2), n2 / np.maximum(nn, 1e-12)[..., None], geo, up)
+    mesh = build_depth_mesh(d2, n2, cam2, up, walls=walls)
+    caster = mesh.caster()
+    import dataclasses
+
+    fp = dataclasses.replace(fp, walls=walls, caster=caster)
     ground = at.ground_radiance(fp, S)
     vis = at.sky_visibility(fp)
     S = np.maximum(S - at.bounce(fp, ground), 0.0)
     lobes = np.stack([at.sky_atom_values(fp, c, vis) for _, c in at.sky_lobes(frame)], 1)
     g = at.albedo_offset(fp, S, lobes) if fp.train.any() else 0.0
+    a2l = np.clip(np.nan_to_num(a2), 0, None)
+    s2o = np.where(a2l > 0, s2 * a2l / np.maximum(a2l + g, 1e-6), s2) if g > 0 else s2
+    grid = ShadowGrid(mesh=mesh, caster=caster, shading=np.nan_to_num(s2o) @ REC601, albedo=a2l @ REC601, known=k2)
     return Prepared(fp=fp, shading=at.offset_shading(fp, S, g), sky_vis=vis, ground=ground, frame=frame,
-                    albedo_offset=g)
+                    albedo_offset=g, grid=grid)
 
 
 def sky_atoms(pp: Prepared) -> list[Atom]:
-    """Step 2: the sky lobes, grey."""
+    """The sky lobes, grey."""
     return [Atom(name, at.sky_atom_values(pp.fp, c, pp.sky_vis)) for name, c in at.sky_lobes(pp.frame)]
-
-
-def held_out_gain(loss_without: float, loss_with: float) -> float:
-    """How much better a light explains the held-out pixels: the loss without it over
-    the loss with it, minus 1, both above the noise floor (a residual of SIGMA_FLOOR of
-    the data scale everywhere: exact data must not turn a negligible improvement into a
-    large ratio)."""
-    floor = 0.5 * SIGMA_FLOOR ** 2
-    return (float(loss_without) - float(loss_with)) / (float(loss_with) + floor)
 
 
 def held_out_blocks(fp: at.FitPixels) -> int:
@@ -152,92 +199,375 @@ def tempered_likelihood(loss_held: np.ndarray, sigma_rel2: float, blocks: int) -
     """Likelihood weights of candidates from their held-out losses: each held-out block
     is one observation (``held_out_blocks``), the loss per pixel over the noise's
     (``sigma_rel2``, squared over the data scale) half its Gaussian log-likelihood."""
+    return np.exp(np.maximum(photometric_loglik(loss_held, sigma_rel2, blocks), -700.0))
+
+
+def photometric_loglik(loss_held: np.ndarray, sigma_rel2: float, blocks: int) -> np.ndarray:
+    """(K,) log-likelihoods (up to a constant, the best 0) of candidates from their
+    held-out losses (``tempered_likelihood``)."""
     lh = np.asarray(loss_held, np.float64)
-    nll = blocks * (lh - lh.min()) / max(sigma_rel2, 1e-12)
-    return np.exp(-np.minimum(nll, 700.0))
+    return -blocks * (lh - lh.min()) / max(sigma_rel2, 1e-12)
 
 
-def _rms_angle(dirs: np.ndarray, weights: np.ndarray, best: np.ndarray) -> float:
-    ang = np.arccos(np.clip(np.asarray(dirs) @ best, -1.0, 1.0))
-    w = np.asarray(weights, np.float64)
-    return float(np.degrees(math.sqrt(float((w * ang ** 2).sum() / max(w.sum(), 1e-300)))))
+def log_elevation_prior(dirs: np.ndarray, up) -> np.ndarray:
+    """(K,) log density (per steradian, up to a constant) of a prior uniform in the
+    elevation angle above MIN_ELEVATION_DEG: ``1 / cos(elevation)`` (a uniform density
+    over the sphere would put most of the light near the horizon)."""
+    e = np.arcsin(np.clip(np.asarray(dirs, np.float64) @ np.asarray(up, np.float64), -1.0, 1.0))
+    return -np.log(np.maximum(np.cos(e), math.cos(math.radians(89.0))))
 
 
-def _stack(cols) -> np.ndarray:
-    return np.stack(cols, 1) if cols else np.zeros((0, 0))
+@dataclass(frozen=True)
+class Search:
+    """Step 3: the posterior over directions (``DirectionPosterior``), and per grid
+    direction its shadow log-likelihood, photometric log-likelihood, the shadowed/lit
+    ratio its shadow fits and the shadow it casts on the receivers (blocks); the chosen
+    light (a sun of the mean direction, or a lamp along it)."""
+
+    posterior: DirectionPosterior
+    ll_shadow: np.ndarray
+    ll_photo: np.ndarray
+    ratio: np.ndarray
+    shadow_blocks: np.ndarray
+    light: FitLight
+    evidence: object
+    receivers: object
 
 
-class _Candidates:
-    """The search's candidate lights and their columns, marched once per scene and
-    reused by each light of the greedy search: the coarse suns (hard shadows), the lamp
-    positions (unshadowed; the shadowed columns of a shortlist, as they are asked for)."""
+@dataclass(frozen=True)
+class _Shadow:
+    """A scored shadow fit: (K,) log-likelihoods and shadowed/lit ratios."""
 
-    def __init__(self, pp: Prepared, settings: PhysicalSettings):
+    loglik: np.ndarray
+    ratio: np.ndarray
+
+
+class _Scorer:
+    """Both likelihoods of candidate lights (module docstring, step 3), sharing the
+    receivers, the base dictionary and the noise scales."""
+
+    def __init__(self, pp: Prepared, evidence, settings: PhysicalSettings):
+        from zcomp_cli.renderers.physical.shadowcast import receivers
+
         fp = pp.fp
-        self.steps = settings.estimate_march_steps
-        self.suns = hemisphere(settings.n_light_candidates, fp.up, MIN_ELEVATION_DEG)
-        self.sun_cols = at.sun_columns(fp, self.suns, steps=self.steps)
-        self.lamps = at.lamp_candidates(fp, LAMP_DIRECTIONS, LAMP_DISTANCES_REL)
-        self.lamp_cols0 = at.lamp_columns(fp, self.lamps)
-        self._lamp_cols: dict[int, np.ndarray] = {}
-        self.fp = fp
+        self.pp, self.fp, self.settings = pp, fp, settings
+        self.rec = receivers(pp.grid.mesh, evidence, max_receivers=settings.max_receivers)
+        self.y = pp.lum
+        self.B = np.stack([a.values for a in sky_atoms(pp)], 1)
+        self.scale = max(float(np.median(np.abs(self.y[fp.train]))), 1e-12)
+        self.sig = base_sigma(self.B[fp.train], self.y[fp.train], scale=self.scale)
+        self.blocks = held_out_blocks(fp)
+        self.sigma = None  # the shadow fit's noise scale, set by the first (coarse) scoring
 
-    def lamp_cols(self, idx) -> np.ndarray:
-        todo = [int(i) for i in idx if int(i) not in self._lamp_cols]
-        if todo:
-            cols = at.lamp_columns(self.fp, self.lamps[todo], steps=self.steps)
-            for k, i in enumerate(todo):
-                self._lamp_cols[i] = cols[:, k]
-        return np.stack([self._lamp_cols[int(i)] for i in idx], 1)
+    def suns(self, dirs, radius_deg: float = 0.0, seed: int = 0):
+        """(shadow ShadowFit, photometric held-out losses (K,)) of suns toward ``dirs``."""
+        from zcomp_cli.renderers.physical.sampling import cone_directions
+
+        D = np.asarray(dirs, np.float64).reshape(-1, 3)
+        if radius_deg > 0:
+            k = self.settings.cone_samples
+            V = np.zeros((len(self.rec), len(D)))
+            C = np.zeros((len(self.fp), len(D)))
+            for j, d in enumerate(D):
+                cone = cone_directions(d, radius_deg, k, seed=seed)
+                V[:, j] = sun_visibility(self.pp.grid.caster, self.rec, cone).mean(1)
+                C[:, j] = at.sun_columns(self.fp, cone, steps=self.settings.estimate_march_steps).mean(1)
+        else:
+            V = sun_visibility(self.pp.grid.caster, self.rec, D)
+            C = at.sun_columns(self.fp, D, steps=self.settings.estimate_march_steps)
+        lh, _ = score_candidates(self.B, C, self.y, self.fp.train, sigma=self.sig)
+        self.last_V = V
+        return self._scored(shadow_fit(self.rec, V)), lh, C
+
+    def suns_any_size(self, dirs):
+        """``suns`` of hard shadows, the shadow likelihood marginalised over the light's
+        size: a hard shadow, or one softened over SOFT_DEG (each direction's visibility
+        averaged with its neighbours' within that angle), each with probability 1/2.
+        Returns (ShadowFit, held-out losses, columns, hard visibility (R, K))."""
+        from zcomp_cli.renderers.physical.shadowcast import shadow_fit
+
+        D = np.asarray(dirs, np.float64).reshape(-1, 3)
+        C = at.sun_columns(self.fp, D, steps=self.settings.estimate_march_steps)
+        lh, _ = score_candidates(self.B, C, self.y, self.fp.train, sigma=self.sig)
+        V = sun_visibility(self.pp.grid.caster, self.rec, D)
+        near = (D @ D.T >= math.cos(math.radians(SOFT_DEG))).astype(np.float64)
+        hard = shadow_fit(self.rec, V)
+        soft = shadow_fit(self.rec, V @ (near / near.sum(1, keepdims=True)).T)
+        if self.sigma is None:
+            self.sigma = min(hard.best_sigma, soft.best_sigma)
+        lhard, lsoft = hard.loglik(self.sigma), soft.loglik(self.sigma)
+        ll = np.logaddexp(lhard, lsoft) - math.log(2.0)
+        ratio = np.where(lsoft > lhard, soft.ratio, hard.ratio)
+        return _Shadow(ll, ratio), lh, C, V
+
+    def lamps(self, positions):
+        from zcomp_cli.renderers.physical.shadowcast import lamp_visibility, shadow_fit
+
+        Q = np.asarray(positions, np.float64).reshape(-1, 3)
+        V = lamp_visibility(self.pp.grid.caster, self.rec, Q)
+        C = at.lamp_columns(self.fp, Q, steps=self.settings.estimate_march_steps)
+        lh, _ = score_candidates(self.B, C, self.y, self.fp.train, sigma=self.sig)
+        return self._scored(shadow_fit(self.rec, V)), lh, C
+
+    def _scored(self, fit_) -> "_Shadow":
+        if self.sigma is None:
+            self.sigma = fit_.best_sigma
+        return _Shadow(fit_.loglik(self.sigma), fit_.ratio)
+
+    def loglik(self, sfit, lh, lh_ref: float):
+        """((K,) the summed log-likelihood, (K,) its photometric part): the photometric
+        one relative to ``lh_ref`` (a common reference, so that separate calls compare)."""
+        s2 = (self.sig / self.scale) ** 2
+        ll_photo = -self.blocks * (np.asarray(lh) - lh_ref) / max(s2, 1e-12)
+        return sfit.loglik + ll_photo, ll_photo
 
 
-def _search_light(pp: Prepared, base: list[np.ndarray], cand: _Candidates, settings: PhysicalSettings,
-                  seed: int, *, softness: float | None):
-    """The best light to add to the grey columns ``base`` (step 3): returns (light,
-    held-out loss with it, the coarse suns' held-out losses, the base's held-out loss,
-    the noise scale squared over the data's)."""
+def _shadow_area_blocks(rec, V) -> np.ndarray:
+    """(K,) how many of the frame's blocks the shadow of each candidate covers on the
+    receivers (weighted by the support area each receiver stands for)."""
+    if len(rec) == 0:
+        return np.zeros(V.shape[1])
+    share = (rec.weight[:, None] * (1.0 - V)).sum(0) / max(float(rec.weight.sum()), 1e-12)
+    return share * rec.blocks
+
+
+def search_scorer(pp: Prepared, settings: PhysicalSettings):
+    """(the support's shadow evidence, the scorer of candidate lights over it): step 2
+    and what step 3 scores with."""
+    from zcomp_cli.renderers.physical.shadow_evidence import shadow_evidence
+
+    mesh = pp.grid.mesh
+    ev = shadow_evidence(pp.grid.shading, mesh.support, mesh.casters, mesh.points, mesh.up, known=pp.grid.known,
+                         albedo=pp.grid.albedo, labels=mesh.labels)
+    return ev, _Scorer(pp, ev, settings)
+
+
+def caster_anchor(pp: Prepared, evidence) -> np.ndarray:
+    """(3,) where a lamp's direction is measured from in the search: the base of the
+    caster with the most tied shadow beside it (its shadow's rays meet at the lamp), else
+    the support's centre."""
+    mesh = pp.grid.mesh
+    if not evidence.tied.any() or not mesh.base.any():
+        return pp.anchor
+    import cv2
+
+    best, best_n = None, 0
+    tied = evidence.tied.astype(np.uint8)
+    for k in np.unique(mesh.labels[mesh.casters]):
+        comp = (mesh.labels == k).astype(np.uint8)
+        reach = max(1, int(round(0.05 * max(mesh.shape))))
+        near = cv2.dilate(comp, np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)) > 0
+        n = int((near & (tied > 0)).sum())
+        if n > best_n and (mesh.base & (mesh.labels == k)).any():
+            best, best_n = k, n
+    if best is None:
+        return pp.anchor
+    return np.median(mesh.points[mesh.base & (mesh.labels == best)], 0)
+
+
+def search(pp: Prepared, settings: PhysicalSettings, seed: int = 0) -> tuple[Search, "_Scorer"]:
+    """Step 3 (module docstring): the posterior over the light's direction, each
+    direction's likelihood marginalised over its distance (a sun, or a lamp at one of
+    ``LAMP_DISTANCES_REL`` along it from the caster's base: a priori a sun and a lamp
+    alike; lamps are scored along the ``LAMP_TOP`` best directions, the rest counting
+    as unlikely)."""
     fp = pp.fp
-    y = pp.lum
-    B = _stack(base)
-    scale = max(float(np.median(np.abs(y[fp.train]))), 1e-12)
-    sig = base_sigma(B[fp.train], y[fp.train], scale=scale)
-    zero = np.zeros((len(y), 1))
-    l_base = float(score_candidates(B, zero, y, fp.train, sigma=sig)[0][0])
-    steps = settings.estimate_march_steps
-    lh_s, _ = score_candidates(B, cand.sun_cols, y, fp.train, sigma=sig)
-    short = np.zeros(0, int)
-    lh_l = np.full(1, np.inf)
-    if LAMP_SHORTLIST > 0 and len(cand.lamps):
-        lh_l0, _ = score_candidates(B, cand.lamp_cols0, y, fp.train, sigma=sig)
-        short = np.argsort(lh_l0)[:LAMP_SHORTLIST]
-        cl = cand.lamp_cols(short)
-        lh_l, _ = score_candidates(B, cl, y, fp.train, sigma=sig)
-    # a lamp is a sun with a position: it is kept only where it explains the held-out
-    # pixels by MIN_GAIN better than the best sun (its extra freedom must pay for itself,
-    # by the criterion a light pays for itself)
-    if not np.isfinite(lh_l.min()) or held_out_gain(float(lh_s.min()), float(lh_l.min())) < MIN_GAIN:
-        i = int(np.argmin(lh_s))
-        fine = fine_spiral(cand.suns[i], 1.5 * spacing_deg(2 * settings.n_light_candidates), 40, up=fp.up)
-        cf = at.sun_columns(fp, fine, steps=steps)
-        lh_f, _ = score_candidates(B, cf, y, fp.train, sigma=sig)
-        j = int(np.argmin(lh_f))
-        light = FitLight("sun", fine[j], 0.0, cf[:, j])
-        best_l = float(lh_f[j])
-        # its size: the cone-averaged columns of a few radii
-        radii = (float(softness),) if softness is not None else RADII_DEG
-        cols = [at.sun_column(fp, light.param, r, steps=steps, cone_samples=settings.cone_samples, seed=seed)
-                for r in radii]
-        lh_r, _ = score_candidates(B, _stack(cols), y, fp.train, sigma=sig)
-        k = int(np.argmin(lh_r))
-        light = FitLight("sun", light.param, radii[k], cols[k],
-                       Origin.MANIFEST if softness is not None else Origin.FIT)
-        best_l = float(lh_r[k])
+    ev, sc = search_scorer(pp, settings)
+    up = fp.up
+    # a priori a sun or a lamp alike, each lamp distance alike (so a lamp at one distance
+    # must explain the photograph better than the sun by the log of their number)
+    n_lamp = len(LAMP_DISTANCES_REL)
+    log_opt_prior = np.log(np.array([0.5] + [0.5 / max(n_lamp, 1)] * n_lamp))
+    pts = fp.points[fp.support] if fp.support.sum() >= 3 else fp.points
+    dists = float(np.median(np.linalg.norm(pts, axis=1))) * np.asarray(LAMP_DISTANCES_REL, np.float64)
+    anchor = caster_anchor(pp, ev)
+
+    def score(dirs, lamp_dists):
+        """Per direction: the marginal log-likelihood, its photometric part, the best
+        option (-1 a sun, else the distance's index), its ratio and shadow blocks."""
+        sf, lh, _, V = sc.suns_any_size(dirs)
+        ll_sun, ll_ph = sc.loglik(sf, lh, lh_ref if lh_ref is not None else float(lh.min()))
+        opts = [ll_sun]
+        if len(lamp_dists):
+            Q = anchor[None, None] + lamp_dists[None, :, None] * dirs[:, None, :]
+            sl, lhl, _ = sc.lamps(Q.reshape(-1, 3))
+            ll_l, _ = sc.loglik(sl, lhl, lh_ref if lh_ref is not None else float(lh.min()))
+            opts += list(ll_l.reshape(len(dirs), -1).T)
+        # (the options' prior enters at the posterior's temperature: log p times T here)
+        stack = np.stack(opts) + TEMPERATURE * log_opt_prior[:len(opts), None]
+        marg = TEMPERATURE * np.logaddexp.reduce(stack / TEMPERATURE, axis=0)
+        return marg, ll_ph, np.argmax(stack, 0) - 1, sf.ratio, _shadow_area_blocks(sc.rec, V), sf.loglik, lh
+
+    lh_ref = None
+    coarse = hemisphere(settings.n_light_candidates, up, MIN_ELEVATION_DEG)
+    marg, llp, _, ratio_c, area_c, llsh_c, lh_c = score(coarse, np.zeros(0))
+    lh_ref = float(lh_c.min())
+    marg, llp, _, _, _, _, _ = score(coarse, np.zeros(0))
+    marg = marg  # the suns alone: the lamp options unscored count as -inf
+    prior_c = log_elevation_prior(coarse, up)
+    top = np.argsort(-(marg / TEMPERATURE + prior_c))[:LAMP_TOP]
+    m_top, llp_top, opt_top, r_top, a_top, sh_top, _ = score(coarse[top], dists)
+    marg[top], llp[top], ratio_c[top], area_c[top], llsh_c[top] = m_top, llp_top, r_top, a_top, sh_top
+    option = np.full(len(coarse), -1)
+    option[top] = opt_top
+    omega = np.full(len(coarse), 2 * math.pi / len(coarse))
+    # the refinement: a finer spiral around the best, standing for its cap's share
+    ib = int(np.argmax(marg / TEMPERATURE + prior_c))
+    best = coarse[ib]
+    cap = 1.5 * spacing_deg(2 * settings.n_light_candidates)
+    fine = fine_spiral(best, cap, REFINE_DIRECTIONS, up=up)
+    fine = fine[fine @ up > math.sin(math.radians(MIN_ELEVATION_DEG))]
+    fd = dists[[option[ib]]] if option[ib] >= 0 else np.zeros(0)
+    m_f, llp_f, opt_f, r_f, a_f, sh_f, _ = score(fine, fd)
+    opt_f = np.where(opt_f >= 0, option[ib], -1)
+    inside = coarse @ best >= math.cos(math.radians(cap))
+    cap_area = float(omega[inside].sum())
+    dirs = np.concatenate([coarse[~inside], fine])
+    om = np.concatenate([omega[~inside], np.full(len(fine), cap_area / len(fine))])
+    post = DirectionPosterior.from_parts(dirs, np.concatenate([marg[~inside], m_f]), log_elevation_prior(dirs, up),
+                                         om, TEMPERATURE)
+    opts = np.concatenate([option[~inside], opt_f])
+    # the light: the posterior's mean direction, as a sun or as a lamp at the distance
+    # the most probable direction's best option says
+    mean_dir = post.mean_direction
+    if mean_dir @ up <= math.sin(math.radians(MIN_ELEVATION_DEG)):
+        mean_dir = post.map_direction
+    k = int(opts[int(np.argmax(post.log_post))])
+    if k < 0:
+        _, _, col = sc.suns(mean_dir[None])
+        light = FitLight("sun", mean_dir, None, col[:, 0])
     else:
-        i = int(np.argmin(lh_l))
-        q = cand.lamps[short][i]
-        light = FitLight("lamp", q, 0.0, cl[:, i], Origin.DEFAULT)
-        best_l = float(lh_l[i])
-    return light, best_l, lh_s, l_base, (sig / scale) ** 2
+        q = anchor + dists[k] * mean_dir
+        _, _, col = sc.lamps(q[None])
+        light = FitLight("lamp", q, None, col[:, 0], radius_from=Origin.DEFAULT)
+    return Search(posterior=post, ll_shadow=np.concatenate([llsh_c[~inside], sh_f]),
+                  ll_photo=np.concatenate([llp[~inside], llp_f]), ratio=np.concatenate([ratio_c[~inside], r_f]),
+                  shadow_blocks=np.concatenate([area_c[~inside], a_f]), light=light, evidence=ev,
+                  receivers=sc.rec), sc
+
+
+def choose_size(pp: Prepared, sc: _Scorer, light: FitLight, settings: PhysicalSettings, seed: int) -> FitLight:
+    """Step 4 (in place; a lamp is left alone): a sun's angular radius, the one rule for
+    every sun whose size is not given: among the Sun's own (``SUN_RADIUS_DEG``, the
+    default) and RADII_DEG, the one whose cone-averaged shadow has the largest summed
+    log-likelihood -- unless the default is within one unit of tempered log-likelihood
+    of it (the pixels cannot tell: the default stays). The renderer's ``shadow_softness``
+    forces one."""
+    from zcomp_cli.lightparams import SUN_RADIUS_DEG
+
+    if light.kind != "sun":
+        return light
+    if settings.shadow_softness is not None:
+        r = float(settings.shadow_softness)
+        light.radius, light.radius_from = r, Origin.MANIFEST
+        light.column = at.sun_column(pp.fp, light.param, r, steps=settings.estimate_march_steps,
+                                     cone_samples=settings.cone_samples, seed=seed)
+        return light
+    radii = (SUN_RADIUS_DEG,) + tuple(r for r in RADII_DEG if r != SUN_RADIUS_DEG)
+    scored = []
+    for r in radii:
+        sf, lh, col = sc.suns(light.param[None], r, seed=seed)
+        ll, _ = sc.loglik(sf, lh, 0.0)
+        scored.append((float(ll[0]) / TEMPERATURE, r, col[:, 0]))
+    best = max(scored, key=lambda x: x[0])
+    if best[0] - scored[0][0] < 1.0:
+        best, origin = scored[0], Origin.DEFAULT
+    else:
+        origin = Origin.FIT
+    light.radius, light.column, light.radius_from = best[1], best[2], origin
+    return light
+
+
+def hedge(pp: Prepared, light: FitLight, spread_deg: float, settings: PhysicalSettings, seed: int) -> bool:
+    """Step 6's hedge (in place): the searched light's angular size grown to cover its
+    posterior's spread (``CONE_PER_RMS`` times the RMS angle, at most MAX_RADIUS_DEG): the
+    expectation of its shadow over the posterior. Returns whether it grew."""
+    fp = pp.fp
+    cover = min(CONE_PER_RMS * float(spread_deg), MAX_RADIUS_DEG)
+    if light.kind == "sun":
+        if cover <= (light.radius or 0.0):
+            return False
+        light.radius, light.radius_from = float(cover), Origin.PRIOR
+        light.column = at.sun_column(fp, light.param, light.radius, steps=settings.estimate_march_steps,
+                                     cone_samples=settings.cone_samples, seed=seed)
+        return True
+    wide = float(np.linalg.norm(light.param - pp.anchor)) * math.tan(math.radians(cover))
+    if wide <= (light.radius or 0.0):
+        return False
+    light.radius, light.radius_from = wide, Origin.PRIOR
+    light.column = at.lamp_columns(fp, light.param[None], steps=settings.estimate_march_steps, radius_m=light.radius,
+                                   cone_samples=settings.cone_samples, seed=seed)[:, 0]
+    if light.facing is not None:
+        v = light.param[None] - fp.points
+        d = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-9)
+        light.column = light.column * 4.0 * np.maximum(-(d @ light.facing), 0.0)
+    return True
+
+
+def _shrunk_share(rho: float, n_eff: float, sigma: float) -> float:
+    """The measured shadowed/lit ratio ``rho`` behind ``n_eff`` blocks of shadow, shrunk
+    toward the prior: the posterior mean of a Gaussian prior (PRIOR_SKY_SHARE, spread
+    PRIOR_SKY_SHARE_SPREAD) and a measurement whose noise is the shadow fit's ``sigma``
+    per block (each block one observation)."""
+    n0 = (max(sigma, 1e-6) / PRIOR_SKY_SHARE_SPREAD) ** 2  # the prior's weight in blocks
+    return (n_eff * rho + n0 * PRIOR_SKY_SHARE) / (n_eff + n0)
+
+
+def split_at(sc: _Scorer, light: FitLight) -> tuple[float, float]:
+    """Step 5 for a light of given direction or position: (the sky's share of the
+    support's light, the blocks of shadow behind it) from the shadow it casts."""
+    if light.kind == "sun":
+        sf, _, _, V = sc.suns_any_size(np.asarray(light.param, np.float64)[None])
+    else:
+        from zcomp_cli.renderers.physical.shadowcast import lamp_visibility
+
+        sf, _, _ = sc.lamps(np.asarray(light.param, np.float64)[None])
+        V = lamp_visibility(sc.pp.grid.caster, sc.rec, np.asarray(light.param, np.float64)[None])
+    n_eff = float(_shadow_area_blocks(sc.rec, V)[0])
+    if n_eff <= 0:
+        return PRIOR_SKY_SHARE, 0.0
+    return _shrunk_share(float(np.clip(sf.ratio[0], 0.0, 1.0)), n_eff, sc.sigma), n_eff
+
+
+def split_from_shadows(s: Search, sigma: float) -> tuple[float, float]:
+    """Step 5: (the sky's share of the support's light, the blocks of shadow evidence
+    behind it): the posterior-weighted shadowed/lit ratio of the shadows its directions
+    cast, shrunk toward the prior (``_shrunk_share``, the shadow fit's noise ``sigma``)."""
+    p = s.posterior.probabilities
+    n_eff = float(p @ s.shadow_blocks)
+    if n_eff <= 0:
+        return PRIOR_SKY_SHARE, 0.0
+    w = p * s.shadow_blocks
+    rho = float(w @ np.clip(s.ratio, 0.0, 1.0) / max(w.sum(), 1e-300))
+    return _shrunk_share(rho, n_eff, sigma), n_eff
+
+
+def estimate_light(depth, normals, shading, known, albedo, camera: Camera, *, up, up_from: Origin = Origin.SUPPORT,
+                   settings: PhysicalSettings = DEFAULTS, seed: int = 0) -> LightModel:
+    """The light of the photograph's known shading (module docstring): ``lightfit.fit_light``
+    of the tree with every parameter free.
+
+    Args:
+        depth: (H, W) z-depth, 0 invalid. normals: (H, W, 3) camera frame.
+        shading: (H, W, 3) linear image / albedo, used where ``known`` (H, W) bool.
+        albedo: (H, W, 3) linear albedo. camera: the view.
+        up: (3,) world up, camera frame; ``up_from`` where it came from.
+    Returns:
+        LightModel (never raises on degenerate evidence: too few pixels give the prior).
+    """
+    return estimate_light_with_posterior(depth, normals, shading, known, albedo, camera, up=up, up_from=up_from,
+                                         settings=settings, seed=seed)[0]
+
+
+def estimate_light_with_posterior(depth, normals, shading, known, albedo, camera: Camera, *, up,
+                                  up_from: Origin = Origin.SUPPORT, settings: PhysicalSettings = DEFAULTS,
+                                  seed: int = 0) -> tuple[LightModel, DirectionPosterior | None]:
+    """``estimate_light`` and its posterior over directions (None where nothing could be
+    fitted)."""
+    from zcomp_cli.renderers.physical.lightfit import fit_light
+
+    return fit_light(None, depth, normals, shading, known, albedo, camera, up=up, up_from=up_from,
+                     settings=settings, seed=seed)
 
 
 def prior_weights(atoms: list[Atom], pp: Prepared, light_names: list[str]) -> dict:
@@ -272,95 +602,6 @@ def sky_from_weights(pp: Prepared, weights: dict, extra_sh: np.ndarray | None = 
     return out if extra_sh is None else out + extra_sh
 
 
-def estimate_light(depth, normals, shading, known, albedo, camera: Camera, *, up, up_from: Origin = Origin.SUPPORT,
-                   settings: PhysicalSettings = DEFAULTS, seed: int = 0) -> LightModel:
-    """The light of the photograph's known shading (module docstring).
-
-    Args:
-        depth: (H, W) z-depth, 0 invalid. normals: (H, W, 3) camera frame.
-        shading: (H, W, 3) linear image / albedo, used where ``known`` (H, W) bool.
-        albedo: (H, W, 3) linear albedo. camera: the view.
-        up: (3,) world up, camera frame; ``up_from`` where it came from.
-    Returns:
-        LightModel (never raises on degenerate evidence: too few pixels give the prior).
-    """
-    up = np.asarray(up, np.float64)
-    pp = prepare(depth, normals, shading, known, albedo, camera, up, settings)
-    fp = pp.fp
-    if len(fp) < FEW_PIXELS or fp.train.sum() < FEW_PIXELS // 2:
-        return prior_model(pp, up, up_from, f"too few known pixels with geometry ({len(fp)} < {FEW_PIXELS})")
-    base_atoms = sky_atoms(pp)
-    base = [a.values for a in base_atoms]
-    cand = _Candidates(pp, settings)
-    lights: list[FitLight] = []
-    coarse = None
-    gain = 0.0
-    first = None
-    for i in range(MAX_LIGHTS):
-        # (a light next to one already found is kept when it pays for itself: two close
-        # lights stand for a wider or uneven one; keeping them apart cost the development
-        # seeds 0.4 dB)
-        light, l_new, lh_s, l_base, s2 = _search_light(
-            pp, base + [x.column for x in lights], cand, settings, seed, softness=settings.shadow_softness)
-        g = held_out_gain(l_base, l_new)
-        if i == 0:
-            coarse, first, gain = (cand.suns, lh_s, s2), light, g
-        if g < MIN_GAIN:
-            break
-        lights.append(light)
-    names = [f"light{i}" for i in range(len(lights))]
-    cast = bool(lights)
-    if not cast:
-        lights, names = [first], ["light0"]
-    fit_atoms = base_atoms + [Atom(n_, x.column) for n_, x in zip(names, lights)]
-    res = fit(fit_atoms, pp.shading, train=fp.train, prior=prior_weights(fit_atoms, pp, names), ridge=PRIOR_RIDGE,
-              direct=names)
-    suns, lh_s, s2 = coarse
-    post = tempered_likelihood(lh_s, s2, held_out_blocks(fp))
-    key = first.param if first.kind == "sun" else _lamp_dir(first.param, fp)
-    unc = _rms_angle(suns, post, key)
-    summary = FitSummary(gain=float(gain), uncertainty_deg=unc, residual=float(res.loss_train),
-                         pixels=len(fp), note="" if cast else (
-                             f"the best light explains held-out pixels {100 * gain:.1f} % better than the sky "
-                             f"alone (< {100 * MIN_GAIN:g} %): its direction is not fixed by the photograph "
-                             f"(plausible directions within {unc:.0f} deg)"))
-    if not cast:
-        # the light spread over its plausible directions, into the sky, bringing the
-        # support what the fitted light brought it
-        w = np.asarray(res.weights["light0"])
-        spread = sum(p * sh.directional_radiance(d, w) for p, d in zip(post / post.sum(), suns) if p > 1e-6)
-        on_up = float(sh.evaluate(sh.shading_coeffs(spread), up[None])[0].mean())
-        brought = float(np.median(first.column[fp.support])) if fp.support.any() else 0.0
-        if on_up > 1e-12:
-            spread = spread * (brought * float(w.mean()) / on_up)
-        sky = Sky(radiance_sh=sky_from_weights(pp, res.weights, spread), ground=pp.ground, up=up)
-        return LightModel(sky=sky, shadows=ShadowKind.CONTACT, up_from=up_from,
-                          albedo_offset=pp.albedo_offset, walls=fp.walls, fit=summary)
-    return model_from_fit(pp, res, lights, names, up, up_from, summary)
-
-
-def _lamp_dir(q, fp: at.FitPixels) -> np.ndarray:
-    pts = fp.points[fp.support] if fp.support.sum() >= 3 else fp.points
-    v = np.asarray(q, np.float64) - np.median(pts, 0)
-    return v / max(float(np.linalg.norm(v)), 1e-12)
-
-
-def model_from_fit(pp: Prepared, res, lights: list[FitLight], names: list[str], up, up_from, summary,
-           origin: Origin = Origin.FIT, source: str = "estimated") -> LightModel:
-    suns, lamps = [], []
-    for n_, x in zip(names, lights):
-        w = np.asarray(res.weights[n_])
-        if x.kind == "sun":
-            suns.append(Sun(direction=x.param, radius_deg=x.radius, irradiance=w, direction_from=origin,
-                            radius_from=x.radius_from, strength_from=Origin.FIT))
-        else:
-            lamps.append(Lamp(position=x.param, radius_m=x.radius, intensity=w, position_from=origin,
-                              radius_from=x.radius_from, strength_from=Origin.FIT))
-    sky = Sky(radiance_sh=sky_from_weights(pp, res.weights), ground=pp.ground, up=up)
-    return LightModel(suns=tuple(suns), lamps=tuple(lamps), sky=sky, shadows=ShadowKind.CAST, source=source,
-                      up_from=up_from, albedo_offset=pp.albedo_offset, walls=pp.fp.walls, fit=summary)
-
-
 def prior_model(pp: Prepared, up, up_from, note: str) -> LightModel:
     """The prior's light where nothing can be fitted: the support's level (or 0.5) from
     a uniform sky, contact shadows."""
@@ -375,5 +616,6 @@ def prior_model(pp: Prepared, up, up_from, note: str) -> LightModel:
                       walls=fp.walls, fit=FitSummary(note=note, pixels=len(fp)))
 
 
-__all__ = ["estimate_light", "prepare", "sky_atoms", "prior_model", "MIN_GAIN", "PRIOR_SKY_SHARE", "MAX_LIGHTS",
+__all__ = ["estimate_light", "estimate_light_with_posterior", "prepare", "search", "search_scorer", "choose_size",
+           "hedge", "split_at", "split_from_shadows", "sky_atoms", "prior_model", "PRIOR_SKY_SHARE", "TEMPERATURE",
            "RADII_DEG"]

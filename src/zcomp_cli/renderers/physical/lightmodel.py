@@ -26,21 +26,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from zcomp_cli.lightparams import Origin
 from zcomp_cli.renderers.physical import sh
-
-
-class Origin(str, enum.Enum):
-    """Where a light's parameter came from (the report's words)."""
-
-    MANIFEST = "given in the manifest"
-    PROBE = "measured on the manifest's probe"
-    FIT = "fitted to the photograph's shading"
-    DEFAULT = "not measured: the documented default"
-    PRIOR = "not fixed by the photograph: the prior"
-    SUPPORT = "read off the support plane"
-
-    def __str__(self) -> str:  # the report's words
-        return self.value
 
 
 class ShadowKind(str, enum.Enum):
@@ -212,7 +199,8 @@ class LightModel:
     prefiltered probe for specular reflections (``probe.PrefilteredProbe``) or None;
     ``walls`` the scene's walls beyond the frame (``planes.Wall``), found with the fit:
     they hide the sky and the lights from what stands in front of them;
-    ``fit`` the fit's own account of itself."""
+    ``fit`` the fit's own account of itself; ``anchor`` (3,) the support's centre, camera
+    frame (where a lamp's direction is measured from; None: the camera)."""
 
     suns: tuple = ()
     lamps: tuple = ()
@@ -224,10 +212,13 @@ class LightModel:
     probe: object | None = None
     walls: tuple = ()
     fit: FitSummary = field(default_factory=FitSummary)
+    anchor: np.ndarray | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "suns", tuple(self.suns))
         object.__setattr__(self, "lamps", tuple(self.lamps))
+        if self.anchor is not None:
+            object.__setattr__(self, "anchor", _vec(self.anchor))
 
     @property
     def up(self) -> np.ndarray:
@@ -235,17 +226,19 @@ class LightModel:
 
     @property
     def key_direction(self) -> np.ndarray | None:
-        """(3,) toward the brightest light seen from the support's centre direction, or
+        """(3,) toward the brightest light seen from the support's centre (``anchor``), or
         None without a sun or lamp (the report's "light direction")."""
         best, val = None, -1.0
         for s in self.suns:
             v = float(s.irradiance.mean())
             if v > val:
                 best, val = s.direction, v
+        a = np.zeros(3) if self.anchor is None else self.anchor
         for lp in self.lamps:
-            v = float(lp.intensity.mean()) / max(float(lp.position @ lp.position), 1e-6)
+            to = lp.position - a
+            v = float(lp.intensity.mean()) / max(float(to @ to), 1e-6)
             if v > val:
-                best, val = lp.position / max(float(np.linalg.norm(lp.position)), 1e-12), v
+                best, val = to / max(float(np.linalg.norm(to)), 1e-12), v
         return best
 
     def ambient_share(self) -> float:
@@ -263,7 +256,7 @@ class LightModel:
                 "up_from": str(self.up_from), "lights": lights,
                 "direction": None if kd is None else kd.tolist(),
                 "ambient_share": self.ambient_share(), "albedo_offset": self.albedo_offset,
-                "fallback": None if self.shadows is ShadowKind.CAST else (
+                "fallback": (self.fit.note or None) if self.shadows is ShadowKind.CAST else (
                     self.fit.note or "the photograph does not fix the light's direction"),
                 "fit": self.fit.to_info(), "probe": None if self.probe is None else str(self.probe),
                 "walls": [w.to_info() for w in self.walls]}

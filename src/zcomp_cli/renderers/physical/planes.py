@@ -8,8 +8,9 @@ sky visible from an object's base was 0.57 where the screen-space march found 1.
 side wall three metres away, out of the frame at the object's depth).
 
 A **wall** is a plane of the known geometry whose normal is horizontal (within
-``VERTICAL_DEG`` of the ground), holding pixels that touch the frame's left, right or top
-edge (what is cut by the frame goes on; a box's face inside the frame is no wall), at
+``VERTICAL_DEG`` of the ground), holding pixels that touch the frame's left or right
+edge (what is cut by the frame sideways goes on sideways; a box's face inside the
+frame, or cut only by the top, is no wall), at
 least ``MIN_WALL_SHARE`` of the valid pixels. It is taken to go on without end along the
 ground, and up to the highest of its pixels: as high as it is seen to go (taken without
 end where it reaches the frame's top, it hid the sun from most of the floor of a scene
@@ -103,8 +104,10 @@ def find_walls(points: np.ndarray, normals: np.ndarray, valid: np.ndarray, up) -
         if inl.sum() < MIN_WALL_SHARE * n_valid:
             continue
         yi, xi = ys[inl], xs[inl]
-        if not (yi.min() == 0 or xi.min() == 0 or xi.max() == w - 1):
-            continue  # cut by no edge but the bottom: it ends in the frame
+        if not (xi.min() == 0 or xi.max() == w - 1):
+            # cut by neither side: it ends in the frame sideways (a box's face cut only by
+            # the top goes on upward, not 100 m along the ground)
+            continue
         if d > 0:  # facing away from the camera: its back is no wall we see
             continue
         top = float((P[inl] @ up).max() - ground)

@@ -53,11 +53,13 @@ class PhysicalRenderer(Renderer):
 
     # step 1: the light (cached per scene and seed)
     def light(self, req: RenderRequest, seed: int = DEFAULT_SEED) -> LightModel:
-        """The scene's light: the manifest's (``req.light``, frozen in the fit), else
-        fitted to the known shading."""
-        ctx = getattr(req, "light", None) or {}
-        key = ((req.scene_key, seed, repr(sorted((k, repr(v)) for k, v in ctx.items())))
-               if req.scene_key is not None else None)
+        """The scene's light: the tree of ``req.light`` (``lightparams.LightParams``, its
+        given parameters frozen; None: everything free) fitted to the known shading
+        (``lightfit.fit_light``)."""
+        from zcomp_cli.lightparams import LightParams
+
+        params = getattr(req, "light", None) or LightParams.estimate()
+        key = (req.scene_key, seed, params.key()) if req.scene_key is not None else None
         if key is not None and key in self._cache:
             return self._cache[key]
         d, n, sh, known = self._inputs(req)
@@ -68,20 +70,13 @@ class PhysicalRenderer(Renderer):
             # result would depend on which job of its scene a process ran first, and
             # shards or Ray workers would give other composites than one local run.
             known = (d > 0) & np.all(np.isfinite(req.shading), axis=-1)
+        from zcomp_cli.renderers.physical.lightfit import fit_light
         from zcomp_cli.renderers.physical.scene_frame import scene_up
 
         valid = known & (d > 0) & (np.abs(np.linalg.norm(n, axis=-1) - 1) < 0.2)
-        up, up_from = scene_up(ctx, n, valid)
-        if ctx.get("lights"):
-            from zcomp_cli.renderers.physical.known_light import fit_known
-
-            model = fit_known(ctx["lights"], d, n, sh, known, albedo, req.camera, up=up, up_from=up_from,
-                              settings=self._settings, seed=seed)
-        else:
-            from zcomp_cli.renderers.physical.estimate import estimate_light
-
-            model = estimate_light(d, n, sh, known, albedo, req.camera, up=up, up_from=up_from,
-                                   settings=self._settings, seed=seed)
+        up, up_from = scene_up(params.tilt, n, valid)
+        model, _ = fit_light(params, d, n, sh, known, albedo, req.camera, up=up, up_from=up_from,
+                             settings=self._settings, seed=seed)
         if key is not None:
             self._cache[key] = model
         return model
@@ -197,7 +192,7 @@ class PhysicalRenderer(Renderer):
             cov = getattr(req, "coverage", None)
             cov = np.zeros((H, W)) if cov is None else np.clip(np.nan_to_num(np.asarray(cov, np.float64)), 0, 1)
             alb_mean = alb[(d > 0)].mean(0) if (d > 0).any() else np.zeros(3)
-            shade, glossy = self._synthesise(d, n, todo, req.camera, model, alb_mean, req.occluder,
+            shade, glossy = self._synthesise(d, n, todo, req.camera, model, alb_mean, req.occluder, unknown,
                                              alb, cov, req.maps.roughness, req.maps.metallic)
             out_sh[todo] = shade
             spec[todo] = glossy
@@ -275,7 +270,7 @@ class PhysicalRenderer(Renderer):
         ao = ao + (1.0 - ao) * rho * AO_BOUNCE
         return ao[ys - ay0, xs - ax0], scene_only
 
-    def _parts(self, d, n, todo, camera, model: LightModel, albedo_mean, occluder):
+    def _parts(self, d, n, todo, camera, model: LightModel, albedo_mean, occluder, unknown=None):
         """The two parts of the diffuse shading of the ``todo`` pixels: (sky and the
         ground's bounce (M, 3), the suns' and lamps' (M, 3), the sky's visible share
         (M, 3), unit normals (M, 3), each sun and lamp as (light, directions (M, 3),
@@ -298,20 +293,26 @@ class PhysicalRenderer(Renderer):
         if model.shadows is ShadowKind.CAST:
             box = _window(ys, xs, H, W, WINDOW_MARGIN_PX, even=(H * W > FULL_RES_PIXELS))
             P = camera.ray(xs + 0.5, ys + 0.5) * d[ys, xs][:, None]
+            fade = (_edge_fade(todo if unknown is None else unknown, ys, xs) if model.source != "manifest"
+                    else None)
             for light in _direct_lights(model):
                 L, _, E = light.toward(P)
                 v_t = self._soft_visibility(d, n, geo_all, camera, light, box, ys, xs, occluder, scene_only,
                                             model.walls)
+                if fade is not None:
+                    # an estimated light's shadow is not grown past the shading mask: it
+                    # fades out at the mask's edge instead of stopping in a seam
+                    v_t = 1.0 - (1.0 - v_t) * fade
                 direct += (np.maximum(0.0, np.sum(nv * L, 1)) * v_t)[:, None] * E
                 lit.append((light, L, E, v_t))
         return ambient, direct, vis_sky, nv, lit
 
-    def _synthesise(self, d, n, todo, camera, model: LightModel, albedo_mean, occluder, albedo, coverage,
+    def _synthesise(self, d, n, todo, camera, model: LightModel, albedo_mean, occluder, unknown, albedo, coverage,
                     roughness=None, metallic=None):
         """(diffuse shading (M, 3), glossy radiance (M, 3)) of the ``todo`` pixels under
         ``model`` (module docstring, step 3)."""
         ys, xs = np.nonzero(todo)
-        ambient, direct, vis_sky, nv, lit = self._parts(d, n, todo, camera, model, albedo_mean, occluder)
+        ambient, direct, vis_sky, nv, lit = self._parts(d, n, todo, camera, model, albedo_mean, occluder, unknown)
         out = ambient + direct
         cov = coverage[ys, xs]
         if model.albedo_offset > 0:
@@ -397,6 +398,22 @@ class PhysicalRenderer(Renderer):
                              box=(by0, bx0, int(ys.max()) + 1 - wy0, int(xs.max()) + 1 - wx0))
         return vs[ys - wy0 - by0, xs - wx0 - bx0]
 
+
+def _edge_fade(region: np.ndarray, ys, xs) -> np.ndarray:
+    """(M,) in [0, 1] at pixels (ys, xs) of ``region`` (H, W) bool (the shading mask, the
+    whole frame's: the same with or without a region of interest): 0 on its edge,
+    rising smoothly to 1 at EDGE_FADE_PX inside it."""
+    import cv2
+
+    px = cv2.distanceTransform(np.pad(region, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1][ys, xs]
+    u = np.clip(px / EDGE_FADE_PX, 0.0, 1.0)
+    return u * u * (3.0 - 2.0 * u)
+
+
+# Pixels over which an estimated light's shadow fades out at the shading mask's edge:
+# twice the sky occlusion's blur radius (softshadow.AO_BLUR_PX), the width over which the
+# compositor's own blur would otherwise show the cut.
+EDGE_FADE_PX = 2.0 * AO_BLUR_PX
 
 # Outer share of the shading mask's radius over which the object's sky occlusion fades
 # out (``_synthesise``).

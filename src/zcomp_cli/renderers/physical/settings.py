@@ -27,15 +27,20 @@ class PhysicalSettings:
         default one (None: not forced).
     max_fit_pixels: pixels of the copy the light is fitted on (a deterministic stride
         subsample).
+    shadow_resolution: long side of the copy whose depth mesh the light rays are cast
+        through and whose support's shadows are read.
+    max_receivers: support pixels the candidate lights' shadows are cast from.
     """
 
-    n_light_candidates: int = 128
+    n_light_candidates: int = 256
     march_steps: int = 32
     estimate_march_steps: int = 16
     max_resolution: int = 160
     cone_samples: int = 8
     shadow_softness: float | None = None
     max_fit_pixels: int = 2000
+    shadow_resolution: int = 256
+    max_receivers: int = 3000
 
     @classmethod
     def from_kwargs(cls, **kw) -> "PhysicalSettings":
@@ -48,7 +53,7 @@ class PhysicalSettings:
             raise UsageError(f"unknown physical renderer setting(s): {', '.join(sorted(unknown))}; "
                              f"known: {', '.join(names)}")
         for k in ("n_light_candidates", "march_steps", "estimate_march_steps", "max_resolution",
-                  "cone_samples", "max_fit_pixels"):
+                  "cone_samples", "max_fit_pixels", "shadow_resolution", "max_receivers"):
             if k in kw:
                 v = kw[k]
                 if isinstance(v, bool) or not isinstance(v, numbers.Integral) or not 1 <= v <= 1_000_000:

@@ -1,0 +1,191 @@
+"""Audit of the light estimate's objective (issue 37): per case of a benchmark seed, the
+estimate's posterior at the **true** light and at the chosen one.
+
+    PYTHONPATH=src python benchmarks/audit_light.py BENCH [BENCH ...] [--cases 0,3-5] [--json OUT.json]
+
+For every case of each ``make-benchmark`` folder BENCH (the generator knows its light:
+``run_benchmark.true_lights``), the scene's background goes through the physical
+renderer's light estimate exactly as ``zcomp composite`` runs it (the scene's maps at the
+manifest's working size, every valid pixel known), and the audit prints:
+
+* ``truth``: the kind of the dominant true light reaching the object's base (its
+  direction: toward it from the base; an area lamp from the base to its centre), and
+  whether the background shows its cast shadows (``run_benchmark.cast_shadows_shown``);
+* ``err``: the angle between the estimate's key direction and the dominant true light
+  (for the cases that show cast shadows: the nearest light whose shadows are shown);
+* ``logp@true`` / ``logp@est``: the posterior's log density (per steradian) at the true
+  direction and at the chosen one (``DirectionPosterior.log_density``); ``rank``: the
+  true direction's rank among the posterior's grid directions (1 = the best);
+  ``mass15``: the posterior mass within 15 deg of the truth;
+* ``miss``: for an estimate more than 15 deg off, *search* when the truth scores better
+  than the chosen direction (the search did not find it) and *objective* when it scores
+  worse (the posterior prefers a wrong light: the formulation is at fault);
+* ``spread``: the stated uncertainty (the posterior's RMS angle), and how the light is
+  drawn (a cast shadow of radius r, or contact only).
+
+At the end: the median error and the share of cases under 10 and 20 deg (all cases with
+a true light reaching the object, and those showing cast shadows), the miss classes, the
+mean log score of the truth (the proper scoring rule the temperature is fitted with,
+``fit_light_constants.py``), and Spearman's rank correlation between the stated
+uncertainty and the error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+MISS_DEG = 15.0
+
+
+def parse_cases(spec: str | None) -> set[int] | None:
+    if not spec:
+        return None
+    out: set[int] = set()
+    for part in spec.split(","):
+        a, _, b = part.partition("-")
+        out.update(range(int(a), int(b or a) + 1))
+    return out
+
+
+def load_case_inputs(bench: Path, case_id: str):
+    """(depth, normals, shading, known, albedo, camera, image) of a case's background as
+    ``zcomp composite`` sees it (the manifest's working size)."""
+    from zcomp_cli.compositing.shading import shading_from_image
+    from zcomp_cli.conventions import valid_depth_mask
+    from zcomp_cli.pipeline.manifest import load_manifest
+    from zcomp_cli.pipeline.scene import load_scene
+
+    man = load_manifest(bench / "jobs.yaml")
+    sc = load_scene(man.scenes[case_id], man.defaults.resolution)
+    m = sc.maps
+    shading = shading_from_image(sc.image, m.albedo)
+    known = valid_depth_mask(m.depth) & np.all(np.isfinite(shading), -1)
+    return m.depth, m.normals, shading, known, m.albedo, sc.camera, sc.image
+
+
+def angle_deg(a, b) -> float:
+    a = np.asarray(a, np.float64)
+    b = np.asarray(b, np.float64)
+    c = float(a @ b) / max(float(np.linalg.norm(a) * np.linalg.norm(b)), 1e-12)
+    return math.degrees(math.acos(max(-1.0, min(1.0, c))))
+
+
+def spearman(x, y) -> float:
+    from scipy.stats import spearmanr
+
+    if len(x) < 3:
+        return float("nan")
+    return float(spearmanr(x, y).statistic)
+
+
+def audit_case(bench: Path, case: dict, truth: dict, settings=None) -> dict:
+    from zcomp_cli.renderers.physical.estimate import estimate_light_with_posterior
+    from zcomp_cli.renderers.physical.scene_frame import scene_up
+
+    d, n, sh, known, albedo, cam, _ = load_case_inputs(bench, case["id"])
+    valid = known & (d > 0) & (np.abs(np.linalg.norm(n, axis=-1) - 1) < 0.2)
+    up, up_from = scene_up(None, n, valid)
+    t0 = time.perf_counter()
+    kw = {} if settings is None else {"settings": settings}
+    model, post = estimate_light_with_posterior(d, n, sh, known, albedo, cam, up=up, up_from=up_from, **kw)
+    secs = time.perf_counter() - t0
+    row = {"case": case["id"], "seconds": secs, "shadow": str(model.shadows),
+           "spread_deg": float(model.fit.uncertainty_deg), "gain": float(model.fit.gain)}
+    lights = [t for t in truth["lights"] if t["visible"]]
+    shown = truth["shown"]
+    row["truth"] = lights[0]["kind"] if lights else "-"
+    row["shown"] = bool(shown)
+    row["radius_deg"] = float(max([s.radius_deg for s in model.suns], default=float("nan")))
+    est = model.key_direction
+    if est is None and post is not None:
+        est = post.mean_direction
+    row["est_dir"] = None if est is None else [float(v) for v in est]
+    if not lights:
+        return row
+    ref = min(shown, key=lambda t: angle_deg(est, t["direction"])) if (shown and est is not None) else lights[0]
+    true_dir = np.asarray(ref["direction"], np.float64)
+    row["true_dir"] = true_dir.tolist()
+    row["err_deg"] = angle_deg(est, true_dir) if est is not None else float("nan")
+    if post is not None:
+        row["logp_true"] = float(post.log_density(true_dir))
+        row["logp_est"] = float(post.log_density(np.asarray(est))) if est is not None else float("nan")
+        row["rank"] = int(post.rank(true_dir))
+        row["mass15"] = float(post.mass_within(true_dir, MISS_DEG))
+        if row["err_deg"] > MISS_DEG:
+            row["miss"] = "search" if row["logp_true"] > row["logp_est"] else "objective"
+    return row
+
+
+def summarise(rows: list[dict]) -> str:
+    lines = []
+
+    def block(name, sel):
+        errs = [r["err_deg"] for r in sel if math.isfinite(r.get("err_deg", math.nan))]
+        if not errs:
+            return
+        lines.append(f"{name}: n={len(errs)} median {statistics.median(errs):.1f} deg, "
+                     f"<10 deg {100 * np.mean(np.array(errs) < 10):.0f} %, <20 deg {100 * np.mean(np.array(errs) < 20):.0f} %")
+
+    block("all cases with a light reaching the object", [r for r in rows if r["truth"] != "-"])
+    block("cases whose background shows cast shadows", [r for r in rows if r["shown"]])
+    misses = [r.get("miss") for r in rows if r.get("miss")]
+    lines.append(f"misses (> {MISS_DEG:g} deg): {len(misses)}: search {misses.count('search')}, "
+                 f"objective {misses.count('objective')}")
+    lp = [r["logp_true"] for r in rows if math.isfinite(r.get("logp_true", math.nan))]
+    if lp:
+        lines.append(f"mean log score of the truth: {statistics.mean(lp):.3f} (log density per sr; uniform "
+                     f"over the hemisphere: {-math.log(2 * math.pi):.3f})")
+    pairs = [(r["spread_deg"], r["err_deg"]) for r in rows
+             if math.isfinite(r.get("err_deg", math.nan)) and math.isfinite(r["spread_deg"])]
+    if pairs:
+        lines.append(f"Spearman(stated uncertainty, error) = {spearman(*zip(*pairs)):.2f} (n={len(pairs)})")
+    secs = [r["seconds"] for r in rows]
+    lines.append(f"estimate time: median {statistics.median(secs):.2f} s")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("benches", nargs="+", type=Path)
+    ap.add_argument("--cases", default=None, help="case indices, e.g. 0,3-5")
+    ap.add_argument("--json", type=Path, default=None, help="write the rows here")
+    args = ap.parse_args(argv)
+    from run_benchmark import case_truths
+
+    sel = parse_cases(args.cases)
+    rows = []
+    hdr = (f"{'case':<18} {'truth':<8} {'shown':<5} {'err':>6} {'logp@true':>9} {'logp@est':>9} {'rank':>5} "
+           f"{'mass15':>6} {'miss':<9} {'spread':>6} {'drawn':<24}")
+    for bench in args.benches:
+        bench_json = json.loads((bench / "benchmark.json").read_text())
+        truths = case_truths(bench)
+        print(f"\n{bench}\n{hdr}")
+        for i, case in enumerate(bench_json["cases"]):
+            if sel is not None and i not in sel:
+                continue
+            r = audit_case(bench, case, truths[case["id"]])
+            r["bench"] = str(bench)
+            rows.append(r)
+            drawn = (f"cast, r={r['radius_deg']:.1f}" if r["shadow"] == "cast shadow" else "contact")
+            f = lambda k, fmt: format(r[k], fmt) if isinstance(r.get(k), (int, float)) else "-"
+            print(f"{r['case']:<18} {r['truth']:<8} {str(r['shown']):<5} {f('err_deg', '6.1f'):>6} "
+                  f"{f('logp_true', '9.2f'):>9} {f('logp_est', '9.2f'):>9} {f('rank', 'd'):>5} "
+                  f"{f('mass15', '6.2f'):>6} {r.get('miss', ''):<9} {r['spread_deg']:6.1f} {drawn:<24}", flush=True)
+    print("\n" + summarise(rows))
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

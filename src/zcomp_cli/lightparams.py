@@ -1,0 +1,205 @@
+"""A scene's light as parameters: what is given and what is to be fitted (DESIGN.md
+section 8; Mitsuba's lesson: a scene is parameters, estimating fits the free ones, a
+known light is the same object with some frozen).
+
+One tree, typed from the manifest (``pipeline/lightspec.py`` builds it) to the solver
+(``renderers/physical/lightfit.py`` fits it):
+
+* ``LightParams``: the suns, the lamps, one probe at most, the camera's tilt;
+* ``SunParams``: a direction (or azimuth/elevation on the ground), an angular radius, an
+  irradiance (W/m^2, Blender's Sun strength), a colour, or the older ``share`` (direct
+  over sky on a surface facing it);
+* ``LampParams``: a position, a radius, a power (W, Blender's point lamp), a panel's
+  facing direction, a colour;
+* ``ProbeParams``: an equirectangular HDR map with its yaw, convention and strength.
+
+Each fittable quantity is a ``Param``: a value (None while it is to be fitted), whether
+it is ``frozen`` (given: the solver keeps it), and where it came from (``Origin``,
+turned into words only in reports). ``LightParams.estimate()`` is the tree with one free
+light: the photograph's light, everything fitted.
+
+Lives below both the pipeline and the renderers (it imports neither).
+"""
+
+from __future__ import annotations
+
+import enum
+import json
+import math
+from dataclasses import dataclass, field
+
+# The Sun's angular radius (its mean apparent diameter is 0.53 deg): a directional light
+# given without its size is taken to be the Sun (physical).
+SUN_RADIUS_DEG = 0.265
+# A lamp given without its size: a household bulb (an A19 bulb is 6 cm across; physical).
+LAMP_RADIUS_M = 0.03
+
+
+class Origin(str, enum.Enum):
+    """Where a light's parameter came from (the report's words)."""
+
+    MANIFEST = "given in the manifest"
+    PROBE = "measured on the manifest's probe"
+    FIT = "fitted to the photograph's shading"
+    SHADOWS = "read off the photograph's cast shadows"
+    DEFAULT = "not measured: the documented default"
+    PRIOR = "not fixed by the photograph: the prior"
+    SUPPORT = "read off the support plane"
+
+    def __str__(self) -> str:  # the report's words
+        return self.value
+
+
+@dataclass(frozen=True)
+class Param:
+    """One parameter of a light: ``value`` (None: to be fitted), ``frozen`` (given: the
+    solver keeps it), ``origin`` (where the value came, or will come, from)."""
+
+    value: object = None
+    frozen: bool = False
+    origin: Origin = Origin.FIT
+
+    @classmethod
+    def given(cls, value, origin: Origin = Origin.MANIFEST) -> "Param":
+        return cls(value=value, frozen=True, origin=origin)
+
+    @classmethod
+    def free(cls, origin: Origin = Origin.FIT) -> "Param":
+        return cls(value=None, frozen=False, origin=origin)
+
+    def to_dict(self) -> dict:
+        v = self.value
+        return {"value": list(v) if isinstance(v, tuple) else v, "frozen": self.frozen, "origin": self.origin.name}
+
+
+def _vec3(v) -> tuple | None:
+    if v is None:
+        return None
+    t = tuple(float(x) for x in v)
+    if len(t) != 3 or not all(math.isfinite(x) for x in t):
+        raise ValueError(f"expected 3 finite numbers, got {v!r}")
+    return t
+
+
+WHITE = (1.0, 1.0, 1.0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class SunParams:
+    """A distant light. ``direction``: (3,) toward it, camera frame (its value a tuple), or
+    ``angles`` (azimuth, elevation) in degrees on the ground (resolved with the scene's
+    up by ``direction_in``); ``radius_deg`` its angular radius; ``irradiance`` W/m^2 on a
+    surface facing it (free: fitted); ``share`` the older form, direct over sky on a
+    surface facing it (then ``irradiance`` is free and tied to the fitted sky);
+    ``color`` linear RGB multiplier."""
+
+    direction: Param = field(default_factory=Param.free)
+    angles: tuple | None = None
+    radius_deg: Param = field(default_factory=Param.free)
+    irradiance: Param = field(default_factory=Param.free)
+    share: float | None = None
+    color: tuple = WHITE
+
+    def direction_in(self, up):
+        """(3,) unit camera-frame direction toward the sun (None while free)."""
+        import numpy as np
+
+        if self.direction.value is not None:
+            d = np.asarray(self.direction.value, np.float64)
+            return d / np.linalg.norm(d)
+        if self.angles is not None:
+            from zcomp_cli.worldframe import direction_from_angles
+
+            return direction_from_angles(self.angles[0], self.angles[1], np.asarray(up, np.float64))
+        return None
+
+    @property
+    def direction_given(self) -> bool:
+        return self.direction.frozen or self.angles is not None
+
+    def to_dict(self) -> dict:
+        return {"type": "sun", "direction": self.direction.to_dict(),
+                "angles": None if self.angles is None else list(self.angles),
+                "radius_deg": self.radius_deg.to_dict(), "irradiance": self.irradiance.to_dict(),
+                "share": self.share, "color": list(self.color)}
+
+
+@dataclass(frozen=True, kw_only=True)
+class LampParams:
+    """A light at a place: ``position`` (3,) camera frame, metres; ``radius_m`` its
+    sphere's radius; ``power`` W (free: fitted); ``facing`` None (a sphere) or (3,) the
+    normal of a one-sided Lambertian panel of the same power (Blender's area lamp);
+    ``color`` linear RGB multiplier."""
+
+    position: Param = field(default_factory=Param.free)
+    radius_m: Param = field(default_factory=Param.free)
+    power: Param = field(default_factory=Param.free)
+    facing: tuple | None = None
+    color: tuple = WHITE
+
+    def to_dict(self) -> dict:
+        return {"type": "lamp", "position": self.position.to_dict(), "radius_m": self.radius_m.to_dict(),
+                "power": self.power.to_dict(), "facing": None if self.facing is None else list(self.facing),
+                "color": list(self.color)}
+
+
+@dataclass(frozen=True, kw_only=True)
+class ProbeParams:
+    """An equirectangular HDR probe (``docs/lights.md``): its file, its yaw about up, its
+    convention, its radiance multiplier. All given."""
+
+    hdr: str
+    rotation_deg: float = 0.0
+    convention: str = "zcomp"
+    strength: float = 1.0
+
+    def to_dict(self) -> dict:
+        return {"type": "probe", "hdr": self.hdr, "rotation_deg": self.rotation_deg, "convention": self.convention,
+                "strength": self.strength}
+
+
+@dataclass(frozen=True, kw_only=True)
+class LightParams:
+    """A scene's light: ``suns``, ``lamps``, at most one ``probe``, and the camera's tilt
+    (``pitch_deg``/``roll_deg``, None: world up read off the support)."""
+
+    suns: tuple = ()
+    lamps: tuple = ()
+    probe: ProbeParams | None = None
+    pitch_deg: float | None = None
+    roll_deg: float | None = None
+
+    def __post_init__(self):
+        object.__setattr__(self, "suns", tuple(self.suns))
+        object.__setattr__(self, "lamps", tuple(self.lamps))
+
+    @classmethod
+    def estimate(cls, pitch_deg: float | None = None, roll_deg: float | None = None) -> "LightParams":
+        """The photograph's light, everything free: one sun (whose search may make it a
+        lamp), the sky."""
+        return cls(suns=(SunParams(),), pitch_deg=pitch_deg, roll_deg=roll_deg)
+
+    @property
+    def given(self) -> bool:
+        """Whether the manifest gives a light (else the light is estimated)."""
+        return self.probe is not None or any(s.direction_given for s in self.suns) or bool(self.lamps)
+
+    @property
+    def tilt(self) -> dict:
+        """``{"pitch_deg", "roll_deg"}`` when the pitch is given, else empty."""
+        if self.pitch_deg is None:
+            return {}
+        return {"pitch_deg": float(self.pitch_deg), "roll_deg": float(self.roll_deg or 0.0)}
+
+    def to_dict(self) -> dict:
+        return {"suns": [s.to_dict() for s in self.suns], "lamps": [lp.to_dict() for lp in self.lamps],
+                "probe": None if self.probe is None else self.probe.to_dict(), "pitch_deg": self.pitch_deg,
+                "roll_deg": self.roll_deg}
+
+    def key(self) -> str:
+        """Canonical JSON: a cache key for what the light is."""
+        return json.dumps(self.to_dict(), sort_keys=True, default=str)
+
+
+__all__ = ["Origin", "Param", "SunParams", "LampParams", "ProbeParams", "LightParams", "SUN_RADIUS_DEG",
+           "LAMP_RADIUS_M", "WHITE"]

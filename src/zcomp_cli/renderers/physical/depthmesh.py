@@ -1,0 +1,291 @@
+"""The photograph's geometry as a triangle mesh, for shadow rays (DESIGN.md section 8).
+
+A depth map holds only the surfaces the camera sees. As a mesh:
+
+* every 2 x 2 block of valid pixels makes two triangles, except across a **depth
+  discontinuity**: an edge between two pixels is continuous when the plane of either
+  pixel (its point and normal) predicts the other's depth (within ``STEP_SHARE`` of the
+  step it predicts, plus ``NOISE_REL`` of the depth): a grazing floor steps far from
+  pixel to pixel and stays whole; a box's top edge and the floor seen past it do not;
+* the **support** is the plane the scene stands on: pixels facing up
+  (``SUPPORT_DEG``) at the support's height (``SUPPORT_HEIGHT_REL`` of their distance);
+  everything else valid is an **occluder**;
+* each connected occluder is **extruded backwards**, away from the camera along the
+  ground (its heights kept), so that it fills the ground distances from its nearest
+  point to that plus its width (a thin shell lets a light ray pass behind the visible
+  surface, where the real object stands: an object is taken to be about as deep as it
+  is wide), and closed by side walls along its outline;
+* an occluder's **base** is where it meets the support continuously (its pixels next to a
+  support pixel across a continuous edge); a **caster** is an occluder with a base and a
+  silhouette (somewhere its outline is a depth discontinuity in front of a farther
+  surface): an object standing in the scene, whose shadow on the support is attached
+  to it in the image. A wall meets the floor in a corner and the sky at its top: no
+  silhouette, no caster (its shadow is cast by a top edge the frame rarely shows);
+* the walls beyond the frame (``planes.Wall``) join as large quads.
+
+Pure numpy; ``RayCaster`` (``raycast``) answers the rays.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from zcomp_cli.camera import Camera
+
+# A neighbour's depth is continuous with a pixel's when the pixel's plane predicts it
+# within STEP_SHARE of the step the plane itself predicts (a grazing surface steps far
+# from pixel to pixel; normals a few degrees off keep it whole) plus NOISE_REL of its
+# depth (a depth map's own noise; a box 30 cm before a wall 6 m away is 5 % nearer).
+STEP_SHARE = 0.5
+NOISE_REL = 0.005
+# A pixel is on the support when its normal is within this of up (as ``atoms.SUPPORT_DEG``)
+# and its height within SUPPORT_HEIGHT_REL of its distance from the support's height.
+SUPPORT_DEG = 15.0
+SUPPORT_HEIGHT_REL = 0.03
+# The thinnest extrusion, as a share of the occluder's nearest distance (a sliver of a
+# few pixels still blocks rays).
+MIN_THICKNESS_REL = 0.02
+# Half-length (metres) of a wall beyond the frame: "without end" for shadows.
+WALL_HALF_LENGTH = 100.0
+
+
+@dataclass(frozen=True)
+class DepthMesh:
+    """The mesh and what its pixels are: ``vertices`` (V, 3), ``faces`` (F, 3) (camera
+    frame, metres); per pixel of the (h, w) map: ``points`` (h, w, 3), ``valid``,
+    ``support``, ``occluder`` (bool), ``labels`` (int, the occluder's component, 0
+    none), ``base`` (occluder pixels standing on the support), ``casters`` (the pixels of
+    occluders that stand on the support and show a silhouette: objects that cast the
+    shadows a photograph is read from); ``support_height`` the
+    support's height along ``up``."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    points: np.ndarray
+    valid: np.ndarray
+    support: np.ndarray
+    occluder: np.ndarray
+    labels: np.ndarray
+    base: np.ndarray
+    casters: np.ndarray
+    up: np.ndarray
+    support_height: float
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.valid.shape
+
+    def caster(self):
+        """A ``RayCaster`` of what can shadow the scene: the mesh less the support's own
+        triangles (a plane does not shadow itself; most of a frame is floor)."""
+        from zcomp_cli.renderers.physical.raycast import RayCaster
+
+        h, w = self.shape
+        sup = np.concatenate([self.support.ravel(), np.zeros(len(self.vertices) - h * w, bool)])
+        keep = ~np.all(sup[self.faces], axis=1)
+        return RayCaster(self.vertices, self.faces[keep])
+
+
+def _continuous(Pa, Na, Pb, Nb, ra, rb, ok):
+    """(M,) bool: pixels a and b (points P, unit normals N, rays r with z = -1) are
+    continuous (module docstring)."""
+    za, zb = -Pa[:, 2], -Pb[:, 2]
+    small = np.abs(za - zb) <= NOISE_REL * np.maximum(np.minimum(za, zb), 1e-9)
+
+    def predicted(P, N, r, z_self, z_other):
+        den = np.sum(N * r, 1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.sum(N * P, 1) / den
+        good = np.isfinite(t) & (np.abs(den) > 1e-6) & (t > 0)
+        tol = STEP_SHARE * np.abs(t - z_self) + NOISE_REL * z_other
+        return good & (np.abs(t - z_other) <= tol)
+
+    return ok & (small | predicted(Pa, Na, rb, za, zb) | predicted(Pb, Nb, ra, zb, za))
+
+
+def _edges(valid):
+    """Index pairs (flat) of the right, down and anti-diagonal neighbours whose both
+    pixels are valid."""
+    h, w = valid.shape
+    idx = np.arange(h * w).reshape(h, w)
+    pairs = []
+    for a, b in ((idx[:, :-1], idx[:, 1:]), (idx[:-1, :], idx[1:, :]), (idx[:-1, 1:], idx[1:, :-1])):
+        pairs.append((a.ravel(), b.ravel()))
+    return pairs
+
+
+def support_mask(points: np.ndarray, normals: np.ndarray, valid: np.ndarray, up) -> tuple[np.ndarray, float]:
+    """(support (h, w) bool, its height along ``up``): the pixels facing up
+    (``SUPPORT_DEG``) at the most common height of those (within ``SUPPORT_HEIGHT_REL``
+    of their distance)."""
+    up = np.asarray(up, np.float64)
+    facing = valid & (normals @ up > math.cos(math.radians(SUPPORT_DEG)))
+    if facing.sum() < 3:
+        return np.zeros(valid.shape, bool), float("nan")
+    hgt = points @ up
+    dist = np.linalg.norm(points, axis=-1)
+    hv, dv = hgt[facing], dist[facing]
+    # the lowest well-populated height: the floor, not a table top (both face up; the
+    # floor is the support the scene stands on and most often the largest)
+    tol = SUPPORT_HEIGHT_REL * dv
+    order = np.argsort(hv)
+    hs, ts = hv[order], tol[order]
+    counts = np.searchsorted(hs, hs + ts, side="right") - np.searchsorted(hs, hs - ts, side="left")
+    h0 = float(np.median(hs[np.abs(hs - hs[int(np.argmax(counts))]) <= ts[int(np.argmax(counts))]]))
+    sup = facing & (np.abs(hgt - h0) <= SUPPORT_HEIGHT_REL * dist)
+    return sup, h0
+
+
+def build_depth_mesh(depth: np.ndarray, normals: np.ndarray, camera: Camera, up, *, valid=None,
+                     walls=()) -> DepthMesh:
+    """The depth map's mesh (module docstring).
+
+    Args:
+        depth: (h, w) z-depth (metres, 0 invalid); normals: (h, w, 3) unit, camera frame.
+        camera: the map's camera. up: (3,) world up, camera frame.
+        valid: (h, w) bool, the pixels with geometry (default: depth > 0 and unit normals).
+        walls: ``planes.Wall`` beyond the frame, added as quads.
+    """
+    d = np.nan_to_num(np.asarray(depth, np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+    n = np.nan_to_num(np.asarray(normals, np.float64))
+    h, w = d.shape
+    nn = np.linalg.norm(n, axis=-1)
+    ok = (d > 0) & (np.abs(nn - 1) < 0.2) if valid is None else (np.asarray(valid, bool) & (d > 0))
+    n = n / np.maximum(nn, 1e-12)[..., None]
+    up = np.asarray(up, np.float64)
+    up = up / max(float(np.linalg.norm(up)), 1e-12)
+    P = camera.unproject(d.astype(np.float32)).astype(np.float64)
+    ys, xs = np.mgrid[0:h, 0:w]
+    rays = camera.ray(xs + 0.5, ys + 0.5).astype(np.float64)
+    support, h0 = support_mask(P, n, ok, up)
+    occ = ok & ~support
+    Pf, Nf, Rf, okf = P.reshape(-1, 3), n.reshape(-1, 3), rays.reshape(-1, 3), ok.ravel()
+    cont = {}
+    for k, (a, b) in enumerate(_edges(ok)):
+        both = okf[a] & okf[b]
+        c = np.zeros(len(a), bool)
+        sel = np.flatnonzero(both)
+        c[sel] = _continuous(Pf[a[sel]], Nf[a[sel]], Pf[b[sel]], Nf[b[sel]], Rf[a[sel]], Rf[b[sel]],
+                             np.ones(len(sel), bool))
+        cont[k] = c
+    right = cont[0].reshape(h, w - 1)
+    down = cont[1].reshape(h - 1, w)
+    diag = cont[2].reshape(h - 1, w - 1)  # (y, x+1) - (y+1, x)
+    idx = np.arange(h * w).reshape(h, w)
+    a, b, c_, dd = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
+    # triangles (a, c, b) and (b, c, d): edges a-b (right top), a-c (down left), b-c (diag);
+    # b-d (down right), c-d (right bottom), b-c
+    t1 = right[:-1, :] & down[:, :-1] & diag
+    t2 = down[:, 1:] & right[1:, :] & diag
+    faces = np.concatenate([np.stack([a[t1], c_[t1], b[t1]], 1), np.stack([b[t2], c_[t2], dd[t2]], 1)])
+    # occluder components: occluder pixels joined by continuous edges
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    ea, eb = [], []
+    occf = occ.ravel()
+    for k, (pa, pb) in enumerate(_edges(ok)):
+        m = cont[k] & occf[pa] & occf[pb]
+        ea.append(pa[m])
+        eb.append(pb[m])
+    ea, eb = np.concatenate(ea), np.concatenate(eb)
+    g = coo_matrix((np.ones(len(ea)), (ea, eb)), shape=(h * w, h * w))
+    _, lab = connected_components(g, directed=False)
+    uniq = np.unique(lab[occf])
+    remap = np.zeros(int(lab.max()) + 1, np.int64)
+    remap[uniq] = np.arange(1, len(uniq) + 1)
+    labels = np.where(occf, remap[lab], 0).reshape(h, w)
+    # bases: occluder pixels joined to a support pixel by a continuous edge
+    supf = support.ravel()
+    base = np.zeros(h * w, bool)
+    for k, (pa, pb) in enumerate(_edges(ok)):
+        m = cont[k] & ((occf[pa] & supf[pb]) | (occf[pb] & supf[pa]))
+        base[pa[m & occf[pa]]] = True
+        base[pb[m & occf[pb]]] = True
+    base = base.reshape(h, w)
+    # casters: occluders standing on the support (a base) whose outline is, somewhere, a
+    # depth discontinuity in front of a farther surface (a silhouette): an object in the
+    # scene, not a wall that meets the floor in a corner and the sky at its top
+    zf_ = d.ravel()
+    sil = np.zeros(h * w, bool)
+    for k, (pa, pb) in enumerate(_edges(ok)):
+        jump = okf[pa] & okf[pb] & ~cont[k]
+        sil[pa[jump & occf[pa] & (zf_[pa] < zf_[pb])]] = True
+        sil[pb[jump & occf[pb] & (zf_[pb] < zf_[pa])]] = True
+    K0 = int(labels.max())
+    has_base = np.bincount(labels[base], minlength=K0 + 1) > 0
+    has_sil = np.bincount(labels.ravel()[sil], minlength=K0 + 1) > 0
+    is_caster = has_base & has_sil
+    is_caster[0] = False
+    casters = is_caster[labels]
+    verts = [Pf]
+    all_faces = [faces]
+    # extrusion of each occluder component (module docstring)
+    if occ.any():
+        from zcomp_cli.worldframe import ground_frame
+
+        right_axis = ground_frame(up)[0]
+        K = int(labels.max())
+        across = P @ right_axis
+        lab_f = labels.ravel()
+        sel = lab_f > 0
+        lo = np.full(K + 1, np.inf)
+        hi = np.full(K + 1, -np.inf)
+        np.minimum.at(lo, lab_f[sel], across.ravel()[sel])
+        np.maximum.at(hi, lab_f[sel], across.ravel()[sel])
+        # along the ground, away from the camera: each pixel's ray projected on the ground
+        flat = Pf - np.outer(Pf @ up, up)
+        dist_h = np.linalg.norm(flat, axis=1)
+        u_h = flat / np.maximum(dist_h, 1e-12)[:, None]
+        nearest = np.full(K + 1, np.inf)
+        np.minimum.at(nearest, lab_f[sel], dist_h[sel])
+        thick = np.maximum(np.where(np.isfinite(hi - lo), hi - lo, 0.0),
+                           MIN_THICKNESS_REL * np.where(np.isfinite(nearest), nearest, 0.0))
+        # each occluder occupies, at every height it shows, the ground distances from its
+        # nearest point to its nearest point plus its width, behind its visible surface
+        reach_h = np.where(sel, nearest[lab_f] + thick[lab_f], 0.0)
+        back = Pf + u_h * np.maximum(reach_h - dist_h, 0.0)[:, None]
+        off = h * w
+        verts.append(back)
+        occ_tri = np.all(occf[faces], axis=1) if len(faces) else np.zeros(0, bool)
+        ft = faces[occ_tri]
+        all_faces.append(ft[:, ::-1] + off)
+        # side walls along the outline: edges of exactly one occluder triangle
+        if len(ft):
+            e = np.concatenate([ft[:, [0, 1]], ft[:, [1, 2]], ft[:, [2, 0]]])
+            key = np.sort(e, 1)
+            _, first, counts = np.unique(key[:, 0] * (h * w) + key[:, 1], return_index=True, return_counts=True)
+            bnd = e[first[counts == 1]]
+            p0, p1 = bnd[:, 0], bnd[:, 1]
+            all_faces.append(np.concatenate([np.stack([p0, p1, p1 + off], 1), np.stack([p0, p1 + off, p0 + off], 1)]))
+    V = np.concatenate(verts)
+    F = np.concatenate(all_faces) if all_faces else np.zeros((0, 3), np.int64)
+    if walls:
+        wv, wf = _wall_quads(walls, up)
+        F = np.concatenate([F, wf + len(V)])
+        V = np.concatenate([V, wv])
+    return DepthMesh(vertices=V, faces=F.astype(np.int64), points=P, valid=ok, support=support, occluder=occ,
+                     labels=labels, base=base, casters=casters, up=up, support_height=h0)
+
+
+def _wall_quads(walls, up):
+    """Vertices and faces of the walls beyond the frame: each a quad on its plane from
+    the ground up to its top, WALL_HALF_LENGTH either side."""
+    V, F = [], []
+    for i, wl in enumerate(walls):
+        nrm = np.asarray(wl.normal, np.float64)
+        along = np.cross(up, nrm)
+        along /= max(float(np.linalg.norm(along)), 1e-12)
+        top = wl.top if math.isfinite(wl.top) else WALL_HALF_LENGTH
+        B = nrm * wl.offset + up * (wl.ground - float((nrm * wl.offset) @ up))
+        c = [B - WALL_HALF_LENGTH * along, B + WALL_HALF_LENGTH * along,
+             B + WALL_HALF_LENGTH * along + top * up, B - WALL_HALF_LENGTH * along + top * up]
+        V.extend(c)
+        F.extend([[4 * i, 4 * i + 1, 4 * i + 2], [4 * i, 4 * i + 2, 4 * i + 3]])
+    return np.asarray(V, np.float64), np.asarray(F, np.int64)
+
+
+__all__ = ["DepthMesh", "build_depth_mesh", "support_mask", "STEP_SHARE", "SUPPORT_HEIGHT_REL"]

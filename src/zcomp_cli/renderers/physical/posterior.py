@@ -1,0 +1,150 @@
+"""A posterior over light directions on the upper hemisphere (DESIGN.md section 8).
+
+The light search scores a set of directions (a near-uniform Fibonacci grid, each
+standing for an equal share of the hemisphere's solid angle, plus finer points around
+the best, each standing for its own smaller share). ``DirectionPosterior`` holds those
+directions with their log-posterior values and the solid angle each stands for, and
+answers what the renderer and the audit ask of it: the most probable direction, the
+mean direction and the spread about it, the mass near a direction, the density at any
+direction (a von Mises-Fisher kernel as wide as the grid's local spacing), and the rank
+of a direction among the grid's.
+
+Pure numpy; directions are unit (3,) vectors in the camera frame.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def _unit(v) -> np.ndarray:
+    v = np.asarray(v, np.float64)
+    return v / max(float(np.linalg.norm(v)), 1e-12)
+
+
+@dataclass(frozen=True)
+class DirectionPosterior:
+    """``dirs`` (K, 3) unit directions; ``log_post`` (K,) unnormalised log-posterior
+    *densities* (per steradian); ``solid_angle`` (K,) the solid angle (sr) each stands
+    for. The probabilities are ``exp(log_post) * solid_angle``, normalised.
+    ``loglik`` (K,) and ``log_prior`` (K,), when given, are what ``log_post`` was made
+    of (``log_post = loglik / temperature + log_prior``), so that another temperature
+    can be tried (``tempered``) without scoring the directions again."""
+
+    dirs: np.ndarray
+    log_post: np.ndarray
+    solid_angle: np.ndarray
+    loglik: np.ndarray | None = None
+    log_prior: np.ndarray | None = None
+    temperature: float = 1.0
+
+    @classmethod
+    def from_parts(cls, dirs, loglik, log_prior, solid_angle, temperature: float) -> "DirectionPosterior":
+        ll = np.asarray(loglik, np.float64)
+        lp = np.asarray(log_prior, np.float64)
+        return cls(dirs=dirs, log_post=ll / float(temperature) + lp, solid_angle=solid_angle, loglik=ll,
+                   log_prior=lp, temperature=float(temperature))
+
+    def tempered(self, temperature: float) -> "DirectionPosterior":
+        """The same posterior at another temperature (needs ``loglik`` and ``log_prior``)."""
+        if self.loglik is None or self.log_prior is None:
+            raise ValueError("DirectionPosterior.tempered: made without its log-likelihood")
+        return DirectionPosterior.from_parts(self.dirs, self.loglik, self.log_prior, self.solid_angle, temperature)
+
+    def __post_init__(self):
+        d = np.asarray(self.dirs, np.float64).reshape(-1, 3)
+        lp = np.asarray(self.log_post, np.float64).reshape(-1)
+        om = np.asarray(self.solid_angle, np.float64).reshape(-1)
+        if not (len(d) == len(lp) == len(om)) or len(d) == 0:
+            raise ValueError("DirectionPosterior: dirs, log_post and solid_angle must be non-empty and of one length")
+        if not np.all(np.isfinite(d)) or not np.all(om > 0):
+            raise ValueError("DirectionPosterior: directions must be finite and solid angles positive")
+        d = d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+        lp = np.where(np.isfinite(lp), lp, -np.inf)
+        if not np.isfinite(lp).any():  # nothing told apart: the prior's flat density
+            lp = np.zeros_like(lp)
+        object.__setattr__(self, "dirs", d)
+        object.__setattr__(self, "log_post", lp)
+        object.__setattr__(self, "solid_angle", om)
+
+    # -- the distribution ----------------------------------------------------------------
+    @property
+    def probabilities(self) -> np.ndarray:
+        """(K,) the mass each direction carries, summing to 1."""
+        a = self.log_post + np.log(self.solid_angle)
+        p = np.exp(a - a.max())
+        return p / p.sum()
+
+    @property
+    def log_normaliser(self) -> float:
+        """log of the integral of ``exp(log_post)`` over the hemisphere."""
+        a = self.log_post + np.log(self.solid_angle)
+        m = float(a.max())
+        return m + math.log(float(np.exp(a - m).sum()))
+
+    @property
+    def map_direction(self) -> np.ndarray:
+        return self.dirs[int(np.argmax(self.log_post))].copy()
+
+    @property
+    def mean_resultant(self) -> np.ndarray:
+        """(3,) the probability-weighted mean of the directions (length <= 1: 1 when all
+        the mass is at one direction)."""
+        return self.probabilities @ self.dirs
+
+    @property
+    def mean_direction(self) -> np.ndarray:
+        return _unit(self.mean_resultant)
+
+    def rms_angle_deg(self, about=None) -> float:
+        """The RMS angle (degrees) of the mass about ``about`` (default the mean direction)."""
+        c = self.mean_direction if about is None else _unit(about)
+        ang = np.arccos(np.clip(self.dirs @ c, -1.0, 1.0))
+        return float(np.degrees(math.sqrt(float(self.probabilities @ ang ** 2))))
+
+    def mass_within(self, direction, radius_deg: float) -> float:
+        """The posterior mass within ``radius_deg`` of ``direction``."""
+        c = math.cos(math.radians(radius_deg))
+        return float(self.probabilities[self.dirs @ _unit(direction) >= c].sum())
+
+    # -- the density at any direction ----------------------------------------------------------
+    def _kappa(self) -> np.ndarray:
+        """Per grid direction, a von Mises-Fisher concentration whose kernel covers the
+        solid angle the direction stands for (kappa = 2 pi / solid angle: the kernel's
+        mass within a cap of that area is about 1 - 1/e)."""
+        return 2.0 * math.pi / self.solid_angle
+
+    def log_density(self, direction) -> float:
+        """The normalised posterior density (per steradian) at ``direction``: the grid's
+        mass smoothed by each point's kernel (``_kappa``). Below the horizon of the grid
+        it is the density of the nearest grid direction's kernel tail."""
+        d = _unit(direction)
+        k = self._kappa()
+        # vMF density: k / (2 pi (1 - exp(-2k))) exp(k (cos - 1))
+        logk = np.log(k) - math.log(2 * math.pi) - np.log1p(-np.exp(-2 * k)) + k * (self.dirs @ d - 1.0)
+        a = np.log(np.maximum(self.probabilities, 1e-300)) + logk
+        m = float(a.max())
+        return m + math.log(float(np.exp(a - m).sum()))
+
+    def rank(self, direction) -> int:
+        """1 + the number of grid directions whose density is above the density at
+        ``direction`` (1: no grid direction is more probable)."""
+        ld = self.log_density(direction)
+        grid = np.array([self.log_density(x) for x in self.dirs]) if len(self.dirs) <= 4096 else self.log_post
+        return 1 + int((grid > ld + 1e-9).sum())
+
+    def to_info(self) -> dict:
+        return {"map_direction": self.map_direction.tolist(), "mean_direction": self.mean_direction.tolist(),
+                "mean_resultant_length": float(np.linalg.norm(self.mean_resultant)),
+                "rms_angle_deg": self.rms_angle_deg(), "grid": int(len(self.dirs))}
+
+
+def hemisphere_solid_angles(n: int) -> float:
+    """The solid angle each of ``n`` equal-area directions of a hemisphere stands for."""
+    return 2.0 * math.pi / max(int(n), 1)
+
+
+__all__ = ["DirectionPosterior", "hemisphere_solid_angles"]
