@@ -3,6 +3,11 @@ estimate's posterior at the **true** light and at the chosen one.
 
     PYTHONPATH=src python benchmarks/audit_light.py BENCH [BENCH ...] [--cases 0,3-5] [--json OUT.json]
 
+(Another version is audited with its own tree first on ``PYTHONPATH``; it needs an
+``estimate.estimate_light_with_posterior`` returning its model and a
+``posterior.DirectionPosterior`` -- the version before this one's, its tempered
+likelihood over its coarse suns, was given one for the closing note's table.)
+
 For every case of each ``make-benchmark`` folder BENCH (the generator knows its light:
 ``run_benchmark.true_lights``), the scene's background goes through the physical
 renderer's light estimate exactly as ``zcomp composite`` runs it (the scene's maps at the
@@ -99,8 +104,9 @@ def audit_case(bench: Path, case: dict, truth: dict, settings=None) -> dict:
     kw = {} if settings is None else {"settings": settings}
     model, post = estimate_light_with_posterior(d, n, sh, known, albedo, cam, up=up, up_from=up_from, **kw)
     secs = time.perf_counter() - t0
-    row = {"case": case["id"], "seconds": secs, "shadow": str(model.shadows),
-           "spread_deg": float(model.fit.uncertainty_deg), "gain": float(model.fit.gain)}
+    row = {"case": case["id"], "seconds": secs, "shadow": getattr(model.shadows, "value", str(model.shadows)),
+           "spread_deg": float(model.fit.uncertainty_deg),
+           "shadow_blocks": float(getattr(model.fit, "shadow_blocks", float("nan")))}
     lights = [t for t in truth["lights"] if t["visible"]]
     shown = truth["shown"]
     row["truth"] = lights[0]["kind"] if lights else "-"

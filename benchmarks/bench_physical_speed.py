@@ -76,7 +76,7 @@ def main(argv=None) -> int:
     kinds = lambda m: ", ".join([f"sun {x.radius_deg:g} deg" for x in m.suns] + ["lamp" for _ in m.lamps]) or "none"
     print(f"light estimate, 512x384: median {statistics.median(est_t):.3f} s "
           f"(runs: {', '.join(f'{t:.3f}' for t in est_t)}); direction error {err:.1f} deg, "
-          f"lights: {kinds(e)}, held-out gain {e.fit.gain:.2f}")
+          f"lights: {kinds(e)}, shadow evidence {e.fit.shadow_blocks:.2f} blocks")
     print(f"light estimate, 512x384, a lamp near the scene: median {statistics.median(lamp_t):.3f} s "
           f"(runs: {', '.join(f'{t:.3f}' for t in lamp_t)}); lights: {kinds(e_l)}")
     # the path of a bundle rendered by Blender: its posed mesh occludes (the object's

@@ -1,11 +1,14 @@
 """Fit the light estimate's calibrated constants on the development seeds
 (``seeds.DEVELOPMENT``), and print how each was chosen:
 
-* ``PRIOR_SKY_SHARE``: the sky's share of the support's light where the photograph does
-  not tell it: the median, over the development cases, of the true share of the floor's
-  irradiance at the object's base that the HDR map's sky brings (its sun and the lamps
-  being the lights), from the generator's own description of each case.
-* ``TEMPERATURE``: the posterior's one temperature. Every development case's background
+* ``search.prior_sky_share``: the sky's share of the support's light where the
+  photograph does not tell it: the median, over the development cases, of the true share
+  of the floor's irradiance at the object's base that the HDR map's sky brings (its sun
+  and the lamps being the lights), from the generator's own description of each case;
+* ``search.prior_sky_share_spread``: that share's spread over the same cases (the
+  median absolute deviation x 1.4826): the prior's weight against the shadows'
+  measurement of the split;
+* ``search.temperature``: the posterior's one temperature. Every development case's background
   goes through the estimate's search once (``estimate.search``: the untempered
   log-likelihood of every direction it scores); for each value of ``--grid`` the
   posterior is tempered with it and scored by the **log score** of the true direction
@@ -16,9 +19,10 @@
 
     python benchmarks/fit_light_constants.py BENCH_1618 BENCH_7777 [...] [--grid 1,2,5,10,20,50,100]
 
-Each BENCH is a ``make-benchmark`` folder. The constants are printed as a search
-configuration (``settings.SearchConfig``) and written nowhere else: copy them into the
-config's defaults, with this script's output in ``docs/fit_light_constants.txt``.
+Each BENCH is a ``make-benchmark`` folder. The constants are built into a search
+configuration (``settings.SearchConfig``, the others at their defaults: no source file is
+edited) and printed; the defaults in ``settings.py`` are set from it by hand, with this
+script's output kept in ``docs/fit_light_constants.txt``.
 """
 
 from __future__ import annotations
@@ -70,7 +74,7 @@ def case_posteriors(bench: Path, settings=None):
         valid = known & (d > 0) & (np.abs(np.linalg.norm(n, axis=-1) - 1) < 0.2)
         up, _ = scene_up(None, n, valid)
         pp = estimate.prepare(d, n, sh, known, albedo, cam, up, settings)
-        if len(pp.fp) < estimate.FEW_PIXELS:
+        if len(pp.fp) < settings.search.few_pixels:
             continue
         s, _ = estimate.search(pp, settings)
         t = truths[case["id"]]
@@ -98,7 +102,10 @@ def main(argv=None) -> int:
         shares += s
         print(f"{b}: {len(cases)} cases, true sky share median {statistics.median(s):.3f}", flush=True)
         posts += [p for p in case_posteriors(b) if p[2] is not None]
-    print(f"PRIOR_SKY_SHARE = {statistics.median(shares):.2f}  (median of {len(shares)} cases)")
+    share = statistics.median(shares)
+    spread = 1.4826 * statistics.median([abs(x - share) for x in shares])
+    print(f"prior_sky_share = {share:.2f}  (median of {len(shares)} cases)")
+    print(f"prior_sky_share_spread = {spread:.2f}  (1.4826 x their median absolute deviation)")
     uniform = -math.log(2 * math.pi)
     scores = []
     for T in grid:
@@ -107,7 +114,15 @@ def main(argv=None) -> int:
         print(f"  TEMPERATURE {T:g}: mean log score {statistics.mean(ls):.3f} over {len(ls)} cases "
               f"(a uniform hemisphere: {uniform:.3f})")
     best = max(scores)
-    print(f"TEMPERATURE = {best[1]:g}")
+    print(f"temperature = {best[1]:g}")
+    import dataclasses
+
+    from zcomp_cli.renderers.physical.settings import SearchConfig
+
+    fitted = dataclasses.replace(SearchConfig(), prior_sky_share=round(share, 2),
+                                 prior_sky_share_spread=round(spread, 2), temperature=best[1])
+    print(f"SearchConfig(prior_sky_share={fitted.prior_sky_share}, prior_sky_share_spread="
+          f"{fitted.prior_sky_share_spread}, temperature={fitted.temperature:g})")
     return 0
 
 

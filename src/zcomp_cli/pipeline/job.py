@@ -15,6 +15,7 @@ hand the renderer the passes of several jobs at once (step 5, ``Renderer.render_
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -31,7 +32,7 @@ from zcomp_cli.compositing import (
 )
 from zcomp_cli.compositing.compositor import BLUR_SIZE
 from zcomp_cli.conventions import DEFAULT_SEED, valid_depth_mask
-from zcomp_cli.errors import GeometryError, NumericalError
+from zcomp_cli.errors import GeometryError, NumericalError, RenderError
 from zcomp_cli.pipeline.scene import Scene
 from zcomp_cli.maps import SceneMaps
 from zcomp_cli.renderers.base import Renderer, RenderOutput, RenderRequest
@@ -41,13 +42,16 @@ ROI_CONTEXT_PX = 16
 
 @dataclass
 class JobOutput:
-    """Everything a job produced: the composite and, for --debug, the intermediates,
-    for --aovs, the render passes (``compositing.aovs``)."""
+    """Everything a job produced: the composite and, for --debug, the intermediates
+    (``debug``, the pipeline's) and the renderer's own maps (``renderer_debug``,
+    ``RenderOutput.debug_maps`` checked), for --aovs, the render passes
+    (``compositing.aovs``)."""
 
     image: np.ndarray  # (H, W, 3) linear composite
     report: dict
     debug: dict = field(default_factory=dict)
     aovs: dict = field(default_factory=dict)
+    renderer_debug: dict = field(default_factory=dict)
 
 
 def roi_around(mask: np.ndarray, margin: int) -> tuple[int, int, int, int]:
@@ -133,7 +137,7 @@ def prepare_job(
     timings["shading_s"] = time.perf_counter() - t
 
     common = dict(shading=shading, known=known, camera=cam, roi=roi, image=scene.image, scene_key=scene.key,
-                  light=getattr(scene, "light", None))
+                  light=getattr(scene, "light", None), debug=debug)
     # the object's occluder (its shadow, the sky it hides, its self-shadowing): the posed
     # mesh when the bundle references one; else, for a bundle of maps, its visible
     # surface extruded backwards to its footprint's far edge (``maps_occluder``); 2D image
@@ -219,17 +223,54 @@ def finish_job(prep: PreparedJob, out: RenderOutput, renderer_name: str, rendere
         "timings": timings,
         "notes": prep.notes + list(res.notes),
     }
-    dbg = {}
+    dbg, rdbg = {}, {}
     if debug:
         dbg = {**prep.debug_maps, "shading_mask": s.astype(np.float32), "f_bg": f_bg, "f_comp": f_comp, "ratio": res.ratio,
                "ratio_blurred": res.ratio_blurred, "weight": res.weight}
+        rdbg = check_debug_maps(out.debug_maps, (H, W), renderer_name)
     layers = {}
     if aovs:
         from zcomp_cli.compositing.aovs import aov_layers
 
         layers = aov_layers(prep.scene.image, f_bg, f_comp, res.ratio_blurred, prep.object_mask, res.balance,
                             res.image)
-    return JobOutput(res.image, report, dbg, layers)
+    return JobOutput(res.image, report, dbg, layers, rdbg)
+
+
+def check_debug_maps(maps, shape: tuple[int, int], renderer_name: str) -> dict[str, np.ndarray]:
+    """A renderer's debug maps (``RenderOutput.debug_maps``) checked for writing: each
+    name a file name's stem (``outputs.DEBUG_MAP_NAME``: lower-case letters, digits, ``_``,
+    ``-``; no path, no extension) that is none of the pipeline's own maps, each map (H, W) or (H, W, C)
+    with C 1, 3 or 4 at the job's ``shape`` (H, W). Returns them as float32 (NaN kept:
+    a map may mark where it holds no value). Raises ``RenderError`` naming the map."""
+    from zcomp_cli.pipeline.outputs import DEBUG_MAP_NAME, DEBUG_MAPS
+
+    if maps is None:
+        return {}
+    if not isinstance(maps, Mapping):
+        raise RenderError(f"renderer {renderer_name} returned debug maps as {type(maps).__name__}, "
+                          "expected a mapping of names to arrays")
+    H, W = shape
+    out: dict[str, np.ndarray] = {}
+    for name, a in maps.items():
+        if not isinstance(name, str) or not DEBUG_MAP_NAME.fullmatch(name):
+            raise RenderError(f"renderer {renderer_name} returned a debug map named {name!r}: a name is 1-64 "
+                              "lower-case letters, digits, '_' and '-', starting with a letter or digit (no "
+                              "path, no extension)")
+        if name in DEBUG_MAPS:
+            raise RenderError(f"renderer {renderer_name} returned a debug map named {name!r}, the name of one "
+                              "of the pipeline's own debug maps")
+        try:
+            arr = np.asarray(a, dtype=np.float32)
+        except (TypeError, ValueError) as exc:
+            raise RenderError(f"renderer {renderer_name} returned debug map {name!r} that is not a numeric "
+                              f"array ({exc})") from exc
+        if not (arr.shape == (H, W) or (arr.ndim == 3 and arr.shape[:2] == (H, W) and arr.shape[2] in (1, 3, 4))):
+            raise RenderError(f"renderer {renderer_name} returned debug map {name!r} of shape {arr.shape}, "
+                              f"expected ({H}, {W}) or ({H}, {W}, C) with C 1, 3 or 4 (the job's working "
+                              "resolution)")
+        out[name] = arr
+    return out
 
 
 def run_job(

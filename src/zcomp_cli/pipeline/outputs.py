@@ -2,8 +2,10 @@
 
 Per job, ``OUT/<job name>/``: ``composite.png`` (sRGB 8-bit), ``composite.exr``
 (linear), ``report.json`` (written last: its presence with ``status: done`` marks a
-finished job), with ``--debug`` the intermediate maps and ``grid.png``, with ``--aovs``
-``aovs.exr`` (the render passes as layers). The batch
+finished job), with ``--debug`` the intermediate maps and ``grid.png`` (and the
+renderer's own maps, ``RenderOutput.debug_maps``, beside them in ``debug/`` with their
+sheet ``light_evidence.png``), with ``--aovs`` ``aovs.exr`` (the render passes as
+layers). The batch
 ends with ``OUT/summary.json``. Every file is written atomically (``imageio``).
 
 ``report.json`` records the size and sha256 of every file of the job (``outputs``);
@@ -21,6 +23,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -39,6 +42,12 @@ AOVS = "aovs.exr"  # --aovs: the render passes, one multi-layer EXR (compositing
 log = logging.getLogger(__name__)
 DEBUG_MAPS = ("f_bg", "f_comp", "ratio", "ratio_blurred", "shading_mask", "object_mask", "weight",
               "comp_depth", "comp_normals", "comp_albedo", "shading")
+# --debug: the renderer's own debug maps (``RenderOutput.debug_maps``; the physical
+# renderer's light evidence) beside the background, one sheet
+MAPS_SHEET = "light_evidence.png"
+# A renderer's debug map name: a file name's stem, no path (lower case: two names never
+# meet in one file on a case-insensitive file system).
+DEBUG_MAP_NAME = re.compile(r"[a-z0-9][a-z0-9_-]{0,63}")
 
 
 @dataclass
@@ -98,13 +107,34 @@ def read_report_noted(out_dir: Path) -> tuple[dict | None, str | None]:
 
 # What zcomp writes in a job folder (and its debug/ folder): a folder holding anything
 # else is not a job folder, and a run refuses to write into it.
-JOB_FILES = {REPORT, "composite.png", "composite.exr", AOVS, "grid.png", "shading_mask.png", "debug"}
+JOB_FILES = {REPORT, "composite.png", "composite.exr", AOVS, "grid.png", "shading_mask.png", MAPS_SHEET, "debug"}
 DEBUG_FILES = {f"{n}.exr" for n in DEBUG_MAPS}
+
+
+def renderer_debug_files() -> set[str]:
+    """``<name>.exr`` of every debug map a known renderer declares
+    (``RendererEntry.debug_maps``, plugins included)."""
+    from zcomp_cli.renderers.registry import RENDERERS
+
+    return {f"{n}.exr" for e in RENDERERS.values() for n in getattr(e, "debug_maps", ())
+            if isinstance(n, str) and DEBUG_MAP_NAME.fullmatch(n)}
+
+
+def _recorded_debug_files(job_dir: Path) -> set[str]:
+    """The ``debug/`` files the job's report records as its outputs (a renderer's maps
+    that no registry entry declares)."""
+    rep = read_report(job_dir)
+    outs = rep.get("outputs") if rep is not None else None
+    if not isinstance(outs, dict):
+        return set()
+    return {k[len("debug/"):] for k in outs if isinstance(k, str) and k.startswith("debug/")
+            and "/" not in k[len("debug/"):] and k.endswith(".exr")}
 
 
 def foreign_entries(job_dir: Path) -> list[str]:
     """Entries of ``job_dir`` that zcomp did not write (hidden temporaries count as
-    zcomp's). Empty for a job folder, or one that does not exist."""
+    zcomp's; in ``debug/``, the pipeline's maps, those the renderers declare and those
+    the job's report records). Empty for a job folder, or one that does not exist."""
     def theirs(folder: Path, ours: set[str]) -> list[str]:
         try:
             names = sorted(os.listdir(folder))
@@ -115,7 +145,10 @@ def foreign_entries(job_dir: Path) -> list[str]:
     found = theirs(job_dir, JOB_FILES)
     debug = job_dir / "debug"
     if debug.is_dir() and not debug.is_symlink():
-        found += [f"debug/{n}" for n in theirs(debug, DEBUG_FILES)]
+        extra = theirs(debug, DEBUG_FILES)
+        if extra:  # (the registry and the report only when needed)
+            extra = theirs(debug, DEBUG_FILES | renderer_debug_files() | _recorded_debug_files(job_dir))
+        found += [f"debug/{n}" for n in extra]
     elif debug.exists() or debug.is_symlink():
         found.append("debug")
     return found
@@ -377,15 +410,83 @@ def _sizes_match(job_dir: Path, rep: dict) -> bool:
 
 
 def write_debug(out_dir: Path, scene, result) -> None:
+    """``--debug``: the pipeline's maps and the renderer's (``JobOutput.renderer_debug``,
+    checked by ``job.check_debug_maps``) under ``debug/``, ``shading_mask.png``,
+    ``grid.png`` and, when the renderer gave maps, their sheet ``MAPS_SHEET``. A
+    renderer's map or sheet an earlier run left that this one did not make is removed
+    (else the report would vouch for it)."""
     from zcomp_cli.imageio import write_exr, write_png
 
     d = result.debug
     for name in DEBUG_MAPS:
         if name in d:
             write_exr(out_dir / "debug" / f"{name}.exr", d[name])
+    rmaps = dict(getattr(result, "renderer_debug", None) or {})
+    for name, a in rmaps.items():
+        write_exr(out_dir / "debug" / f"{name}.exr", a)
+    mine = {f"{n}.exr" for n in rmaps}
+    for n in sorted(renderer_debug_files() - DEBUG_FILES - mine):
+        stale = out_dir / "debug" / n
+        if stale.is_file() and not stale.is_symlink():
+            stale.unlink()
     write_png(out_dir / "shading_mask.png", d["shading_mask"], srgb_encode=False)
     write_png(out_dir / "grid.png", debug_grid(scene.image, d["f_bg"], d["f_comp"], d["ratio_blurred"],
                                                d["shading_mask"], result.image), srgb_encode=False)
+    if rmaps:
+        write_png(out_dir / MAPS_SHEET, maps_sheet(scene.image, rmaps), srgb_encode=False)
+    elif (out_dir / MAPS_SHEET).is_file() and not (out_dir / MAPS_SHEET).is_symlink():
+        (out_dir / MAPS_SHEET).unlink()
+
+
+# Where a debug map holds NaN (no value: the shadow ratio off the support), its tile
+# shows this colour (sRGB).
+NAN_COLOUR = (0.18, 0.24, 0.55)
+
+
+def maps_sheet(x_bg, maps: dict, columns: int = 3) -> np.ndarray:
+    """The renderer's debug maps beside the background (``MAPS_SHEET``): tiles of
+    ``columns`` per row, the background first, then each map under its name; a
+    one-channel map as grey, its values clipped to [0, 1] (not sRGB-encoded: data),
+    NaN in ``NAN_COLOUR``; a colour map sRGB-encoded. Returns sRGB-encoded [0, 1]
+    float (rows * H, columns * W, 3)."""
+    from zcomp_cli.conventions import linear_to_srgb
+
+    bg = np.asarray(x_bg, np.float32)
+    H, W = bg.shape[:2]
+    tiles = [(linear_to_srgb(np.clip(np.nan_to_num(bg), 0, None)), "background")]
+    for name, a in maps.items():
+        a = np.asarray(a, np.float32)
+        if a.ndim == 3 and a.shape[2] == 1:
+            a = a[..., 0]
+        if a.ndim == 2:
+            nan = np.isnan(a)
+            t = np.repeat(np.clip(np.nan_to_num(a, nan=0.0), 0.0, 1.0)[..., None], 3, -1)
+            t[nan] = NAN_COLOUR
+            label = f"{name} (blue: none)" if nan.any() else name
+        else:
+            t = linear_to_srgb(np.clip(np.nan_to_num(a[..., :3]), 0, None))
+            label = name
+        tiles.append((t.astype(np.float32), label))
+    tiles = [_labelled(t, label) for t, label in tiles]
+    rows = -(-len(tiles) // columns)
+    sheet = np.zeros((rows * H, columns * W, 3), np.float32)
+    for i, t in enumerate(tiles):
+        r, c = divmod(i, columns)
+        sheet[r * H:(r + 1) * H, c * W:(c + 1) * W] = t
+    return sheet
+
+
+def _labelled(tile: np.ndarray, label: str) -> np.ndarray:
+    """The tile with ``label`` written in its top-left corner (white on a dark outline)."""
+    import cv2
+
+    t = np.ascontiguousarray(np.clip(tile, 0.0, 1.0), dtype=np.float32)
+    H, W = t.shape[:2]
+    scale = max(0.35, min(1.0, W / 800.0))
+    org = (max(3, W // 100), max(12, int(22 * scale)))
+    for colour, thick in (((0.0, 0.0, 0.0), 3), ((1.0, 1.0, 1.0), 1)):
+        cv2.putText(t, label, org, cv2.FONT_HERSHEY_SIMPLEX, scale, colour, thick, cv2.LINE_AA)
+    return t
 
 
 def debug_grid(x_bg, f_bg, f_comp, ratio, mask, result) -> np.ndarray:

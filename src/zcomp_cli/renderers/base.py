@@ -43,6 +43,8 @@ class RenderRequest:
         coverage: H x W float in [0, 1], the inserted object's visible coverage on the
             composite request (None on the background's): where its own material
             (roughness, metallic) applies.
+        debug: the job runs with ``--debug``: the renderer may return debug maps
+            (``RenderOutput.debug_maps``); without it, it need not make any.
     """
 
     maps: SceneMaps
@@ -55,6 +57,7 @@ class RenderRequest:
     light: dict | None = None
     occluder: object | None = None
     coverage: np.ndarray | None = None
+    debug: bool = False
 
 
 @dataclass
@@ -67,12 +70,22 @@ class RenderOutput:
     image, a superset of the requests' unknown pixels. A renderer that knows where the
     object's shadow falls (the physical one, from its light) grows the mask along it,
     so a long shadow is not cut at the shading mask's edge; the compositor then applies
-    the shadow ratio over this mask. None = the requested mask."""
+    the shadow ratio over this mask. None = the requested mask.
+
+    ``debug_maps``: optional maps the renderer read or made (the physical renderer's
+    light evidence), name -> (H, W) or (H, W, C) float array at the job's working
+    resolution. With ``--debug`` the pipeline writes each as ``debug/<name>.exr`` and
+    shows them on one sheet (``pipeline.outputs``); without it they are ignored. A name
+    is lower-case letters, digits, ``_`` and ``-`` (no path, no extension), none of the
+    pipeline's own maps (``outputs.DEBUG_MAPS``); a renderer declares the names it may
+    use in its registry entry (``RendererEntry.debug_maps``), so that a job folder
+    holding them is known as zcomp's."""
 
     images: list[np.ndarray]
     info: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
     shading_mask: np.ndarray | None = None
+    debug_maps: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 class Renderer(ABC):

@@ -56,12 +56,17 @@ class RendererEntry:
     contract_exact: bool = True
     # where it comes from: "zcomp", or the entry point ("toon = zcomp_toon:ENTRY")
     source: str = "zcomp"
+    # the names of the debug maps it may return (``RenderOutput.debug_maps``): with
+    # --debug they are written as debug/<name>.exr, and a job folder holding them is
+    # known as zcomp's (``pipeline.outputs.foreign_entries``)
+    debug_maps: tuple[str, ...] = ()
 
 
 BUILTIN_RENDERERS: dict[str, RendererEntry] = {
     "physical": RendererEntry(
         "zcomp_cli.renderers.physical", "PhysicalRenderer",
-        "embedded default: light from the scene's own shading and shadows, no weights, CPU"),
+        "embedded default: light from the scene's own shading and shadows, no weights, CPU",
+        debug_maps=("shadow_evidence", "shadow_confidence", "shadow_ratio", "casters")),
     "zerocomp": RendererEntry(
         "zcomp_cli.renderers.zerocomp", "ZeroCompRenderer",
         "Stable Diffusion 2.1 + the official ZeroComp ControlNet (weights on disk)",
@@ -91,7 +96,8 @@ BUILTIN_RENDERERS: dict[str, RendererEntry] = {
 def _entry_of(ep, obj) -> RendererEntry:
     """A plugin's entry: the ``RendererEntry`` it exports, or one built from its
     ``Renderer`` subclass (summary: the docstring's first line; ``cli_options``,
-    ``speed_settings``, ``contract_settings``, ``contract_exact`` class attributes)."""
+    ``speed_settings``, ``contract_settings``, ``contract_exact``, ``debug_maps`` class
+    attributes)."""
     from dataclasses import replace
 
     if isinstance(obj, RendererEntry):
@@ -107,7 +113,8 @@ def _entry_of(ep, obj) -> RendererEntry:
                              speed_settings=tuple(getattr(obj, "speed_settings", ())),
                              contract_settings=dict(getattr(obj, "contract_settings", {}) or {}),
                              contract_exact=bool(getattr(obj, "contract_exact", True)),
-                             source=f"{ep.name} = {ep.value}")
+                             source=f"{ep.name} = {ep.value}",
+                             debug_maps=tuple(getattr(obj, "debug_maps", ())))
     raise TypeError(f"expected a RendererEntry or a Renderer subclass, got {type(obj).__name__}")
 
 

@@ -20,7 +20,7 @@ whatever its albedo (Blender's Principled BSDF: about 4 % at normal incidence, m
 grazing), so the image is ``E (albedo + g)``, not ``E albedo``: on a checker floor,
 image / albedo is brighter on the dark tiles, and a shadow darkens both alike.
 ``albedo_offset`` measures ``g`` (the offset that best explains the known shading with
-the sky alone, among ``ALBEDO_OFFSETS``; 0 where nothing tells it, such as one albedo),
+the sky alone, among ``FrameConfig.albedo_offsets``; 0 where nothing tells it, such as one albedo),
 and the fit's shading is ``image / (albedo + g)``.
 """
 
@@ -34,17 +34,16 @@ from zcomp_cli.camera import Camera
 from zcomp_cli.conventions import REC601
 from zcomp_cli.renderers.physical import sh
 from zcomp_cli.renderers.physical.lightmodel import ground_view
+from zcomp_cli.renderers.physical.settings import FrameConfig, TransportConfig
 from zcomp_cli.renderers.physical.sampling import fibonacci_sphere, orthonormal
 from zcomp_cli.renderers.physical.softshadow import sky_samples, weighted_visibility
 from zcomp_cli.renderers.physical.visibility import march_visibility
 
-# A pixel is on the support when its normal is within this of up (the support's
-# pixels give the ground's radiance, ``bounce``).
-SUPPORT_DEG = 15.0
-# Offsets of the albedo tried (``albedo_offset``); an offset must explain the shading at
-# least OFFSET_MIN_GAIN better than the next smaller one (a held-out gain) to be taken.
-ALBEDO_OFFSETS = (0.0, 0.01, 0.02, 0.04, 0.08, 0.16)
-OFFSET_MIN_GAIN = 0.01
+# The constants (the support's tolerance, the held-out blocks, the albedo offsets tried)
+# are ``settings.FrameConfig``'s, each with its provenance.
+DEFAULT = FrameConfig()
+# the sky's visibility, as the synthesis sees it (``settings.TransportConfig``)
+DEFAULT_TRANSPORT = TransportConfig()
 
 
 @dataclass(frozen=True)
@@ -57,7 +56,8 @@ class FitPixels:
     pixels are not the neighbours of fitted ones); ``support`` (N,) on the support;
     ``depth`` (h, w) and ``camera`` of the copy; ``up`` (3,); ``walls`` the scene's walls
     beyond the frame (``planes``), which occlude every light's rays; ``caster`` the
-    ray tracer of the scene's depth mesh (``depthmesh``), None: the screen-space march."""
+    ray tracer of the scene's depth mesh (``depthmesh``), None: the screen-space march;
+    ``blocks`` the frame's blocks per long side (held out in a checkerboard)."""
 
     points: np.ndarray
     normals: np.ndarray
@@ -71,6 +71,7 @@ class FitPixels:
     up: np.ndarray
     walls: tuple = ()
     caster: object | None = None
+    blocks: int = DEFAULT.holdout_blocks
 
     def __len__(self) -> int:
         return len(self.points)
@@ -90,9 +91,6 @@ class FitPixels:
         return self.points + self.normals * (BIAS_REL * np.maximum(-self.points[:, 2], 1e-6))[:, None]
 
 
-# The frame is cut into HOLDOUT_BLOCKS x HOLDOUT_BLOCKS blocks (of its long side), in a
-# checkerboard of fitted and held-out ones: a fraction of the frame, at any resolution.
-HOLDOUT_BLOCKS = 12
 
 
 def working_copy(depth, normals, shading, known, albedo, camera: Camera, max_res: int):
@@ -114,10 +112,12 @@ def working_copy(depth, normals, shading, known, albedo, camera: Camera, max_res
     return d, n, shc, k, a, camera.resized(w, h)
 
 
-def fit_pixels(depth, normals, shading, known, albedo, camera: Camera, up, *, max_fit_pixels: int):
+def fit_pixels(depth, normals, shading, known, albedo, camera: Camera, up, *, max_fit_pixels: int,
+               cfg: FrameConfig = DEFAULT, walls=None):
     """(FitPixels, shading (N, 3)) of the valid known pixels (finite positive shading,
     depth and unit normals), a deterministic stride subsample of at most
-    ``max_fit_pixels``."""
+    ``max_fit_pixels``; ``walls`` the scene's walls beyond the frame (None: found on
+    this copy)."""
     nn = np.linalg.norm(normals, axis=-1)
     valid = (known & (depth > 0) & (np.abs(nn - 1) < 0.2) & np.all(np.isfinite(shading), -1)
              & np.all(shading > 0, -1))
@@ -132,17 +132,19 @@ def fit_pixels(depth, normals, shading, known, albedo, camera: Camera, up, *, ma
     N /= np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-12)
     S = shading.reshape(-1, 3)[idx].astype(np.float64)
     A = np.clip(np.nan_to_num(albedo.reshape(-1, 3)[idx].astype(np.float64)), 0.0, 1.0)
-    blk = max(h, w) / HOLDOUT_BLOCKS
+    blk = max(h, w) / cfg.holdout_blocks
     train = ((ys // blk).astype(int) + (xs // blk).astype(int)) % 2 == 0
     up = np.asarray(up, np.float64)
-    support = N @ up > np.cos(np.deg2rad(SUPPORT_DEG))
-    from zcomp_cli.renderers.physical.planes import find_walls
+    support = N @ up > np.cos(np.deg2rad(cfg.support_deg))
+    if walls is None:
+        from zcomp_cli.renderers.physical.planes import find_walls
 
-    geo = (depth > 0) & (np.abs(nn - 1) < 0.2)
-    nrm = normals / np.maximum(nn, 1e-12)[..., None]
-    walls = find_walls(pts, nrm, geo, up)
+        geo = (depth > 0) & (np.abs(nn - 1) < 0.2)
+        nrm = normals / np.maximum(nn, 1e-12)[..., None]
+        walls = find_walls(pts, nrm, geo, up, cfg)
     fp = FitPixels(points=P, normals=N, ys=ys, xs=xs, albedo=A, train=train, support=support,
-                   depth=np.asarray(depth, np.float32), camera=camera, up=up, walls=walls)
+                   depth=np.asarray(depth, np.float32), camera=camera, up=up, walls=tuple(walls),
+                   blocks=cfg.holdout_blocks)
     return fp, S
 
 
@@ -159,10 +161,11 @@ def bounce(fp: FitPixels, ground: np.ndarray) -> np.ndarray:
     return ground_view(fp.normals, fp.up)[:, None] * np.asarray(ground, np.float64)[None]
 
 
-def sky_visibility(fp: FitPixels):
+def sky_visibility(fp: FitPixels, transport: TransportConfig = DEFAULT_TRANSPORT):
     """The sky seen from each fit pixel: ``softshadow.sky_samples`` (directions (K, N, 3),
-    visibility (K, N))."""
-    return sky_samples(fp.points, fp.normals, fp.ys, fp.xs, fp.depth, fp.camera, walls=fp.walls)
+    visibility (K, N)), with the sky's directions, steps and reach of ``transport``, as
+    the synthesis sees it (``PhysicalSettings.transport``)."""
+    return sky_samples(fp.points, fp.normals, fp.ys, fp.xs, fp.depth, fp.camera, cfg=transport, walls=fp.walls)
 
 
 def sky_lobes(frame) -> list[tuple[str, np.ndarray]]:
@@ -193,23 +196,23 @@ def sky_atom_values(fp: FitPixels, radiance_sh: np.ndarray, samples) -> np.ndarr
     return s[:, 0] if grey else s
 
 
-def albedo_offset(fp: FitPixels, shading: np.ndarray, base: np.ndarray) -> float:
-    """The albedo offset ``g`` (module docstring): among ALBEDO_OFFSETS, the one whose
-    shading ``image / (albedo + g)`` (luminance) the grey columns ``base`` (N, B) fit
-    best on the held-out pixels, each larger one kept only when it explains them at
-    least OFFSET_MIN_GAIN better (relative losses, so the shading's scale does not
-    count)."""
+def albedo_offset(fp: FitPixels, shading: np.ndarray, base: np.ndarray, cfg: FrameConfig = DEFAULT) -> float:
+    """The albedo offset ``g`` (module docstring): among ``cfg.albedo_offsets``, the one
+    whose shading ``image / (albedo + g)`` (luminance) the grey columns ``base`` (N, B)
+    fit best on the held-out pixels, each larger one kept only when it explains them at
+    least ``cfg.offset_min_gain`` better (relative losses, so the shading's scale does
+    not count)."""
     from zcomp_cli.renderers.physical.solver import score_candidates
 
     a = fp.albedo @ REC601
     ok = a > 1e-3
     img = (shading @ REC601) * a
     best_g, best_l = 0.0, None
-    for g in ALBEDO_OFFSETS:
+    for g in cfg.albedo_offsets:
         y = np.where(ok, img / np.maximum(a + g, 1e-6), 0.0)
         lh, _ = score_candidates(base, np.zeros((len(y), 1)), y, fp.train & ok)
         loss = float(lh[0])
-        if best_l is None or (best_l - loss) / (loss + 1e-12) >= OFFSET_MIN_GAIN:
+        if best_l is None or (best_l - loss) / (loss + 1e-12) >= cfg.offset_min_gain:
             best_g, best_l = g, loss if best_l is None or loss < best_l else best_l
     return best_g
 
@@ -278,6 +281,10 @@ def lamp_columns(fp: FitPixels, positions: np.ndarray, *, steps: int | None = No
     directions from each point) when ``steps`` is given; unshadowed otherwise."""
     Q = np.asarray(positions, np.float64).reshape(-1, 3)
     P, Nr = fp.points, fp.normals
+    if steps is None:  # unshadowed: every lamp at once
+        v = Q[None, :, :] - P[:, None, :]  # (N, K, 3)
+        r2 = np.maximum(np.einsum("nkc,nkc->nk", v, v), 1e-12)
+        return np.maximum(np.einsum("nkc,nc->nk", v, Nr), 0.0) / (r2 * np.sqrt(r2))
     out = np.zeros((len(fp), len(Q)))
     fr, ph = _cone_offsets(max(1, cone_samples), seed)
     for j, q in enumerate(Q):
@@ -327,4 +334,4 @@ def lamp_candidates(fp: FitPixels, n_directions: int, distances_rel) -> np.ndarr
 
 __all__ = ["FitPixels", "working_copy", "fit_pixels", "ground_radiance", "bounce", "sky_visibility",
            "sky_lobes", "sky_atom_values", "albedo_offset", "offset_shading", "sun_columns", "sun_column", "lamp_columns",
-           "lamp_candidates", "SUPPORT_DEG", "HOLDOUT_BLOCKS"]
+           "lamp_candidates"]

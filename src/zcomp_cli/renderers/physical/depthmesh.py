@@ -4,11 +4,14 @@ A depth map holds only the surfaces the camera sees. As a mesh:
 
 * every 2 x 2 block of valid pixels makes two triangles, except across a **depth
   discontinuity**: an edge between two pixels is continuous when the plane of either
-  pixel (its point and normal) predicts the other's depth (within ``STEP_SHARE`` of the
-  step it predicts, plus ``NOISE_REL`` of the depth): a grazing floor steps far from
-  pixel to pixel and stays whole; a box's top edge and the floor seen past it do not;
+  pixel (its point and normal) predicts the other's depth (within ``step_share`` of the
+  step it predicts, at most ``step_cap_rel`` of the depth, plus ``noise_rel``), or when
+  the two are within ``join_rel`` of each other in depth or ``crease_px`` pixel
+  footprints in space: a grazing floor steps far from pixel to
+  pixel and stays whole, so do a box's top and front; a box's top edge and the floor
+  seen past it do not, nor its side seen edge on and the floor beside it;
 * the **support** is the plane the scene stands on: pixels facing up
-  (``SUPPORT_DEG``) at the support's height (``SUPPORT_HEIGHT_REL`` of their distance);
+  (``support_deg``) at the support's height (``support_height_rel`` of their distance);
   everything else valid is an **occluder**;
 * each connected occluder is **extruded backwards**, away from the camera along the
   ground (its heights kept), so that it fills the ground distances from its nearest
@@ -34,22 +37,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from zcomp_cli.camera import Camera
+from zcomp_cli.renderers.physical.settings import MeshConfig
 
-# A neighbour's depth is continuous with a pixel's when the pixel's plane predicts it
-# within STEP_SHARE of the step the plane itself predicts (a grazing surface steps far
-# from pixel to pixel; normals a few degrees off keep it whole) plus NOISE_REL of its
-# depth (a depth map's own noise; a box 30 cm before a wall 6 m away is 5 % nearer).
-STEP_SHARE = 0.5
-NOISE_REL = 0.005
-# A pixel is on the support when its normal is within this of up (as ``atoms.SUPPORT_DEG``)
-# and its height within SUPPORT_HEIGHT_REL of its distance from the support's height.
-SUPPORT_DEG = 15.0
-SUPPORT_HEIGHT_REL = 0.03
-# The thinnest extrusion, as a share of the occluder's nearest distance (a sliver of a
-# few pixels still blocks rays).
-MIN_THICKNESS_REL = 0.02
-# Half-length (metres) of a wall beyond the frame: "without end" for shadows.
-WALL_HALF_LENGTH = 100.0
+# The constants are ``settings.MeshConfig``'s, each with its provenance.
+DEFAULT = MeshConfig()
 
 
 @dataclass(frozen=True)
@@ -89,21 +80,28 @@ class DepthMesh:
         return RayCaster(self.vertices, self.faces[keep])
 
 
-def _continuous(Pa, Na, Pb, Nb, ra, rb, ok):
+def _continuous(Pa, Na, Pb, Nb, ra, rb, ok, cfg: MeshConfig = DEFAULT):
     """(M,) bool: pixels a and b (points P, unit normals N, rays r with z = -1) are
     continuous (module docstring)."""
     za, zb = -Pa[:, 2], -Pb[:, 2]
-    small = np.abs(za - zb) <= NOISE_REL * np.maximum(np.minimum(za, zb), 1e-9)
+    zmin = np.maximum(np.minimum(za, zb), 1e-9)
+    small = np.abs(za - zb) <= cfg.join_rel * zmin
+    # a pixel's footprint at that depth: the angle between the two rays times the depth
+    crease = np.linalg.norm(Pa - Pb, axis=1) <= cfg.crease_px * zmin * np.linalg.norm(ra - rb, axis=1)
 
     def predicted(P, N, r, z_self, z_other):
         den = np.sum(N * r, 1)
         with np.errstate(divide="ignore", invalid="ignore"):
             t = np.sum(N * P, 1) / den
-        good = np.isfinite(t) & (np.abs(den) > 1e-6) & (t > 0)
-        tol = STEP_SHARE * np.abs(t - z_self) + NOISE_REL * z_other
+        # (a step longer than ``step_max_rel`` of the depth is no surface's next pixel: a
+        # face seen edge on, whose plane's extension merely passes the other point)
+        good = np.isfinite(t) & (np.abs(den) > 1e-6) & (t > 0) & (np.abs(t - z_self) <= cfg.step_max_rel * z_self)
+        # (a face seen edge on predicts an endless step: the share of it is capped)
+        tol = (np.minimum(cfg.step_share * np.abs(t - z_self), cfg.step_cap_rel * z_other)
+               + cfg.noise_rel * z_other)
         return good & (np.abs(t - z_other) <= tol)
 
-    return ok & (small | predicted(Pa, Na, rb, za, zb) | predicted(Pb, Nb, ra, zb, za))
+    return ok & (small | crease | predicted(Pa, Na, rb, za, zb) | predicted(Pb, Nb, ra, zb, za))
 
 
 def _edges(valid):
@@ -117,12 +115,13 @@ def _edges(valid):
     return pairs
 
 
-def support_mask(points: np.ndarray, normals: np.ndarray, valid: np.ndarray, up) -> tuple[np.ndarray, float]:
+def support_mask(points: np.ndarray, normals: np.ndarray, valid: np.ndarray, up,
+                 cfg: MeshConfig = DEFAULT) -> tuple[np.ndarray, float]:
     """(support (h, w) bool, its height along ``up``): the pixels facing up
-    (``SUPPORT_DEG``) at the most common height of those (within ``SUPPORT_HEIGHT_REL``
-    of their distance)."""
+    (``cfg.support_deg``) at the most common height of those (within
+    ``cfg.support_height_rel`` of their distance)."""
     up = np.asarray(up, np.float64)
-    facing = valid & (normals @ up > math.cos(math.radians(SUPPORT_DEG)))
+    facing = valid & (normals @ up > math.cos(math.radians(cfg.support_deg)))
     if facing.sum() < 3:
         return np.zeros(valid.shape, bool), float("nan")
     hgt = points @ up
@@ -130,17 +129,17 @@ def support_mask(points: np.ndarray, normals: np.ndarray, valid: np.ndarray, up)
     hv, dv = hgt[facing], dist[facing]
     # the lowest well-populated height: the floor, not a table top (both face up; the
     # floor is the support the scene stands on and most often the largest)
-    tol = SUPPORT_HEIGHT_REL * dv
+    tol = cfg.support_height_rel * dv
     order = np.argsort(hv)
     hs, ts = hv[order], tol[order]
     counts = np.searchsorted(hs, hs + ts, side="right") - np.searchsorted(hs, hs - ts, side="left")
     h0 = float(np.median(hs[np.abs(hs - hs[int(np.argmax(counts))]) <= ts[int(np.argmax(counts))]]))
-    sup = facing & (np.abs(hgt - h0) <= SUPPORT_HEIGHT_REL * dist)
+    sup = facing & (np.abs(hgt - h0) <= cfg.support_height_rel * dist)
     return sup, h0
 
 
 def build_depth_mesh(depth: np.ndarray, normals: np.ndarray, camera: Camera, up, *, valid=None,
-                     walls=()) -> DepthMesh:
+                     walls=(), cfg: MeshConfig = DEFAULT) -> DepthMesh:
     """The depth map's mesh (module docstring).
 
     Args:
@@ -148,6 +147,7 @@ def build_depth_mesh(depth: np.ndarray, normals: np.ndarray, camera: Camera, up,
         camera: the map's camera. up: (3,) world up, camera frame.
         valid: (h, w) bool, the pixels with geometry (default: depth > 0 and unit normals).
         walls: ``planes.Wall`` beyond the frame, added as quads.
+        cfg: the mesh's constants (``settings.MeshConfig``).
     """
     d = np.nan_to_num(np.asarray(depth, np.float64), nan=0.0, posinf=0.0, neginf=0.0)
     n = np.nan_to_num(np.asarray(normals, np.float64))
@@ -160,7 +160,7 @@ def build_depth_mesh(depth: np.ndarray, normals: np.ndarray, camera: Camera, up,
     P = camera.unproject(d.astype(np.float32)).astype(np.float64)
     ys, xs = np.mgrid[0:h, 0:w]
     rays = camera.ray(xs + 0.5, ys + 0.5).astype(np.float64)
-    support, h0 = support_mask(P, n, ok, up)
+    support, h0 = support_mask(P, n, ok, up, cfg)
     occ = ok & ~support
     Pf, Nf, Rf, okf = P.reshape(-1, 3), n.reshape(-1, 3), rays.reshape(-1, 3), ok.ravel()
     cont = {}
@@ -169,7 +169,7 @@ def build_depth_mesh(depth: np.ndarray, normals: np.ndarray, camera: Camera, up,
         c = np.zeros(len(a), bool)
         sel = np.flatnonzero(both)
         c[sel] = _continuous(Pf[a[sel]], Nf[a[sel]], Pf[b[sel]], Nf[b[sel]], Rf[a[sel]], Rf[b[sel]],
-                             np.ones(len(sel), bool))
+                             np.ones(len(sel), bool), cfg)
         cont[k] = c
     right = cont[0].reshape(h, w - 1)
     down = cont[1].reshape(h - 1, w)
@@ -243,7 +243,7 @@ def build_depth_mesh(depth: np.ndarray, normals: np.ndarray, camera: Camera, up,
         nearest = np.full(K + 1, np.inf)
         np.minimum.at(nearest, lab_f[sel], dist_h[sel])
         thick = np.maximum(np.where(np.isfinite(hi - lo), hi - lo, 0.0),
-                           MIN_THICKNESS_REL * np.where(np.isfinite(nearest), nearest, 0.0))
+                           cfg.min_thickness_rel * np.where(np.isfinite(nearest), nearest, 0.0))
         # each occluder occupies, at every height it shows, the ground distances from its
         # nearest point to its nearest point plus its width, behind its visible surface
         reach_h = np.where(sel, nearest[lab_f] + thick[lab_f], 0.0)
@@ -264,28 +264,28 @@ def build_depth_mesh(depth: np.ndarray, normals: np.ndarray, camera: Camera, up,
     V = np.concatenate(verts)
     F = np.concatenate(all_faces) if all_faces else np.zeros((0, 3), np.int64)
     if walls:
-        wv, wf = _wall_quads(walls, up)
+        wv, wf = _wall_quads(walls, up, cfg.wall_half_length)
         F = np.concatenate([F, wf + len(V)])
         V = np.concatenate([V, wv])
     return DepthMesh(vertices=V, faces=F.astype(np.int64), points=P, valid=ok, support=support, occluder=occ,
                      labels=labels, base=base, casters=casters, up=up, support_height=h0)
 
 
-def _wall_quads(walls, up):
+def _wall_quads(walls, up, half_length: float):
     """Vertices and faces of the walls beyond the frame: each a quad on its plane from
-    the ground up to its top, WALL_HALF_LENGTH either side."""
+    the ground up to its top, ``half_length`` metres either side."""
     V, F = [], []
     for i, wl in enumerate(walls):
         nrm = np.asarray(wl.normal, np.float64)
         along = np.cross(up, nrm)
         along /= max(float(np.linalg.norm(along)), 1e-12)
-        top = wl.top if math.isfinite(wl.top) else WALL_HALF_LENGTH
+        top = wl.top if math.isfinite(wl.top) else half_length
         B = nrm * wl.offset + up * (wl.ground - float((nrm * wl.offset) @ up))
-        c = [B - WALL_HALF_LENGTH * along, B + WALL_HALF_LENGTH * along,
-             B + WALL_HALF_LENGTH * along + top * up, B - WALL_HALF_LENGTH * along + top * up]
+        c = [B - half_length * along, B + half_length * along,
+             B + half_length * along + top * up, B - half_length * along + top * up]
         V.extend(c)
         F.extend([[4 * i, 4 * i + 1, 4 * i + 2], [4 * i, 4 * i + 2, 4 * i + 3]])
     return np.asarray(V, np.float64), np.asarray(F, np.int64)
 
 
-__all__ = ["DepthMesh", "build_depth_mesh", "support_mask", "STEP_SHARE", "SUPPORT_HEIGHT_REL"]
+__all__ = ["DepthMesh", "build_depth_mesh", "support_mask"]

@@ -6,40 +6,41 @@ the model does not hold (a floor's fall-off, an albedo error, a wall's bounce). 
 direction is read off the shadows first, the rest of the shading is a second, weaker
 witness, and what neither fixes stays uncertain -- and the composite says so.
 
-Steps of ``estimate_light`` (each returns a dataclass):
+The steps (``lightfit.fit_light`` runs them for a light whose direction is free; each
+returns a dataclass; every constant is ``settings.PhysicalSettings``'s, with its
+provenance):
 
-1. ``prepare``: the working copy and its fit pixels (the photometric fit's), world up,
-   the support's bounce, the albedo's offset, the walls beyond the frame, and the scene's
-   **depth mesh** (``depthmesh``: discontinuities cut, occluders extruded backwards) with
-   its ray tracer (``raycast``, Embree): every light ray of the fit is cast through it;
-2. ``shadow_evidence``: the support's cast shadows, tied to the casters that stand on it;
+1. ``prepare``: the working copy and its fit pixels (the photometric fit's), the
+   support's bounce, the albedo's offset, the walls beyond the frame, and the scene's
+   **depth mesh** (``depthmesh``: discontinuities cut, occluders extruded backwards)
+   with its ray tracer (``raycast``, Embree): every light ray of the fit is cast
+   through it;
+2. ``search_scorer``: the support's cast-shadow evidence (``shadow_evidence``: dark
+   regions tied to the casters that stand on it) and the scorer of candidate lights;
 3. ``search``: a grid of directions on the hemisphere, refined around the best; each
-   scored by **two likelihoods** that multiply: the support's shading under the shadow
-   that direction casts (``shadowcast``: ray cast from the support's pixels) and the
+   scored by **two likelihoods** that multiply -- the support's shading under the
+   shadow that direction casts (``shadowcast``: rays from the support's pixels) and the
    photometric fit of the whole frame (the sky lobes plus a sun of that direction,
-   robust NNLS scored on held-out blocks); with a **prior on the elevation** (uniform in
-   the elevation angle) they make one **posterior**, tempered by one constant
-   (``TEMPERATURE``, fitted by ``benchmarks/fit_light_constants.py`` with the log score of
-   the true direction). A lamp is a sun with a distance: lamps along the best direction
-   are scored the same way and taken when the posterior prefers one;
-4. ``size``: the light's angular radius among ``RADII_DEG``, by the same two likelihoods
-   with the visibility averaged over the light's cone;
-5. ``strength``: the sun/sky split from the shadows themselves where they are seen (the
-   shadowed/lit ratio of the support, Madsen and Nielsen), shrunk toward the prior
-   split by how much shadow the posterior's directions cast (``PRIOR_BLOCKS``: the prior
-   counts as one block of evidence); one robust NNLS then fits the exposure and the
-   sky's shape;
-6. the model, **hedged**: one light at the posterior's mean direction, its angular
-   radius grown to cover the posterior's spread (the expectation of the shadow over the
-   posterior, under squared error the best composite): a confident posterior gives a
-   crisp shadow, a vague one a soft and lighter one from the likely side; past
-   ``MAX_RADIUS_DEG`` the light joins the sky (the contact shadow stays).
+   robust NNLS scored on held-out blocks) -- with a **prior uniform in the elevation
+   angle**, into one **posterior** tempered by one constant (``search.temperature``,
+   fitted by ``benchmarks/fit_light_constants.py`` with the log score of the true
+   direction). A lamp is a sun with a distance: each direction's likelihood is
+   marginalised over a sun and lamps along it from the caster's base;
+4. ``choose_size``: a sun's angular radius, one rule for every sun: the likelihoods of
+   its cone-averaged shadow among ``search.radii_deg`` and the Sun's own, the Sun's
+   where they cannot tell;
+5. ``split_from_shadows``: the sun/sky split from the shadows themselves (the
+   shadowed/lit ratio across the edges of the most probable light's shadow, Madsen and
+   Nielsen), shrunk toward the prior split by the tied shadow that measurement stands
+   on; one robust NNLS then fits the exposure and the sky's shape;
+6. ``hedge``: one light at the posterior's mean direction, its angular radius grown to
+   cover the posterior's spread (the expectation of its shadow over the posterior,
+   under squared error the best composite): a confident posterior gives a crisp shadow,
+   a vague one a soft and lighter one from the likely side (the contact shadow stays).
 
 The stated uncertainty (``fit.direction_uncertainty_deg``) is the posterior's RMS angle
 about its mean direction; ``estimate_light_with_posterior`` also returns the posterior
 (``posterior.DirectionPosterior``) for the audit (``benchmarks/audit_light.py``).
-
-A manifest light freezes its atoms' parameters in the same solver (``known_light``).
 """
 
 from __future__ import annotations
@@ -51,47 +52,15 @@ import numpy as np
 
 from zcomp_cli.camera import Camera
 from zcomp_cli.conventions import REC601
+from zcomp_cli.lightparams import Origin
 from zcomp_cli.renderers.physical import atoms as at
 from zcomp_cli.renderers.physical import sh
-from zcomp_cli.lightparams import Origin
-from zcomp_cli.renderers.physical.lightmodel import MAX_RADIUS_DEG, FitSummary, LightModel, ShadowKind, Sky
+from zcomp_cli.renderers.physical.lightmodel import FitSummary, LightModel, ShadowKind, Sky
 from zcomp_cli.renderers.physical.posterior import DirectionPosterior
 from zcomp_cli.renderers.physical.sampling import fine_spiral, hemisphere, spacing_deg
 from zcomp_cli.renderers.physical.shadowcast import shadow_fit, sun_visibility
 from zcomp_cli.renderers.physical.settings import DEFAULTS, PhysicalSettings
-from zcomp_cli.renderers.physical.solver import SIGMA_FLOOR, Atom, base_sigma, fit, score_candidates
-
-# Calibrated by benchmarks/fit_light_constants.py on the development seeds (its output:
-# docs/fit_light_constants.txt): the sky's share of the support's light where the photo
-# does not tell it (the median true share), and the posterior's temperature (the value
-# with the best mean log score of the true direction).
-PRIOR_SKY_SHARE = 0.46
-PRIOR_SKY_SHARE_SPREAD = 0.15
-TEMPERATURE = 50.0
-# The ridge toward the prior weights, per fit pixel over the data scale squared: a
-# departure from the prior as large as the prior itself costs what a noise-floor
-# residual on every pixel does (the sky's shape where the pixels do not tell it).
-PRIOR_RIDGE = SIGMA_FLOOR ** 2
-# Angular radii (degrees) a sun's size is chosen among.
-RADII_DEG = (0.0, 1.0, 2.0, 4.0, 8.0, 16.0)
-# Lamps along the best direction: distances in units of the support's median distance
-# from the camera (a relative depth map gives the same candidates).
-LAMP_DISTANCES_REL = (0.3, 0.6, 1.2, 2.4)
-# Lamps are scored along this many of the best directions (each at every distance).
-LAMP_TOP = 8
-# Lowest elevation of a candidate (a light in the ground's plane lights nothing on it).
-MIN_ELEVATION_DEG = 2.0
-# The soft alternative of each candidate's shadow (the shadow likelihood is marginalised
-# over a hard and a soft one): its light's angular radius in degrees, about the coarse
-# grid's spacing (a sampling resolution).
-SOFT_DEG = 10.0
-# Directions of the refinement around the best coarse one (a sampling resolution).
-REFINE_DIRECTIONS = 40
-# A cone of half-angle a spreads directions with an RMS angle a / sqrt(2) (small angles):
-# the rendered radius that covers a posterior of RMS spread s is sqrt(2) s.
-CONE_PER_RMS = math.sqrt(2.0)
-FEW_PIXELS = 50
-
+from zcomp_cli.renderers.physical.solver import Atom, base_sigma, fit, score_candidates
 
 @dataclass
 class FitLight:
@@ -154,33 +123,50 @@ def prepare(depth, normals, shading, known, albedo, camera: Camera, up, settings
     from zcomp_cli.renderers.physical.planes import find_walls
     from zcomp_cli.worldframe import ground_frame
 
-    d, n, s, k, a, cam = at.working_copy(depth, normals, shading, known, albedo, camera, settings.max_resolution)
-    fp, S = at.fit_pixels(d, n, s, k, a, cam, up, max_fit_pixels=settings.max_fit_pixels)
-    frame = ground_frame(up)
-    if len(fp) == 0:
-        return Prepared(fp=fp, shading=S, sky_vis=(np.zeros((1, 0, 3)), np.zeros((1, 0))), ground=np.zeros(3),
-                        frame=frame)
-    # the shadows' copy and its mesh (walls beyond the frame included)
+    # the shadows' copy: its walls beyond the frame, its mesh
     d2, n2, s2, k2, a2, cam2 = at.working_copy(depth, normals, shading, known, albedo, camera,
                                                settings.shadow_resolution)
     nn = np.linalg.norm(n2, axis=-1)
     geo = (d2 > 0) & (np.abs(nn - 1) < 0.2)
-    walls = find_walls(cam2.unproject(d2), n2 / np.maximum(nn, 1e-12)[..., None], geo, up)
-    mesh = build_depth_mesh(d2, n2, cam2, up, walls=walls)
+    walls = find_walls(cam2.unproject(d2), n2 / np.maximum(nn, 1e-12)[..., None], geo, up, settings.frame)
+    d, n, s, k, a, cam = at.working_copy(depth, normals, shading, known, albedo, camera, settings.max_resolution)
+    fp, S = at.fit_pixels(d, n, s, k, a, cam, up, max_fit_pixels=settings.max_fit_pixels, cfg=settings.frame,
+                          walls=walls)
+    frame = ground_frame(up)
+    if len(fp) == 0:
+        return Prepared(fp=fp, shading=S, sky_vis=(np.zeros((1, 0, 3)), np.zeros((1, 0))), ground=np.zeros(3),
+                        frame=frame)
+    mesh = build_depth_mesh(d2, n2, cam2, up, walls=walls, cfg=settings.mesh)
     caster = mesh.caster()
     import dataclasses
 
-    fp = dataclasses.replace(fp, walls=walls, caster=caster)
+    fp = dataclasses.replace(fp, caster=caster)
     ground = at.ground_radiance(fp, S)
-    vis = at.sky_visibility(fp)
+    vis = at.sky_visibility(fp, settings.transport)
     S = np.maximum(S - at.bounce(fp, ground), 0.0)
     lobes = np.stack([at.sky_atom_values(fp, c, vis) for _, c in at.sky_lobes(frame)], 1)
-    g = at.albedo_offset(fp, S, lobes) if fp.train.any() else 0.0
+    g = at.albedo_offset(fp, S, lobes, settings.frame) if fp.train.any() else 0.0
+    # the shadows' shading: the copy's image over its albedo (plus the offset), each
+    # area-averaged apart -- an anti-aliased albedo edge averages out in both, where the
+    # average of per-pixel ratios keeps its error
     a2l = np.clip(np.nan_to_num(a2), 0, None)
-    s2o = np.where(a2l > 0, s2 * a2l / np.maximum(a2l + g, 1e-6), s2) if g > 0 else s2
-    grid = ShadowGrid(mesh=mesh, caster=caster, shading=np.nan_to_num(s2o) @ REC601, albedo=a2l @ REC601, known=k2)
+    img2 = _area_copy(np.nan_to_num(np.asarray(shading, np.float64)) * np.clip(np.nan_to_num(albedo), 0, None),
+                      s2.shape[:2])
+    lum_img, lum_alb = img2 @ REC601, a2l @ REC601
+    s2o = np.where(lum_alb > 1e-4, lum_img / np.maximum(lum_alb + g, 1e-6), np.nan_to_num(s2 @ REC601))
+    grid = ShadowGrid(mesh=mesh, caster=caster, shading=s2o, albedo=lum_alb, known=k2)
     return Prepared(fp=fp, shading=at.offset_shading(fp, S, g), sky_vis=vis, ground=ground, frame=frame,
                     albedo_offset=g, grid=grid)
+
+
+def _area_copy(img: np.ndarray, shape) -> np.ndarray:
+    """``img`` (H, W, C) area-averaged to ``shape`` (h, w) (itself when the same size)."""
+    import cv2
+
+    h, w = shape
+    if img.shape[:2] == (h, w):
+        return img
+    return cv2.resize(img.astype(np.float32), (w, h), interpolation=cv2.INTER_AREA).astype(np.float64)
 
 
 def sky_atoms(pp: Prepared) -> list[Atom]:
@@ -189,30 +175,16 @@ def sky_atoms(pp: Prepared) -> list[Atom]:
 
 
 def held_out_blocks(fp: at.FitPixels) -> int:
-    blk = max(fp.depth.shape) / at.HOLDOUT_BLOCKS
+    blk = max(fp.depth.shape) / fp.blocks
     held = ~fp.train
-    ids = (fp.ys[held] // blk).astype(int) * (at.HOLDOUT_BLOCKS + 1) + (fp.xs[held] // blk).astype(int)
+    ids = (fp.ys[held] // blk).astype(int) * (fp.blocks + 1) + (fp.xs[held] // blk).astype(int)
     return max(1, len(np.unique(ids)))
-
-
-def tempered_likelihood(loss_held: np.ndarray, sigma_rel2: float, blocks: int) -> np.ndarray:
-    """Likelihood weights of candidates from their held-out losses: each held-out block
-    is one observation (``held_out_blocks``), the loss per pixel over the noise's
-    (``sigma_rel2``, squared over the data scale) half its Gaussian log-likelihood."""
-    return np.exp(np.maximum(photometric_loglik(loss_held, sigma_rel2, blocks), -700.0))
-
-
-def photometric_loglik(loss_held: np.ndarray, sigma_rel2: float, blocks: int) -> np.ndarray:
-    """(K,) log-likelihoods (up to a constant, the best 0) of candidates from their
-    held-out losses (``tempered_likelihood``)."""
-    lh = np.asarray(loss_held, np.float64)
-    return -blocks * (lh - lh.min()) / max(sigma_rel2, 1e-12)
 
 
 def log_elevation_prior(dirs: np.ndarray, up) -> np.ndarray:
     """(K,) log density (per steradian, up to a constant) of a prior uniform in the
-    elevation angle above MIN_ELEVATION_DEG: ``1 / cos(elevation)`` (a uniform density
-    over the sphere would put most of the light near the horizon)."""
+    elevation angle: ``1 / cos(elevation)`` (a uniform density over the sphere would put
+    most of the light near the horizon), bounded at 89 deg (a pole, not a spike)."""
     e = np.arcsin(np.clip(np.asarray(dirs, np.float64) @ np.asarray(up, np.float64), -1.0, 1.0))
     return -np.log(np.maximum(np.cos(e), math.cos(math.radians(89.0))))
 
@@ -222,7 +194,8 @@ class Search:
     """Step 3: the posterior over directions (``DirectionPosterior``), and per grid
     direction its shadow log-likelihood, photometric log-likelihood, the shadowed/lit
     ratio its shadow fits and the shadow it casts on the receivers (blocks); the chosen
-    light (a sun of the mean direction, or a lamp along it)."""
+    light (a sun of the mean direction, or a lamp along it) and the most probable one
+    (``map_light``: the posterior's mode, what the split is read across)."""
 
     posterior: DirectionPosterior
     ll_shadow: np.ndarray
@@ -232,6 +205,7 @@ class Search:
     light: FitLight
     evidence: object
     receivers: object
+    map_light: FitLight | None = None
 
 
 @dataclass(frozen=True)
@@ -250,14 +224,16 @@ class _Scorer:
         from zcomp_cli.renderers.physical.shadowcast import receivers
 
         fp = pp.fp
-        self.pp, self.fp, self.settings = pp, fp, settings
-        self.rec = receivers(pp.grid.mesh, evidence, max_receivers=settings.max_receivers)
+        self.pp, self.fp, self.settings, self.evidence = pp, fp, settings, evidence
+        self.rec = receivers(pp.grid.mesh, evidence, max_receivers=settings.max_receivers,
+                             bias_rel=settings.search.bias_rel, blocks=settings.frame.holdout_blocks)
         self.y = pp.lum
         self.B = np.stack([a.values for a in sky_atoms(pp)], 1)
         self.scale = max(float(np.median(np.abs(self.y[fp.train]))), 1e-12)
-        self.sig = base_sigma(self.B[fp.train], self.y[fp.train], scale=self.scale)
+        self.sig = base_sigma(self.B[fp.train], self.y[fp.train], scale=self.scale, cfg=settings.solver)
         self.blocks = held_out_blocks(fp)
         self.sigma = None  # the shadow fit's noise scale, set by the first (coarse) scoring
+        self.photo_s2 = None  # the photometric fit's noise (over the data scale squared), likewise
 
     def suns(self, dirs, radius_deg: float = 0.0, seed: int = 0):
         """(shadow ShadowFit, photometric held-out losses (K,)) of suns toward ``dirs``."""
@@ -275,24 +251,22 @@ class _Scorer:
         else:
             V = sun_visibility(self.pp.grid.caster, self.rec, D)
             C = at.sun_columns(self.fp, D, steps=self.settings.estimate_march_steps)
-        lh, _ = score_candidates(self.B, C, self.y, self.fp.train, sigma=self.sig)
-        self.last_V = V
-        return self._scored(shadow_fit(self.rec, V)), lh, C
+        lh, _ = score_candidates(self.B, C, self.y, self.fp.train, sigma=self.sig, cfg=self.settings.solver)
+        return self._scored(shadow_fit(self.rec, V, self.settings.search)), lh, C
 
     def suns_any_size(self, dirs):
         """``suns`` of hard shadows, the shadow likelihood marginalised over the light's
-        size: a hard shadow, or one softened over SOFT_DEG (each direction's visibility
-        averaged with its neighbours' within that angle), each with probability 1/2.
-        Returns (ShadowFit, held-out losses, columns, hard visibility (R, K))."""
-        from zcomp_cli.renderers.physical.shadowcast import shadow_fit
-
+        size: a hard shadow, or one softened over ``search.soft_deg`` (each direction's
+        visibility averaged with its neighbours' within that angle), each with
+        probability 1/2. Returns (scored shadow fit, held-out losses, columns, hard
+        visibility (R, K))."""
         D = np.asarray(dirs, np.float64).reshape(-1, 3)
         C = at.sun_columns(self.fp, D, steps=self.settings.estimate_march_steps)
-        lh, _ = score_candidates(self.B, C, self.y, self.fp.train, sigma=self.sig)
+        lh, _ = score_candidates(self.B, C, self.y, self.fp.train, sigma=self.sig, cfg=self.settings.solver)
         V = sun_visibility(self.pp.grid.caster, self.rec, D)
-        near = (D @ D.T >= math.cos(math.radians(SOFT_DEG))).astype(np.float64)
-        hard = shadow_fit(self.rec, V)
-        soft = shadow_fit(self.rec, V @ (near / near.sum(1, keepdims=True)).T)
+        near = (D @ D.T >= math.cos(math.radians(self.settings.search.soft_deg))).astype(np.float64)
+        hard = shadow_fit(self.rec, V, self.settings.search)
+        soft = shadow_fit(self.rec, V @ (near / near.sum(1, keepdims=True)).T, self.settings.search)
         if self.sigma is None:
             self.sigma = min(hard.best_sigma, soft.best_sigma)
         lhard, lsoft = hard.loglik(self.sigma), soft.loglik(self.sigma)
@@ -301,24 +275,36 @@ class _Scorer:
         return _Shadow(ll, ratio), lh, C, V
 
     def lamps(self, positions):
-        from zcomp_cli.renderers.physical.shadowcast import lamp_visibility, shadow_fit
+        """(scored shadow fit, photometric held-out losses, columns) of point lamps at
+        ``positions`` (K, 3)."""
+        from zcomp_cli.renderers.physical.shadowcast import lamp_visibility
 
         Q = np.asarray(positions, np.float64).reshape(-1, 3)
         V = lamp_visibility(self.pp.grid.caster, self.rec, Q)
         C = at.lamp_columns(self.fp, Q, steps=self.settings.estimate_march_steps)
-        lh, _ = score_candidates(self.B, C, self.y, self.fp.train, sigma=self.sig)
-        return self._scored(shadow_fit(self.rec, V)), lh, C
+        lh, _ = score_candidates(self.B, C, self.y, self.fp.train, sigma=self.sig, cfg=self.settings.solver)
+        return self._scored(shadow_fit(self.rec, V, self.settings.search)), lh, C
 
     def _scored(self, fit_) -> "_Shadow":
         if self.sigma is None:
             self.sigma = fit_.best_sigma
         return _Shadow(fit_.loglik(self.sigma), fit_.ratio)
 
+    def loglik_photo(self, lh, lh_ref: float) -> np.ndarray:
+        """(K,) the photometric log-likelihoods of held-out losses ``lh`` (per pixel, over
+        the data scale squared: half a squared residual where it is small) relative to
+        ``lh_ref``, each held-out block one observation, at the noise the best candidate
+        implies (its held-out loss: the model's misfit counts as noise, as the shadow
+        term's does; set by the first, coarse, scoring)."""
+        lh = np.asarray(lh, np.float64)
+        if self.photo_s2 is None:
+            self.photo_s2 = max(2.0 * float(lh.min()), (self.settings.solver.sigma_floor) ** 2)
+        return -self.blocks * (lh - lh_ref) / (2.0 * self.photo_s2)
+
     def loglik(self, sfit, lh, lh_ref: float):
         """((K,) the summed log-likelihood, (K,) its photometric part): the photometric
         one relative to ``lh_ref`` (a common reference, so that separate calls compare)."""
-        s2 = (self.sig / self.scale) ** 2
-        ll_photo = -self.blocks * (np.asarray(lh) - lh_ref) / max(s2, 1e-12)
+        ll_photo = self.loglik_photo(lh, lh_ref)
         return sfit.loglik + ll_photo, ll_photo
 
 
@@ -338,14 +324,15 @@ def search_scorer(pp: Prepared, settings: PhysicalSettings):
 
     mesh = pp.grid.mesh
     ev = shadow_evidence(pp.grid.shading, mesh.support, mesh.casters, mesh.points, mesh.up, known=pp.grid.known,
-                         albedo=pp.grid.albedo, labels=mesh.labels)
+                         albedo=pp.grid.albedo, labels=mesh.labels, cfg=settings.evidence)
     return ev, _Scorer(pp, ev, settings)
 
 
-def caster_anchor(pp: Prepared, evidence) -> np.ndarray:
+def caster_anchor(pp: Prepared, evidence, cfg) -> np.ndarray:
     """(3,) where a lamp's direction is measured from in the search: the base of the
-    caster with the most tied shadow beside it (its shadow's rays meet at the lamp), else
-    the support's centre."""
+    caster with the most tied shadow beside it (its shadow's rays meet at the lamp;
+    ``cfg`` the evidence's config: beside is within its attachment reach), else the
+    support's centre."""
     mesh = pp.grid.mesh
     if not evidence.tied.any() or not mesh.base.any():
         return pp.anchor
@@ -355,7 +342,7 @@ def caster_anchor(pp: Prepared, evidence) -> np.ndarray:
     tied = evidence.tied.astype(np.uint8)
     for k in np.unique(mesh.labels[mesh.casters]):
         comp = (mesh.labels == k).astype(np.uint8)
-        reach = max(1, int(round(0.05 * max(mesh.shape))))
+        reach = max(1, int(round(cfg.attach_rel * max(mesh.shape)))) + cfg.unread_px
         near = cv2.dilate(comp, np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)) > 0
         n = int((near & (tied > 0)).sum())
         if n > best_n and (mesh.base & (mesh.labels == k)).any():
@@ -368,88 +355,117 @@ def caster_anchor(pp: Prepared, evidence) -> np.ndarray:
 def search(pp: Prepared, settings: PhysicalSettings, seed: int = 0) -> tuple[Search, "_Scorer"]:
     """Step 3 (module docstring): the posterior over the light's direction, each
     direction's likelihood marginalised over its distance (a sun, or a lamp at one of
-    ``LAMP_DISTANCES_REL`` along it from the caster's base: a priori a sun and a lamp
-    alike; lamps are scored along the ``LAMP_TOP`` best directions, the rest counting
-    as unlikely)."""
+    ``lamp_distances_rel`` along it from the caster's base: a priori a sun and a lamp
+    alike; the lamps scored are those an unshadowed photometric screen of every
+    direction and distance ranks among the ``lamp_top`` best, and those along the
+    ``lamp_top`` best suns; a lamp not scored counts as unlikely)."""
     fp = pp.fp
+    cfg = settings.search
+    T = cfg.temperature
     ev, sc = search_scorer(pp, settings)
     up = fp.up
     # a priori a sun or a lamp alike, each lamp distance alike (so a lamp at one distance
     # must explain the photograph better than the sun by the log of their number)
-    n_lamp = len(LAMP_DISTANCES_REL)
+    n_lamp = len(cfg.lamp_distances_rel)
     log_opt_prior = np.log(np.array([0.5] + [0.5 / max(n_lamp, 1)] * n_lamp))
     pts = fp.points[fp.support] if fp.support.sum() >= 3 else fp.points
-    dists = float(np.median(np.linalg.norm(pts, axis=1))) * np.asarray(LAMP_DISTANCES_REL, np.float64)
-    anchor = caster_anchor(pp, ev)
+    dists = float(np.median(np.linalg.norm(pts, axis=1))) * np.asarray(cfg.lamp_distances_rel, np.float64)
+    anchor = caster_anchor(pp, ev, settings.evidence)
 
-    def score(dirs, lamp_dists):
-        """Per direction: the marginal log-likelihood, its photometric part, the best
-        option (-1 a sun, else the distance's index), its ratio and shadow blocks."""
+    def suns(dirs):
+        """Per direction: the sun's log-likelihood, its photometric part, the ratio, the
+        shadow's blocks, the shadow part, the held-out losses."""
         sf, lh, _, V = sc.suns_any_size(dirs)
         ll_sun, ll_ph = sc.loglik(sf, lh, lh_ref if lh_ref is not None else float(lh.min()))
-        opts = [ll_sun]
-        if len(lamp_dists):
-            Q = anchor[None, None] + lamp_dists[None, :, None] * dirs[:, None, :]
-            sl, lhl, _ = sc.lamps(Q.reshape(-1, 3))
-            ll_l, _ = sc.loglik(sl, lhl, lh_ref if lh_ref is not None else float(lh.min()))
-            opts += list(ll_l.reshape(len(dirs), -1).T)
-        # (the options' prior enters at the posterior's temperature: log p times T here)
-        stack = np.stack(opts) + TEMPERATURE * log_opt_prior[:len(opts), None]
-        marg = TEMPERATURE * np.logaddexp.reduce(stack / TEMPERATURE, axis=0)
-        return marg, ll_ph, np.argmax(stack, 0) - 1, sf.ratio, _shadow_area_blocks(sc.rec, V), sf.loglik, lh
+        return ll_sun, ll_ph, sf.ratio, _shadow_area_blocks(sc.rec, V), sf.loglik, lh
+
+    def lamps(positions):
+        sl, lhl, _ = sc.lamps(np.asarray(positions, np.float64).reshape(-1, 3))
+        return sc.loglik(sl, lhl, lh_ref)[0]
+
+    def marginal(ll_sun, lamp_ll):
+        """Per direction: the likelihood marginalised over the options scored (the sun,
+        and each (distance index, log-likelihood) of ``lamp_ll``: a list per direction),
+        and the best option (-1 the sun). The options' prior enters at the posterior's
+        temperature (log p times T here)."""
+        marg = np.empty(len(ll_sun))
+        best = np.full(len(ll_sun), -1)
+        for i, ls in enumerate(ll_sun):
+            terms = [(-1, ls + T * log_opt_prior[0])]
+            terms += [(j, v + T * log_opt_prior[1 + j]) for j, v in lamp_ll[i]]
+            vals = np.array([t for _, t in terms])
+            marg[i] = T * np.logaddexp.reduce(vals / T)
+            best[i] = terms[int(np.argmax(vals))][0]
+        return marg, best
 
     lh_ref = None
-    coarse = hemisphere(settings.n_light_candidates, up, MIN_ELEVATION_DEG)
-    marg, llp, _, ratio_c, area_c, llsh_c, lh_c = score(coarse, np.zeros(0))
+    coarse = hemisphere(settings.n_light_candidates, up, cfg.min_elevation_deg)
+    ll_sun_c, llp, ratio_c, area_c, llsh_c, lh_c = suns(coarse)
     lh_ref = float(lh_c.min())
-    marg, llp, _, _, _, _, _ = score(coarse, np.zeros(0))
-    marg = marg  # the suns alone: the lamp options unscored count as -inf
     prior_c = log_elevation_prior(coarse, up)
-    top = np.argsort(-(marg / TEMPERATURE + prior_c))[:LAMP_TOP]
-    m_top, llp_top, opt_top, r_top, a_top, sh_top, _ = score(coarse[top], dists)
-    marg[top], llp[top], ratio_c[top], area_c[top], llsh_c[top] = m_top, llp_top, r_top, a_top, sh_top
-    option = np.full(len(coarse), -1)
-    option[top] = opt_top
+    # the lamps worth scoring: every (direction, distance) screened by its unshadowed
+    # photometric fit plus the sun's shadow along that direction; the LAMP_TOP best, and
+    # the lamps along the LAMP_TOP best suns
+    K, nd = len(coarse), len(dists)
+    Q = anchor[None, None] + dists[None, :, None] * coarse[:, None, :]
+    C0 = at.lamp_columns(fp, Q.reshape(-1, 3))
+    lh0, _ = score_candidates(sc.B, C0, sc.y, fp.train, sigma=sc.sig, iters=cfg.screen_iters, cfg=settings.solver)
+    screen = (llsh_c[:, None] + sc.loglik_photo(lh0, lh_ref).reshape(K, nd)) / T + prior_c[:, None]
+    pairs = {tuple(int(v) for v in np.unravel_index(i, (K, nd))) for i in np.argsort(-screen.ravel())[:cfg.lamp_top]}
+    for i in np.argsort(-(ll_sun_c / T + prior_c))[:cfg.lamp_top]:
+        pairs |= {(int(i), j) for j in range(nd)}
+    pairs = sorted(pairs)
+    ll_pairs = lamps(np.array([Q[i, j] for i, j in pairs])) if pairs else np.zeros(0)
+    lamp_ll = [[] for _ in range(K)]
+    for (i, j), v in zip(pairs, ll_pairs):
+        lamp_ll[i].append((j, float(v)))
+    marg, option = marginal(ll_sun_c, lamp_ll)
     omega = np.full(len(coarse), 2 * math.pi / len(coarse))
     # the refinement: a finer spiral around the best, standing for its cap's share
-    ib = int(np.argmax(marg / TEMPERATURE + prior_c))
+    ib = int(np.argmax(marg / T + prior_c))
     best = coarse[ib]
     cap = 1.5 * spacing_deg(2 * settings.n_light_candidates)
-    fine = fine_spiral(best, cap, REFINE_DIRECTIONS, up=up)
-    fine = fine[fine @ up > math.sin(math.radians(MIN_ELEVATION_DEG))]
-    fd = dists[[option[ib]]] if option[ib] >= 0 else np.zeros(0)
-    m_f, llp_f, opt_f, r_f, a_f, sh_f, _ = score(fine, fd)
-    opt_f = np.where(opt_f >= 0, option[ib], -1)
+    fine = fine_spiral(best, cap, cfg.refine_directions, up=up)
+    fine = fine[fine @ up > math.sin(math.radians(cfg.min_elevation_deg))]
+    ll_sun_f, llp_f, r_f, a_f, sh_f, _ = suns(fine)
+    if option[ib] >= 0:  # the best option a lamp: its distance along the fine directions
+        ll_lf = lamps(anchor[None] + dists[option[ib]] * fine)
+        m_f, opt_f = marginal(ll_sun_f, [[(int(option[ib]), float(v))] for v in ll_lf])
+    else:
+        m_f, opt_f = marginal(ll_sun_f, [[] for _ in fine])
     inside = coarse @ best >= math.cos(math.radians(cap))
     cap_area = float(omega[inside].sum())
     dirs = np.concatenate([coarse[~inside], fine])
     om = np.concatenate([omega[~inside], np.full(len(fine), cap_area / len(fine))])
     post = DirectionPosterior.from_parts(dirs, np.concatenate([marg[~inside], m_f]), log_elevation_prior(dirs, up),
-                                         om, TEMPERATURE)
+                                         om, T)
     opts = np.concatenate([option[~inside], opt_f])
     # the light: the posterior's mean direction, as a sun or as a lamp at the distance
     # the most probable direction's best option says
     mean_dir = post.mean_direction
-    if mean_dir @ up <= math.sin(math.radians(MIN_ELEVATION_DEG)):
+    if mean_dir @ up <= math.sin(math.radians(cfg.min_elevation_deg)):
         mean_dir = post.map_direction
-    k = int(opts[int(np.argmax(post.log_post))])
+    i_map = int(np.argmax(post.log_post))
+    k = int(opts[i_map])
     if k < 0:
         _, _, col = sc.suns(mean_dir[None])
         light = FitLight("sun", mean_dir, None, col[:, 0])
+        best_light = FitLight("sun", post.dirs[i_map], None, np.zeros(0))
     else:
         q = anchor + dists[k] * mean_dir
         _, _, col = sc.lamps(q[None])
         light = FitLight("lamp", q, None, col[:, 0], radius_from=Origin.DEFAULT)
+        best_light = FitLight("lamp", anchor + dists[k] * post.dirs[i_map], None, np.zeros(0))
     return Search(posterior=post, ll_shadow=np.concatenate([llsh_c[~inside], sh_f]),
                   ll_photo=np.concatenate([llp[~inside], llp_f]), ratio=np.concatenate([ratio_c[~inside], r_f]),
                   shadow_blocks=np.concatenate([area_c[~inside], a_f]), light=light, evidence=ev,
-                  receivers=sc.rec), sc
+                  receivers=sc.rec, map_light=best_light), sc
 
 
 def choose_size(pp: Prepared, sc: _Scorer, light: FitLight, settings: PhysicalSettings, seed: int) -> FitLight:
     """Step 4 (in place; a lamp is left alone): a sun's angular radius, the one rule for
     every sun whose size is not given: among the Sun's own (``SUN_RADIUS_DEG``, the
-    default) and RADII_DEG, the one whose cone-averaged shadow has the largest summed
+    default) and ``search.radii_deg``, the one whose cone-averaged shadow has the largest summed
     log-likelihood -- unless the default is within one unit of tempered log-likelihood
     of it (the pixels cannot tell: the default stays). The renderer's ``shadow_softness``
     forces one."""
@@ -463,12 +479,12 @@ def choose_size(pp: Prepared, sc: _Scorer, light: FitLight, settings: PhysicalSe
         light.column = at.sun_column(pp.fp, light.param, r, steps=settings.estimate_march_steps,
                                      cone_samples=settings.cone_samples, seed=seed)
         return light
-    radii = (SUN_RADIUS_DEG,) + tuple(r for r in RADII_DEG if r != SUN_RADIUS_DEG)
+    radii = (SUN_RADIUS_DEG,) + tuple(r for r in settings.search.radii_deg if r != SUN_RADIUS_DEG)
     scored = []
     for r in radii:
         sf, lh, col = sc.suns(light.param[None], r, seed=seed)
         ll, _ = sc.loglik(sf, lh, 0.0)
-        scored.append((float(ll[0]) / TEMPERATURE, r, col[:, 0]))
+        scored.append((float(ll[0]) / settings.search.temperature, r, col[:, 0]))
     best = max(scored, key=lambda x: x[0])
     if best[0] - scored[0][0] < 1.0:
         best, origin = scored[0], Origin.DEFAULT
@@ -480,10 +496,10 @@ def choose_size(pp: Prepared, sc: _Scorer, light: FitLight, settings: PhysicalSe
 
 def hedge(pp: Prepared, light: FitLight, spread_deg: float, settings: PhysicalSettings, seed: int) -> bool:
     """Step 6's hedge (in place): the searched light's angular size grown to cover its
-    posterior's spread (``CONE_PER_RMS`` times the RMS angle, at most MAX_RADIUS_DEG): the
+    posterior's spread (``search.cone_per_rms`` times the RMS angle, at most ``search.max_radius_deg``): the
     expectation of its shadow over the posterior. Returns whether it grew."""
     fp = pp.fp
-    cover = min(CONE_PER_RMS * float(spread_deg), MAX_RADIUS_DEG)
+    cover = min(settings.search.cone_per_rms * float(spread_deg), settings.search.max_radius_deg)
     if light.kind == "sun":
         if cover <= (light.radius or 0.0):
             return False
@@ -504,42 +520,36 @@ def hedge(pp: Prepared, light: FitLight, spread_deg: float, settings: PhysicalSe
     return True
 
 
-def _shrunk_share(rho: float, n_eff: float, sigma: float) -> float:
+def _shrunk_share(rho: float, n_eff: float, sigma: float, cfg) -> float:
     """The measured shadowed/lit ratio ``rho`` behind ``n_eff`` blocks of shadow, shrunk
-    toward the prior: the posterior mean of a Gaussian prior (PRIOR_SKY_SHARE, spread
-    PRIOR_SKY_SHARE_SPREAD) and a measurement whose noise is the shadow fit's ``sigma``
-    per block (each block one observation)."""
-    n0 = (max(sigma, 1e-6) / PRIOR_SKY_SHARE_SPREAD) ** 2  # the prior's weight in blocks
-    return (n_eff * rho + n0 * PRIOR_SKY_SHARE) / (n_eff + n0)
+    toward the prior: the posterior mean of a Gaussian prior (``cfg.prior_sky_share``,
+    spread ``cfg.prior_sky_share_spread``) and a measurement whose noise is the shadow
+    fit's ``sigma`` per block (each block one observation)."""
+    n0 = (max(sigma, 1e-6) / cfg.prior_sky_share_spread) ** 2  # the prior's weight in blocks
+    return (n_eff * rho + n0 * cfg.prior_sky_share) / (n_eff + n0)
 
 
-def split_at(sc: _Scorer, light: FitLight) -> tuple[float, float]:
-    """Step 5 for a light of given direction or position: (the sky's share of the
-    support's light, the blocks of shadow behind it) from the shadow it casts."""
-    if light.kind == "sun":
-        sf, _, _, V = sc.suns_any_size(np.asarray(light.param, np.float64)[None])
-    else:
-        from zcomp_cli.renderers.physical.shadowcast import lamp_visibility
-
-        sf, _, _ = sc.lamps(np.asarray(light.param, np.float64)[None])
-        V = lamp_visibility(sc.pp.grid.caster, sc.rec, np.asarray(light.param, np.float64)[None])
-    n_eff = float(_shadow_area_blocks(sc.rec, V)[0])
-    if n_eff <= 0:
-        return PRIOR_SKY_SHARE, 0.0
-    return _shrunk_share(float(np.clip(sf.ratio[0], 0.0, 1.0)), n_eff, sc.sigma), n_eff
-
-
-def split_from_shadows(s: Search, sigma: float) -> tuple[float, float]:
+def split_from_shadows(sc: "_Scorer", light: FitLight) -> tuple[float, float]:
     """Step 5: (the sky's share of the support's light, the blocks of shadow evidence
-    behind it): the posterior-weighted shadowed/lit ratio of the shadows its directions
-    cast, shrunk toward the prior (``_shrunk_share``, the shadow fit's noise ``sigma``)."""
-    p = s.posterior.probabilities
-    n_eff = float(p @ s.shadow_blocks)
+    behind it): Madsen and Nielsen's shadowed/lit ratio of the same surface, read across
+    the edges of the shadow ``light`` (the most probable one) casts (its shadow fit's
+    ``rho``), as much as that shadow falls on cast shadows tied to their casters (its
+    overlap with them, in the frame's blocks), shrunk toward the prior
+    (``_shrunk_share``, the shadow fit's noise). A shadow that falls on lit floor only
+    tells nothing of the split (no overlap, the prior's)."""
+    from zcomp_cli.renderers.physical.shadowcast import lamp_visibility
+
+    cfg = sc.settings.search
+    q = np.asarray(light.param, np.float64)[None]
+    V = sun_visibility(sc.pp.grid.caster, sc.rec, q) if light.kind == "sun" else lamp_visibility(
+        sc.pp.grid.caster, sc.rec, q)
+    tied = sc.evidence.tied[sc.rec.ys, sc.rec.xs]
+    share = float((sc.rec.weight * (1.0 - V[:, 0]) * tied).sum()) / max(float(sc.rec.weight.sum()), 1e-12)
+    n_eff = share * sc.rec.blocks
     if n_eff <= 0:
-        return PRIOR_SKY_SHARE, 0.0
-    w = p * s.shadow_blocks
-    rho = float(w @ np.clip(s.ratio, 0.0, 1.0) / max(w.sum(), 1e-300))
-    return _shrunk_share(rho, n_eff, sigma), n_eff
+        return cfg.prior_sky_share, 0.0
+    rho = float(np.clip(shadow_fit(sc.rec, V, cfg).ratio[0], 0.0, 1.0))
+    return _shrunk_share(rho, n_eff, sc.sigma, cfg), n_eff
 
 
 def estimate_light(depth, normals, shading, known, albedo, camera: Camera, *, up, up_from: Origin = Origin.SUPPORT,
@@ -570,8 +580,8 @@ def estimate_light_with_posterior(depth, normals, shading, known, albedo, camera
                      settings=settings, seed=seed)
 
 
-def prior_weights(atoms: list[Atom], pp: Prepared, light_names: list[str]) -> dict:
-    """The prior weights: the support's level split by PRIOR_SKY_SHARE between the
+def prior_weights(atoms: list[Atom], pp: Prepared, light_names: list[str], share: float) -> dict:
+    """The prior weights: the support's level split by the sky's ``share`` between the
     uniform sky and the lights (equally), nothing in the other lobes; a ``fixed`` atom
     (the manifest's lights in physical units) its own level's exposure."""
     fp = pp.fp
@@ -581,11 +591,11 @@ def prior_weights(atoms: list[Atom], pp: Prepared, light_names: list[str]) -> di
     out = {}
     if "sky" in cols:
         unit = max(float(np.median(cols["sky"][sup])), 1e-9)
-        out["sky"] = PRIOR_SKY_SHARE * level / unit
+        out["sky"] = share * level / unit
     for name in light_names:
         unit = float(np.median(cols[name][sup])) if name in cols else 0.0
         if unit > 1e-9:
-            out[name] = (1.0 - PRIOR_SKY_SHARE) * level / unit / max(len(light_names), 1)
+            out[name] = (1.0 - share) * level / unit / max(len(light_names), 1)
     if "fixed" in cols:
         f = np.asarray(cols["fixed"], np.float64)
         ratio = np.median(pp.shading[sup] / np.maximum(f[sup], 1e-9), axis=0)
@@ -617,5 +627,4 @@ def prior_model(pp: Prepared, up, up_from, note: str) -> LightModel:
 
 
 __all__ = ["estimate_light", "estimate_light_with_posterior", "prepare", "search", "search_scorer", "choose_size",
-           "hedge", "split_at", "split_from_shadows", "sky_atoms", "prior_model", "PRIOR_SKY_SHARE", "TEMPERATURE",
-           "RADII_DEG"]
+           "hedge", "split_from_shadows", "sky_atoms", "prior_model", "prior_weights"]

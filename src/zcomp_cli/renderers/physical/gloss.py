@@ -30,28 +30,23 @@ import numpy as np
 from zcomp_cli import equirect
 from zcomp_cli.renderers.physical import sh
 from zcomp_cli.renderers.physical.lightmodel import LightModel
+from zcomp_cli.renderers.physical.settings import ProbeConfig
 from zcomp_cli.worldframe import ground_frame
 
-# Size of the map a light model is rendered into for its prefiltering.
-MODEL_MAP_SIZE = (32, 64)
-# The least GGX alpha: a perfect mirror's delta lobe cannot be evaluated toward a light.
-MIN_ALPHA = 1e-3
-
-
-# The environment BRDF's table: perceptual roughness x n.v nodes, and the GGX samples
-# per node of its integration (Hammersley points: deterministic; 1024 are within 1e-4
-# of 64x as many at the median node and 0.025 at the worst, grazing n.v = 0.03;
-# 0.08 s once per process).
-ENV_LUT_SIZE = 32
-ENV_LUT_SAMPLES = 1024
+# The constants (the model's map size, the least GGX alpha, the environment BRDF's
+# table: its nodes and samples) are ``settings.ProbeConfig``'s, each with its
+# provenance.
+DEFAULT = ProbeConfig()
 
 
 @functools.cache
-def _env_lut() -> np.ndarray:
-    """(ENV_LUT_SIZE, ENV_LUT_SIZE, 2) the split-sum (A, B) of ``ggx_direct``'s BRDF,
-    integrated by GGX importance sampling as Karis 2013 precomputes it: row roughness,
-    column n.v, both from 0 to 1 (computed once)."""
-    k = ENV_LUT_SAMPLES
+def _env_lut(size: int = DEFAULT.env_lut_size, samples: int = DEFAULT.env_lut_samples,
+             min_alpha: float = DEFAULT.min_alpha) -> np.ndarray:
+    """(size, size, 2) the split-sum (A, B) of ``ggx_direct``'s BRDF, integrated by GGX
+    importance sampling (``samples`` Hammersley points per node) as Karis 2013
+    precomputes it: row roughness, column n.v, both from 0 to 1 (computed once per
+    table)."""
+    k = samples
     i = np.arange(k)
     u1 = (i + 0.5) / k
     bits = i.astype(np.uint32)  # van der Corput radical inverse
@@ -61,10 +56,10 @@ def _env_lut() -> np.ndarray:
     bits = ((bits & 0x0F0F0F0F) << 4) | ((bits & 0xF0F0F0F0) >> 4)
     bits = ((bits & 0x00FF00FF) << 8) | ((bits & 0xFF00FF00) >> 8)
     u2 = bits.astype(np.float64) / 2.0 ** 32
-    nodes = np.linspace(0.0, 1.0, ENV_LUT_SIZE)
-    out = np.zeros((ENV_LUT_SIZE, ENV_LUT_SIZE, 2))
+    nodes = np.linspace(0.0, 1.0, size)
+    out = np.zeros((size, size, 2))
     for a_i, r in enumerate(nodes):
-        alpha = max(r * r, MIN_ALPHA)
+        alpha = max(r * r, min_alpha)
         # half vectors from D(h) (n.h): cos^2 = (1 - u) / (1 + (alpha^2 - 1) u)
         ch = np.sqrt((1.0 - u1) / (1.0 + (alpha * alpha - 1.0) * u1))
         sh_ = np.sqrt(np.maximum(1.0 - ch * ch, 0.0))
@@ -85,12 +80,13 @@ def _env_lut() -> np.ndarray:
     return out
 
 
-def env_brdf(roughness: np.ndarray, ndv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def env_brdf(roughness: np.ndarray, ndv: np.ndarray,
+             cfg: ProbeConfig = DEFAULT) -> tuple[np.ndarray, np.ndarray]:
     """The split-sum environment BRDF of ``ggx_direct``'s BRDF: (A, B) (N,) for
     perceptual ``roughness`` (N,) and ``n.v`` (N,) in [0, 1] (bilinear in the table of
-    ``_env_lut``), so that the directional albedo is ``F0 A + B``."""
-    lut = _env_lut()
-    m = ENV_LUT_SIZE - 1
+    ``_env_lut``, ``cfg``'s), so that the directional albedo is ``F0 A + B``."""
+    lut = _env_lut(cfg.env_lut_size, cfg.env_lut_samples, cfg.min_alpha)
+    m = cfg.env_lut_size - 1
     r = np.clip(np.nan_to_num(np.asarray(roughness, np.float64).reshape(-1)), 0.0, 1.0) * m
     c = np.clip(np.nan_to_num(np.asarray(ndv, np.float64).reshape(-1)), 0.0, 1.0) * m
     r0 = np.minimum(np.floor(r).astype(int), m - 1)
@@ -110,15 +106,16 @@ def _smith_g(alpha, nv, nl):
     return 1.0 / (1.0 + lam(nv) + lam(nl))
 
 
-def specular_albedo(roughness: np.ndarray, ndv: np.ndarray, f0: np.ndarray) -> np.ndarray:
+def specular_albedo(roughness: np.ndarray, ndv: np.ndarray, f0: np.ndarray,
+                    cfg: ProbeConfig = DEFAULT) -> np.ndarray:
     """(N, C) directional albedo ``F0 A + B`` of the GGX specular layer toward the viewer,
     for perceptual ``roughness`` (N,), ``n.v`` (N,) and ``f0`` (N, C) in [0, 1]."""
-    a, b = env_brdf(roughness, ndv)
+    a, b = env_brdf(roughness, ndv, cfg)
     return np.clip(np.asarray(f0, np.float64) * a[:, None] + b[:, None], 0.0, 1.0)
 
 
 def ggx_direct(n: np.ndarray, v: np.ndarray, l: np.ndarray, roughness: np.ndarray, f0: np.ndarray,
-               tan_radius=0.0) -> np.ndarray:
+               tan_radius=0.0, *, cfg: ProbeConfig = DEFAULT) -> np.ndarray:
     """(N, C) ``f_spec(v, l) (n.l)``: the GGX specular BRDF times the cosine, so that a
     light bringing the irradiance ``E_perp`` to a surface facing it is reflected toward
     ``v`` with the radiance ``E_perp`` times this.
@@ -126,11 +123,12 @@ def ggx_direct(n: np.ndarray, v: np.ndarray, l: np.ndarray, roughness: np.ndarra
     n, v, l: (N, 3) unit normal, direction to the viewer, direction to the light;
     roughness: (N,) perceptual (alpha = roughness^2, as Blender's Principled BSDF);
     f0: (N, C) reflectance at normal incidence; tan_radius: the light's angular radius
-    as a tangent (scalar or (N,)), widening the lobe. 0 where n.l <= 0 or n.v <= 0."""
+    as a tangent (scalar or (N,)), widening the lobe; ``cfg.min_alpha`` the sharpest
+    lobe. 0 where n.l <= 0 or n.v <= 0."""
     n, v, l = (np.asarray(x, np.float64).reshape(-1, 3) for x in (n, v, l))
     f0 = np.asarray(f0, np.float64)
     r = np.clip(np.nan_to_num(np.asarray(roughness, np.float64).reshape(-1)), 0.0, 1.0)
-    alpha = np.maximum(r * r, MIN_ALPHA)
+    alpha = np.maximum(r * r, cfg.min_alpha)
     a_d = np.minimum(alpha + 0.5 * np.asarray(tan_radius, np.float64), 1.0)
     nl = np.sum(n * l, 1)
     nv = np.sum(n * v, 1)
@@ -149,11 +147,12 @@ def ggx_direct(n: np.ndarray, v: np.ndarray, l: np.ndarray, roughness: np.ndarra
     return np.where(ok[:, None], out, 0.0)
 
 
-def model_radiance_map(model: LightModel, size=MODEL_MAP_SIZE) -> tuple[np.ndarray, np.ndarray]:
+def model_radiance_map(model: LightModel, size=None, cfg: ProbeConfig = DEFAULT) -> tuple[np.ndarray, np.ndarray]:
     """(equirectangular radiance (h, w, 3) of the model's sky in the ``zcomp``
     convention, its ground frame (3, 3)); its suns and lamps are reflected by
-    ``ggx_direct``, each with its visibility."""
-    h, w = size
+    ``ggx_direct``, each with its visibility. ``size`` (h, w); None:
+    ``cfg.model_map_width`` wide, half as high."""
+    h, w = (cfg.model_map_width // 2, cfg.model_map_width) if size is None else size
     frame = ground_frame(model.up)
     d = equirect.pixel_directions(h, w, frame)
     L = np.maximum(sh.basis(d.reshape(-1, 3)) @ model.sky.radiance_sh, 0.0).reshape(h, w, 3)
@@ -164,21 +163,23 @@ def model_radiance_map(model: LightModel, size=MODEL_MAP_SIZE) -> tuple[np.ndarr
 _CACHE: dict = {}
 
 
-def prefiltered_light(model: LightModel):
+def prefiltered_light(model: LightModel, cfg: ProbeConfig = DEFAULT):
     """``probe.PrefilteredProbe`` of the model's sky: its probe's (the compact sources
-    taken out), else its own map's (cached per model object)."""
+    taken out, prefiltered when the probe was read), else its own map's (cached per
+    model object and config)."""
     from zcomp_cli.renderers.physical.probe import prefilter
 
     if model.probe is not None:
         return model.probe
-    hit = _CACHE.get(id(model))
+    key = (id(model), cfg)
+    hit = _CACHE.get(key)
     if hit is not None and hit[0] is model:
         return hit[1]
-    L, frame = model_radiance_map(model)
-    pf = prefilter(L, frame, name="the fitted light")
+    L, frame = model_radiance_map(model, cfg=cfg)
+    pf = prefilter(L, frame, name="the fitted light", cfg=cfg)
     if len(_CACHE) > 16:
         _CACHE.clear()
-    _CACHE[id(model)] = (model, pf)
+    _CACHE[key] = (model, pf)
     return pf
 
 

@@ -13,15 +13,16 @@ whose free ones it fits, in the steps of ``estimate`` (its module docstring):
 3. a light whose **direction is free** is found by ``estimate.search`` (the posterior over
    directions from the cast shadows and the shading; it may turn out a lamp); one whose
    direction is given has a posterior concentrated there (no spread);
-4. a free **angular radius** is chosen among ``RADII_DEG`` and the Sun's by the same
+4. a free **angular radius** is chosen among ``search.radii_deg`` and the Sun's by the same
    likelihoods, the Sun's where they cannot tell (``estimate.choose_size``: one rule for
    every sun); a searched light's
    radius then grows to cover its posterior's spread (the hedge); a lamp's free radius
    is a bulb's (``LAMP_RADIUS_M``: a lamp's size is not fitted);
 5. a free **strength**: the key light (the first one free) and the sky share the support's
    level by the split the shadows show (``estimate.split_from_shadows``: the
-   shadowed/lit ratio at its direction, shrunk toward the prior by its evidence), in one
-   atom whose weight is fitted; other free lights are atoms of their own; without a
+   shadowed/lit ratio across the edges of the shadow it casts, as much as that shadow
+   falls on cast shadows tied to their casters, shrunk toward the prior), in one atom
+   whose weight is fitted; other free lights are atoms of their own; without a
    probe the sky's shape is fitted (the sky lobes), with one it is the probe's. A sun's
    older ``share`` (direct over sky) ties it to a uniform sky in one atom;
 6. one robust NNLS (``solver.fit``) of all atoms, then the ``LightModel``: every light
@@ -45,8 +46,7 @@ from zcomp_cli.lightparams import LAMP_RADIUS_M, SUN_RADIUS_DEG, LightParams, Or
 from zcomp_cli.renderers.physical import atoms as at
 from zcomp_cli.renderers.physical import estimate as est
 from zcomp_cli.renderers.physical import sh
-from zcomp_cli.renderers.physical.lightmodel import (MAX_RADIUS_DEG, FitSummary, Lamp, LightModel, ShadowKind, Sky,
-                                                     Sun)
+from zcomp_cli.renderers.physical.lightmodel import FitSummary, Lamp, LightModel, ShadowKind, Sky, Sun
 from zcomp_cli.renderers.physical.posterior import DirectionPosterior
 from zcomp_cli.renderers.physical.settings import DEFAULTS, PhysicalSettings
 from zcomp_cli.renderers.physical.solver import Atom, fit
@@ -85,7 +85,7 @@ def _lamp_column(fp, q, radius_m, facing, settings, seed) -> np.ndarray:
 
 def fit_light(params: LightParams | None, depth, normals, shading, known, albedo, camera: Camera, *, up,
               up_from: Origin = Origin.SUPPORT, settings: PhysicalSettings = DEFAULTS,
-              seed: int = 0) -> tuple[LightModel, DirectionPosterior | None]:
+              seed: int = 0, diagnostics: dict | None = None) -> tuple[LightModel, DirectionPosterior | None]:
     """The light of ``params`` (None: ``LightParams.estimate()``) fitted to the
     photograph's known shading (module docstring).
 
@@ -94,6 +94,9 @@ def fit_light(params: LightParams | None, depth, normals, shading, known, albedo
         shading: (H, W, 3) linear image / albedo, used where ``known`` (H, W) bool.
         albedo: (H, W, 3) linear albedo. camera: the view.
         up: (3,) world up, camera frame; ``up_from`` where it came from.
+        diagnostics: a dict to fill with what the fit read, for the debug outputs:
+            ``mesh`` (the shadow grid's ``depthmesh.DepthMesh``) and, where a direction
+            is searched, ``evidence`` (``shadow_evidence.ShadowEvidence``).
     Returns:
         (LightModel, the searched light's posterior over directions or None). Never
         raises on degenerate evidence: too few pixels give the prior's strengths.
@@ -101,11 +104,14 @@ def fit_light(params: LightParams | None, depth, normals, shading, known, albedo
     params = LightParams.estimate() if params is None else params
     up = np.asarray(up, np.float64)
     pp = est.prepare(depth, normals, shading, known, albedo, camera, up, settings)
+    if diagnostics is not None and pp.grid is not None:
+        diagnostics["mesh"] = pp.grid.mesh
     fp = pp.fp
     source = "manifest" if params.given else "estimated"
-    if len(fp) < est.FEW_PIXELS or fp.train.sum() < est.FEW_PIXELS // 2:
+    few = settings.search.few_pixels
+    if len(fp) < few or fp.train.sum() < few // 2:
         return _unfitted(pp, params, up, up_from, source,
-                         f"too few known pixels with geometry ({len(fp)} < {est.FEW_PIXELS})"), None
+                         f"too few known pixels with geometry ({len(fp)} < {few})"), None
     # step 2: the lights of physical strengths, one atom
     fixed = np.zeros((len(fp), 3))
     n_fixed = 0
@@ -115,7 +121,8 @@ def fit_light(params: LightParams | None, depth, normals, shading, known, albedo
         from zcomp_cli.renderers.physical.probe import load_probe
 
         pr = params.probe
-        probe = load_probe(pr.hdr, pp.frame, convention=pr.convention, rotation_deg=pr.rotation_deg)
+        probe = load_probe(pr.hdr, pp.frame, convention=pr.convention, rotation_deg=pr.rotation_deg,
+                           cfg=settings.probe)
         k = float(pr.strength)
         fixed += k * at.sky_atom_values(fp, probe.sky_radiance_sh, pp.sky_vis)
         n_fixed += 1
@@ -133,6 +140,8 @@ def fit_light(params: LightParams | None, depth, normals, shading, known, albedo
             if search is not None:
                 raise ValueError("fit_light: at most one light's direction can be searched")
             search, sc = est.search(pp, settings, seed)
+            if diagnostics is not None:
+                diagnostics["evidence"] = search.evidence
             fl = search.light
             lights.append(_Light(fl, color, Origin.SHADOWS))
             continue
@@ -194,13 +203,12 @@ def fit_light(params: LightParams | None, depth, normals, shading, known, albedo
     lobes = est.sky_atoms(pp) if probe is None else []
     atoms: list[Atom] = []
     key = free[0] if free else None
-    share, n_eff = est.PRIOR_SKY_SHARE, 0.0
+    share, n_eff = settings.search.prior_sky_share, 0.0
     sky_unit = light_unit = 1.0
     if key is not None and lobes:
-        if key.fl is (search.light if search is not None else None):
-            share, n_eff = est.split_from_shadows(search, sc.sigma)
-        else:
-            share, n_eff = est.split_at(sc, key.fl)
+        # (a searched light's split is read across its most probable shadow's edges)
+        at_light = search.map_light if (search is not None and key.fl is search.light) else key.fl
+        share, n_eff = est.split_from_shadows(sc, at_light)
         sky_unit = max(float(np.median(lobes[0].values[sup])), 1e-9)
         light_unit = max(float(np.median(key.fl.column[sup])), 1e-9)
         atoms.append(Atom("key", share * lobes[0].values / sky_unit + (1.0 - share) * key.fl.column / light_unit))
@@ -221,11 +229,13 @@ def fit_light(params: LightParams | None, depth, normals, shading, known, albedo
     if n_fixed:
         atoms.append(Atom("fixed", fixed))
     level = np.median(pp.shading[sup], axis=0)
-    prior = est.prior_weights(atoms, pp, [a.name for a in atoms if a.name.startswith("light")])
+    prior = est.prior_weights(atoms, pp, [a.name for a in atoms if a.name.startswith("light")],
+                              settings.search.prior_sky_share)
     if "key" in [a.name for a in atoms]:
         prior["key"] = level
     direct = [a.name for a in atoms if a.name in ("key", "fixed", "ratio") or a.name.startswith("light")]
-    res = fit(atoms, pp.shading, train=fp.train, prior=prior, ridge=est.PRIOR_RIDGE, direct=direct)
+    res = fit(atoms, pp.shading, train=fp.train, prior=prior, ridge=settings.solver.prior_ridge, direct=direct,
+              cfg=settings.solver)
     # step 6: the model
     w = res.weights
     exposure = float(np.mean(w["fixed"])) if n_fixed else float("nan")
@@ -261,8 +271,11 @@ def fit_light(params: LightParams | None, depth, normals, shading, known, albedo
         fl = search.light
         note = (f"the photograph fixes the light's direction to within {spread:.0f} deg (RMS): its shadow is drawn "
                 f"as soft as that ({fl.radius:.3g} {'deg' if fl.kind == 'sun' else 'm'} radius)")
-    summary = FitSummary(gain=float(n_eff), uncertainty_deg=float(spread) if search is not None else float("nan"),
-                         residual=float(res.loss_train), pixels=len(fp), exposure=exposure, note=note)
+    unfixed = bool(hedged and search.light.kind == "sun"
+                   and search.light.radius >= settings.search.max_radius_deg - 1e-9)
+    summary = FitSummary(shadow_blocks=float(n_eff), uncertainty_deg=float(spread) if search is not None else float("nan"),
+                         residual=float(res.loss_train), pixels=len(fp), exposure=exposure, note=note,
+                         unfixed=unfixed)
     sky = Sky(radiance_sh=est.sky_from_weights(pp, sky_w, extra_sh), ground=pp.ground, up=up,
               strength_from=Origin.PROBE if probe is not None else Origin.FIT)
     model = LightModel(suns=tuple(suns), lamps=tuple(lamps), sky=sky, shadows=ShadowKind.CAST, source=source,

@@ -161,32 +161,39 @@ def ground_view(normals: np.ndarray, up: np.ndarray) -> np.ndarray:
     return np.clip(0.5 * (1.0 - np.asarray(normals, np.float64) @ np.asarray(up, np.float64)), 0.0, 1.0)
 
 
-# The widest light a shadow is drawn for (a light wider than this is sky).
-MAX_RADIUS_DEG = 45.0
+# The widest light a shadow is drawn for (a light wider than this is sky): the search
+# config's (``settings.SearchConfig.max_radius_deg``, its provenance there).
+from zcomp_cli.renderers.physical.settings import SearchConfig as _SearchConfig  # noqa: E402
+
+MAX_RADIUS_DEG = _SearchConfig().max_radius_deg
 
 
 @dataclass(frozen=True, kw_only=True)
 class FitSummary:
     """What the fit of the light to the photograph's shading says about itself.
 
-    ``gain``: held-out loss of the sky alone over that of the fitted lights, minus 1
-    (how much better the lights explain pixels the fit did not see; 0 = not at all);
+    ``shadow_blocks``: how much cast shadow the light's direction was read from (the
+    frame's blocks its likely directions shadow on the support; 0: none, the shading and
+    the prior decided);
     ``uncertainty_deg``: the spread of the light directions the held-out pixels allow
     (RMS angle from the chosen one); ``residual``: the robust relative residual;
     ``pixels``: fit pixels; ``exposure``: the one weight of the manifest's lights given
     in physical units (the photograph's exposure; nan without such lights); ``note``:
-    what the fit could not do, in words."""
+    what the fit could not do, in words; ``unfixed``: the photograph does not fix the
+    light's direction (its light drawn as wide as a shadow-casting light may be)."""
 
-    gain: float = float("nan")
+    shadow_blocks: float = float("nan")
     uncertainty_deg: float = float("nan")
     residual: float = float("nan")
     pixels: int = 0
     exposure: float = float("nan")
     note: str = ""
+    unfixed: bool = False
 
     def to_info(self) -> dict:
-        return {"held_out_gain": self.gain, "direction_uncertainty_deg": self.uncertainty_deg,
-                "residual": self.residual, "fit_pixels": self.pixels, "exposure": self.exposure, "note": self.note}
+        return {"shadow_blocks": self.shadow_blocks, "direction_uncertainty_deg": self.uncertainty_deg,
+                "residual": self.residual, "fit_pixels": self.pixels, "exposure": self.exposure, "note": self.note,
+                "unfixed": self.unfixed}
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -256,8 +263,8 @@ class LightModel:
                 "up_from": str(self.up_from), "lights": lights,
                 "direction": None if kd is None else kd.tolist(),
                 "ambient_share": self.ambient_share(), "albedo_offset": self.albedo_offset,
-                "fallback": (self.fit.note or None) if self.shadows is ShadowKind.CAST else (
-                    self.fit.note or "the photograph does not fix the light's direction"),
+                "fallback": (self.fit.note or None) if (self.shadows is not ShadowKind.CAST or self.fit.unfixed)
+                else None,
                 "fit": self.fit.to_info(), "probe": None if self.probe is None else str(self.probe),
                 "walls": [w.to_info() for w in self.walls]}
 

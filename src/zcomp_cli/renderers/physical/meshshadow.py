@@ -21,10 +21,14 @@ import numpy as np
 
 from zcomp_cli.posed_mesh import PosedMesh  # (geometry: it lives below the renderers)
 from zcomp_cli.renderers.physical.sampling import orthonormal
+from zcomp_cli.renderers.physical.settings import TransportConfig
 
-# Shadow-map samples of the mesh's surface: per cell's area of it, and at most.
-MESH_SAMPLE_DENSITY = 8.0
-MAX_SAMPLES = 200_000
+# The constants (the shadow map's cells and samples, the bias, the sky's area elements
+# and the exact near field's reach) are ``settings.TransportConfig``'s, each with its
+# provenance.
+DEFAULT = TransportConfig()
+# (the default near field's reach, in disc spacings, for callers that name it)
+NEAR_SPACINGS = DEFAULT.near_field_spacings
 
 
 def mesh_silhouette(mesh: PosedMesh, camera, shape) -> np.ndarray:
@@ -117,15 +121,17 @@ def _lookup(grid, u0, v0, cell, pu, pv):
     return out
 
 
-def _samples(mesh: PosedMesh, ext: float, cell: float):
+def _samples(mesh: PosedMesh, ext: float, cell: float, cfg: TransportConfig = DEFAULT):
     tri, _, area, _ = _area_triangles(mesh)
-    n_s = int(min(MAX_SAMPLES, max(2000, MESH_SAMPLE_DENSITY * area.sum() / cell ** 2)))
+    n_s = int(min(cfg.mesh_max_samples, max(2000, cfg.mesh_sample_density * area.sum() / cell ** 2)))
     return _sample_triangles(tri, area / max(area.sum(), 1e-12), n_s)[1]
 
 
 def mesh_shadow(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, light_dir, *,
-                cell: float | None = None, bias_rel: float = 0.01):
-    """Visibility of camera-frame ``points`` (N, 3) toward ``light_dir`` past the mesh.
+                cell: float | None = None, bias_rel: float | None = None, cfg: TransportConfig = DEFAULT):
+    """Visibility of camera-frame ``points`` (N, 3) toward ``light_dir`` past the mesh
+    (``cell`` None: the extent over ``cfg.mesh_shadow_cells``; ``bias_rel`` None:
+    ``cfg.march_bias_rel``).
 
     Returns:
         (vis (N,) in {0, 1}, t_hit (N,) distance to the occluder, inf where lit).
@@ -142,8 +148,10 @@ def mesh_shadow(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, light_
     V = mesh.vertices[np.all(np.isfinite(mesh.vertices), axis=1)]
     ext = np.ptp(V @ np.stack([u, v], 1), axis=0).max() + 1e-9
     if cell is None:
-        cell = ext / 256.0
-    smp = _samples(mesh, ext, cell)
+        cell = ext / cfg.mesh_shadow_cells
+    if bias_rel is None:
+        bias_rel = cfg.march_bias_rel
+    smp = _samples(mesh, ext, cell, cfg)
     grid, u0, v0 = _splat(smp @ u, smp @ v, smp @ l, cell)
     ph = P @ l
     occ_h = _lookup(grid, u0, v0, cell, P @ u, P @ v)
@@ -157,10 +165,11 @@ def mesh_shadow(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, light_
 
 
 def mesh_shadow_point(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, position, *,
-                      bias_rel: float = 0.01):
+                      bias_rel: float | None = None, cfg: TransportConfig = DEFAULT):
     """Visibility of camera-frame ``points`` (N, 3) toward a lamp at ``position`` (3,)
     past the mesh: a perspective shadow map from the lamp (the mesh's samples splatted
-    by their direction from it, keeping the nearest to it per cell).
+    by their direction from it, keeping the nearest to it per cell; ``cfg`` as for
+    ``mesh_shadow``).
 
     Returns:
         (vis (N,) in {0, 1}, t_hit (N,) distance to the occluder, inf where lit).
@@ -184,8 +193,10 @@ def mesh_shadow_point(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, 
     vf = V[fwd > 1e-6] - q
     tu, tv = (vf @ u) / (vf @ axis), (vf @ v) / (vf @ axis)
     ext = max(float(np.ptp(tu)), float(np.ptp(tv))) + 1e-9
-    cell = ext / 256.0
-    smp = _samples(mesh, ext * dist_c, cell * dist_c) - q
+    cell = ext / cfg.mesh_shadow_cells
+    if bias_rel is None:
+        bias_rel = cfg.march_bias_rel
+    smp = _samples(mesh, ext * dist_c, cell * dist_c, cfg) - q
     sf = smp @ axis
     keep = sf > 1e-6
     smp, sf = smp[keep], sf[keep]
@@ -205,13 +216,6 @@ def mesh_shadow_point(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, 
     vis = (~blocked).astype(np.float64)
     t_hit = np.where(blocked, r + occ, np.inf)
     return vis, t_hit
-
-
-# Area elements ("discs") a mesh is cut into for its ambient occlusion: enough that a
-# floor point near the object's base sees many, few enough that points x discs stays
-# cheap (34 ms a job at 512x512; 1024, at twice the cost, scored 0.04 dB more on seed
-# 8128, shadow IoU 0.387 vs 0.385).
-AO_DISCS = 512
 
 
 @dataclass
@@ -239,12 +243,15 @@ def _area_triangles(mesh: PosedMesh):
     return tri, cr, area, inside_out
 
 
-def mesh_discs(mesh: PosedMesh, n: int = AO_DISCS) -> MeshDiscs:
-    """``n`` area-weighted surface samples of the posed mesh, each standing for an equal
-    share of its area, with its face's normal (deterministic).
+def mesh_discs(mesh: PosedMesh, n: int | None = None, cfg: TransportConfig = DEFAULT) -> MeshDiscs:
+    """``n`` (None: ``cfg.mesh_ao_discs``: enough that a floor point near the object's
+    base sees many, few enough that points x discs stays cheap, 34 ms a job at 512x512)
+    area-weighted surface samples of the posed mesh, each standing for an equal share of
+    its area, with its face's normal (deterministic).
 
     Normals point out of the mesh: the faces' winding gives them, and a mesh whose
     signed volume is negative (wound inside out) has them all turned."""
+    n = cfg.mesh_ao_discs if n is None else n
     tri, cr, area, inside_out = _area_triangles(mesh)
     if not len(tri):
         z = np.zeros((0, 3))
@@ -258,7 +265,8 @@ def mesh_discs(mesh: PosedMesh, n: int = AO_DISCS) -> MeshDiscs:
 
 def mesh_occlusion(discs: MeshDiscs, points: np.ndarray, normals: np.ndarray, *,
                    mesh: PosedMesh | None = None, refine: np.ndarray | None = None,
-                   chunk: int = 2048, return_distance: bool = False, radiance_sh: np.ndarray | None = None):
+                   chunk: int = 2048, return_distance: bool = False, radiance_sh: np.ndarray | None = None,
+                   cfg: TransportConfig = DEFAULT):
     """Share of the cosine-weighted hemisphere of each point (N, 3) with unit normal
     (N, 3) that the mesh hides: (N,) in [0, 1]; with ``return_distance`` also (N,) the
     distance (metres) to the nearest area element. With ``radiance_sh`` (9, C), the
@@ -276,8 +284,8 @@ def mesh_occlusion(discs: MeshDiscs, points: np.ndarray, normals: np.ndarray, *,
     of the sky from the floor seen under a chair's seat (0.27 where rays cast at the
     mesh give 0.6-0.7).
 
-    ``mesh``: the mesh the discs were cut from. Within ``NEAR_SPACINGS`` disc spacings
-    of a point the discs are too few to stand for what is that close (a floor point by a
+    ``mesh``: the mesh the discs were cut from. Within ``cfg.near_field_spacings`` disc
+    spacings of a point the discs are too few to stand for what is that close (a floor point by a
     sphere's contact saw one or two, and read lighter than a ring around it): there the
     mesh's own triangles count instead, each with its exact form factor (Lambert's
     polygon formula, ``_triangle_form_factors``). ``refine``: (N,) bool, the points this
@@ -294,7 +302,7 @@ def mesh_occlusion(discs: MeshDiscs, points: np.ndarray, normals: np.ndarray, *,
         out = out[:, 0] if radiance_sh is None else out
         return (out, dmin) if return_distance else out
     weigh = _radiance_weights(radiance_sh, Nn)
-    rho2 = NEAR_SPACINGS ** 2 * float(discs.areas.mean()) if mesh is not None else 0.0
+    rho2 = cfg.near_field_spacings ** 2 * float(discs.areas.mean()) if mesh is not None else 0.0
     for i in range(0, len(P), chunk):
         f, r2 = _form_factors(discs, P[i:i + chunk], Nn[i:i + chunk])
         out[i:i + chunk] = weigh(f, discs.centres[None] - P[i:i + chunk, None], slice(i, i + chunk))
@@ -308,7 +316,7 @@ def mesh_occlusion(discs: MeshDiscs, points: np.ndarray, normals: np.ndarray, *,
             part = np.zeros((len(P), C))
             part[idx] = weigh(f * (r2 < rho2), discs.centres[None] - P[idx, None], idx)
             whole = _area_triangles(mesh)
-            near_mesh = _near_field_mesh(mesh, np.sqrt(rho2), area=whole[2])
+            near_mesh = _near_field_mesh(mesh, np.sqrt(rho2), area=whole[2], cfg=cfg)
             tri, _, _, inside_out = whole if near_mesh is mesh else _area_triangles(near_mesh)
             if inside_out:  # wound outward, as the discs' normals are
                 tri = tri[:, ::-1]
@@ -365,26 +373,24 @@ class _radiance_weights:
         return ff[:, None] * self._L(offsets) / self.total[rows]
 
 
-# Triangles a point's near field (a disc of NEAR_SPACINGS disc spacings) may hold before
-# the mesh is simplified for it: a dense mesh (a scan) put 16 times the 20480-face
-# sphere's triangles there, and the exact form factors cost 0.4 s a job.
-NEAR_FIELD_TRIANGLES = 1000
-
-
-def _near_field_mesh(mesh: PosedMesh, radius: float, area: np.ndarray | None = None) -> PosedMesh:
+def _near_field_mesh(mesh: PosedMesh, radius: float, area: np.ndarray | None = None,
+                     cfg: TransportConfig = DEFAULT) -> PosedMesh:
     """The mesh as the exact near field of radius ``radius`` uses it: itself, unless its
-    mean triangle is smaller than that disc's area / NEAR_FIELD_TRIANGLES; then its
-    vertices merged on a grid whose cells hold one such triangle (vertex clustering:
-    each cell's vertices become their mean, faces left with fewer than three distinct
-    corners dropped). The surface moves by less than a cell, radius / 12.6. (With the
-    radius ``mesh_occlusion`` uses, NEAR_SPACINGS spacings of AO_DISCS discs cut from the
-    same area, this is a face count: more than 512000 / (4 pi) = 40744 faces.) ``area``:
-    the areas ``_area_triangles`` gives for the mesh, when the caller has them."""
+    mean triangle is smaller than that disc's area / ``cfg.near_field_triangles`` (a
+    dense mesh, a scan, put 16 times the 20480-face sphere's triangles there, and the
+    exact form factors cost 0.4 s a job); then its vertices merged on a grid whose cells
+    hold one such triangle (vertex clustering: each cell's vertices become their mean,
+    faces left with fewer than three distinct corners dropped). The surface moves by
+    less than a cell, radius / 12.6. (With the radius ``mesh_occlusion`` uses, 2 spacings
+    of 512 discs cut from the same area by default, this is a face count: more than
+    512000 / (4 pi) = 40744 faces.) ``area``: the areas ``_area_triangles`` gives for
+    the mesh, when the caller has them."""
+    n_tri = cfg.near_field_triangles
     if area is None:
         area = _area_triangles(mesh)[2]
-    if not len(area) or area.mean() >= np.pi * radius ** 2 / NEAR_FIELD_TRIANGLES:
+    if not len(area) or area.mean() >= np.pi * radius ** 2 / n_tri:
         return mesh
-    cell = radius * np.sqrt(2.0 * np.pi / NEAR_FIELD_TRIANGLES)  # a right triangle's legs
+    cell = radius * np.sqrt(2.0 * np.pi / n_tri)  # a right triangle's legs
     V = np.asarray(mesh.vertices, np.float64)
     ok = np.all(np.isfinite(V), axis=1)
     # one integer per cell (a 1-D unique is ~10x an axis=0 one); a non-finite vertex
@@ -426,13 +432,6 @@ def _triangle_form_factors(tri: np.ndarray, P: np.ndarray, Nn: np.ndarray) -> np
         th = np.arccos(np.clip(np.einsum("kj,kj->k", u, v), -1.0, 1.0))
         tot += th * np.einsum("kj,kj->k", c, Nn) / np.maximum(cn, 1e-12)
     return np.where(ok & facing & above, np.abs(tot) / (2.0 * np.pi), 0.0)
-
-
-# Radius, in disc spacings (the square root of a disc's area), within which the mesh's
-# triangles stand in for its discs (the hand-over is noisy where few discs fall inside:
-# by a sphere of radius 0.5, at 1 and 1.5 spacings its occlusion dipped to 0.71 and
-# 0.54 where 0.80 and 0.63 are exact; at 2 it is within 0.02 everywhere).
-NEAR_SPACINGS = 2.0
 
 
 def _form_factors(discs: MeshDiscs, P: np.ndarray, Nn: np.ndarray):

@@ -8,15 +8,15 @@ sky visible from an object's base was 0.57 where the screen-space march found 1.
 side wall three metres away, out of the frame at the object's depth).
 
 A **wall** is a plane of the known geometry whose normal is horizontal (within
-``VERTICAL_DEG`` of the ground), holding pixels that touch the frame's left or right
+``wall_vertical_deg`` of the ground), holding pixels that touch the frame's left or right
 edge (what is cut by the frame sideways goes on sideways; a box's face inside the
 frame, or cut only by the top, is no wall), at
-least ``MIN_WALL_SHARE`` of the valid pixels. It is taken to go on without end along the
+least ``min_wall_share`` of the valid pixels. It is taken to go on without end along the
 ground, and up to the highest of its pixels: as high as it is seen to go (taken without
 end where it reaches the frame's top, it hid the sun from most of the floor of a scene
 whose wall was three metres tall).
 Found by voting: normals binned by azimuth, then the offsets ``n . p`` of the bin's
-pixels binned at ``OFFSET_BIN_REL`` of their median depth.
+pixels binned at ``wall_offset_bin_rel`` of their median depth.
 """
 
 from __future__ import annotations
@@ -26,13 +26,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-VERTICAL_DEG = 15.0
-AZIMUTH_BINS = 36
-OFFSET_BIN_REL = 0.03
-# Planes thinner in the frame than this share of its valid pixels are left alone (a
-# thin sliver at the edge tells too little of its plane).
-MIN_WALL_SHARE = 0.02
-MAX_WALLS = 4
+from zcomp_cli.renderers.physical.settings import FrameConfig
+
+# The constants (a wall's tilt, the vote's bins, the least share, how many) are
+# ``settings.FrameConfig``'s, each with its provenance.
+DEFAULT = FrameConfig()
 
 
 @dataclass(frozen=True)
@@ -52,7 +50,7 @@ class Wall:
                 "top_m": None if not math.isfinite(self.top) else self.top}
 
 
-def find_walls(points: np.ndarray, normals: np.ndarray, valid: np.ndarray, up) -> tuple:
+def find_walls(points: np.ndarray, normals: np.ndarray, valid: np.ndarray, up, cfg: FrameConfig = DEFAULT) -> tuple:
     """The walls of a frame's geometry (module docstring).
 
     Args:
@@ -69,25 +67,26 @@ def find_walls(points: np.ndarray, normals: np.ndarray, valid: np.ndarray, up) -
     n_valid = len(P)
     if n_valid < 10:
         return ()
-    horiz = np.abs(Nn @ up) < math.sin(math.radians(VERTICAL_DEG))
-    floor_pts = P[(Nn @ up) > math.cos(math.radians(VERTICAL_DEG))]
+    horiz = np.abs(Nn @ up) < math.sin(math.radians(cfg.wall_vertical_deg))
+    floor_pts = P[(Nn @ up) > math.cos(math.radians(cfg.wall_vertical_deg))]
     ground = float(np.median(floor_pts @ up)) if len(floor_pts) else float(np.min(P @ up))
     from zcomp_cli.worldframe import ground_frame
 
     right, _, fwd = ground_frame(up)
     az = np.arctan2(Nn @ fwd, Nn @ right)
-    bins = np.floor((az + math.pi) / (2 * math.pi) * AZIMUTH_BINS).astype(int) % AZIMUTH_BINS
+    nb = cfg.wall_azimuth_bins
+    bins = np.floor((az + math.pi) / (2 * math.pi) * nb).astype(int) % nb
     used = np.zeros(n_valid, bool)
     walls = []
-    for _ in range(MAX_WALLS):
+    for _ in range(cfg.max_walls):
         cand = horiz & ~used
-        if cand.sum() < MIN_WALL_SHARE * n_valid:
+        if cand.sum() < cfg.min_wall_share * n_valid:
             break
-        counts = np.bincount(bins[cand], minlength=AZIMUTH_BINS)
+        counts = np.bincount(bins[cand], minlength=nb)
         # a bin with its neighbours (a plane's normals straddle a bin edge)
         wide = counts + np.roll(counts, 1) + np.roll(counts, -1)
         b = int(np.argmax(wide))
-        sel = cand & (np.abs(((bins - b + AZIMUTH_BINS // 2) % AZIMUTH_BINS) - AZIMUTH_BINS // 2) <= 1)
+        sel = cand & (np.abs(((bins - b + nb // 2) % nb) - nb // 2) <= 1)
         n = Nn[sel].mean(0)
         n = n - up * float(n @ up)
         if np.linalg.norm(n) < 1e-6:
@@ -95,13 +94,13 @@ def find_walls(points: np.ndarray, normals: np.ndarray, valid: np.ndarray, up) -
         n /= np.linalg.norm(n)
         off = P[sel] @ n
         z = float(np.median(-P[sel][:, 2]))
-        step = max(OFFSET_BIN_REL * z, 1e-6)
+        step = max(cfg.wall_offset_bin_rel * z, 1e-6)
         ob = np.round(off / step).astype(int)
         vals, cnt = np.unique(ob, return_counts=True)
         d = float(np.median(off[np.abs(ob - vals[np.argmax(cnt)]) <= 1]))
-        inl = cand & (np.abs(P @ n - d) < 1.5 * step) & ((Nn @ n) > math.cos(math.radians(VERTICAL_DEG)))
+        inl = cand & (np.abs(P @ n - d) < 1.5 * step) & ((Nn @ n) > math.cos(math.radians(cfg.wall_vertical_deg)))
         used |= inl | sel
-        if inl.sum() < MIN_WALL_SHARE * n_valid:
+        if inl.sum() < cfg.min_wall_share * n_valid:
             continue
         yi, xi = ys[inl], xs[inl]
         if not (xi.min() == 0 or xi.max() == w - 1):
@@ -137,4 +136,4 @@ def walls_block(walls, points: np.ndarray, dirs: np.ndarray, max_t=None):
     return blocked, dist
 
 
-__all__ = ["Wall", "find_walls", "walls_block", "VERTICAL_DEG", "MIN_WALL_SHARE"]
+__all__ = ["Wall", "find_walls", "walls_block"]

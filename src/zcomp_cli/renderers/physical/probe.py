@@ -14,9 +14,9 @@ at any exposure). Its power is its texels' radiance above the sky's median times
 solid angle; its direction the power-weighted mean; its angular radius that of a uniform
 disc of the same second moment (``R = sqrt(2) x`` the RMS angle from its direction), at
 least half a texel. Sources are taken brightest first while each still brings at least
-``MIN_SOURCE_SHARE`` of the probe's irradiance on the support (a shadow that faint is
-under the contrast the eye sees on a uniform surface, Weber's 2 %), up to
-``MAX_SOURCES``. The rest -- the probe with each source's texels set to the sky's median
+``ProbeConfig.min_source_share`` of the probe's irradiance on the support (a shadow that
+faint is under the contrast the eye sees on a uniform surface, Weber's 2 %), up to
+``ProbeConfig.max_sources``. The rest -- the probe with each source's texels set to the sky's median
 -- is the sky, in order-2 spherical harmonics (``sh``).
 """
 
@@ -31,17 +31,12 @@ import numpy as np
 from zcomp_cli import equirect
 from zcomp_cli.conventions import REC601
 from zcomp_cli.renderers.physical import sh
+from zcomp_cli.renderers.physical.settings import ProbeConfig
 
-MAX_SOURCES = 3
-MIN_SOURCE_SHARE = 0.02
-# The probe is read at most this wide (the sources' sizes are measured at this
-# resolution; the bundled maps are 1024 wide: 0.35 deg texels).
-MAX_PROBE_WIDTH = 2048
-# Width of the copy that the sky's SH and the glossy prefilter are computed from.
-SKY_WIDTH = 128
-GLOSS_WIDTH = 64
-# GGX roughness levels of the prefiltered copy (perceptual roughness; linear in between).
-GLOSS_ROUGHNESS = (0.05, 0.15, 0.3, 0.5, 0.75, 1.0)
+# The constants (the sources taken at most and their least share, the widths the probe
+# is read, projected and prefiltered at, the prefilter's roughness levels) are
+# ``settings.ProbeConfig``'s, each with its provenance.
+DEFAULT = ProbeConfig()
 
 
 @dataclass(frozen=True)
@@ -121,9 +116,9 @@ class PrefilteredProbe:
         return out
 
 
-def read_probe(path) -> np.ndarray:
+def read_probe(path, cfg: ProbeConfig = DEFAULT) -> np.ndarray:
     """(H, W, 3) float64 linear radiance of an equirectangular probe file, non-finite
-    and negative values set to 0, at most MAX_PROBE_WIDTH wide (area-averaged). Raises
+    and negative values set to 0, at most ``cfg.max_width`` wide (area-averaged). Raises
     ``InputError`` naming the file when nothing in it emits light."""
     import cv2
 
@@ -136,9 +131,9 @@ def read_probe(path) -> np.ndarray:
     img = img[..., :3] if img.shape[-1] >= 3 else np.repeat(img[..., :1], 3, -1)
     img = np.maximum(np.nan_to_num(img, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
     h, w = img.shape[:2]
-    if w > MAX_PROBE_WIDTH:
-        img = cv2.resize(img, (MAX_PROBE_WIDTH, max(1, round(h * MAX_PROBE_WIDTH / w))),
-                         interpolation=cv2.INTER_AREA)
+    mw = cfg.max_width
+    if w > mw:
+        img = cv2.resize(img, (mw, max(1, round(h * mw / w))), interpolation=cv2.INTER_AREA)
     if not float(img.max()) > 0:
         raise InputError(f"{path}: the light probe holds no light (every pixel is 0, negative or not finite)")
     return img.astype(np.float64)
@@ -155,7 +150,7 @@ def _area_resize(img: np.ndarray, width: int) -> np.ndarray:
 
 
 def split_probe(img: np.ndarray, frame, *, convention: str = equirect.DEFAULT_CONVENTION,
-                rotation_deg: float = 0.0, name: str = "probe") -> ProbeLights:
+                rotation_deg: float = 0.0, name: str = "probe", cfg: ProbeConfig = DEFAULT) -> ProbeLights:
     """Split an equirectangular radiance map (H, W, 3) into sources and sky (module
     docstring); ``frame`` is the ground frame (``worldframe.ground_frame``)."""
     from scipy import ndimage
@@ -177,7 +172,7 @@ def split_probe(img: np.ndarray, frame, *, convention: str = equirect.DEFAULT_CO
     work = img.copy()
     wl = lum.copy()
     sources = []
-    for _ in range(MAX_SOURCES):
+    for _ in range(cfg.max_sources):
         cand = np.where(above, wl, -np.inf)
         k = int(np.argmax(cand))
         py, px = divmod(k, W)
@@ -203,13 +198,13 @@ def split_probe(img: np.ndarray, frame, *, convention: str = equirect.DEFAULT_CO
         half_texel = 0.5 * math.pi / H
         radius = math.degrees(max(math.sqrt(2.0) * rms, half_texel))
         share = p_lum * max(float(dvec @ up), 0.0) / max(floor_total, 1e-12)
-        if share < MIN_SOURCE_SHARE:
+        if share < cfg.min_source_share:
             break
         sources.append(ProbeSource(direction=dvec, radius_deg=radius, power=p_rgb))
         work[region] = np.minimum(work[region], sky_rgb[None])
         wl[region] = work[region] @ REC601
     # the sky: the rest, above the horizon, in SH (from a smaller copy: smooth anyway)
-    small = _area_resize(np.where(above[..., None], work, 0.0), SKY_WIDTH)
+    small = _area_resize(np.where(above[..., None], work, 0.0), cfg.sky_width)
     h, w = small.shape[:2]
     d_s = equirect.pixel_directions(h, w, frame, convention, rotation_deg)
     om_s = equirect.solid_angles(h, w)
@@ -217,7 +212,7 @@ def split_probe(img: np.ndarray, frame, *, convention: str = equirect.DEFAULT_CO
     sky_sh = sh.project(d_s[m], small[m], om_s[m])
     # the sky's reflection: the sources are reflected each with its own visibility
     # (``gloss.ggx_direct``), so the prefiltered copy holds the rest
-    gloss = prefilter(work, frame, convention=convention, rotation_deg=rotation_deg, name=name)
+    gloss = prefilter(work, frame, convention=convention, rotation_deg=rotation_deg, name=name, cfg=cfg)
     return ProbeLights(sources=tuple(sources), sky_radiance_sh=sky_sh, name=name, gloss=gloss)
 
 
@@ -227,12 +222,12 @@ def _ggx_alpha(roughness):
 
 
 def prefilter(img: np.ndarray, frame, *, convention: str = equirect.DEFAULT_CONVENTION,
-              rotation_deg: float = 0.0, name: str = "probe") -> PrefilteredProbe:
-    """The probe (H, W, 3) convolved with GGX lobes of ``GLOSS_ROUGHNESS`` around each
+              rotation_deg: float = 0.0, name: str = "probe", cfg: ProbeConfig = DEFAULT) -> PrefilteredProbe:
+    """The probe (H, W, 3) convolved with GGX lobes of ``cfg.gloss_roughness`` around each
     reflection direction (the split-sum approximation of Karis 2013: the lobe with
-    n = v = r), on a GLOSS_WIDTH-wide copy; energy-preserving (each lobe's weights sum
-    to 1)."""
-    small = _area_resize(np.asarray(img, np.float64), GLOSS_WIDTH)
+    n = v = r), on a ``cfg.gloss_width``-wide copy; energy-preserving (each lobe's
+    weights sum to 1)."""
+    small = _area_resize(np.asarray(img, np.float64), cfg.gloss_width)
     h, w = small.shape[:2]
     frame = np.asarray(frame, np.float64)
     d = equirect.pixel_directions(h, w, frame, convention, rotation_deg).reshape(-1, 3)
@@ -241,7 +236,7 @@ def prefilter(img: np.ndarray, frame, *, convention: str = equirect.DEFAULT_CONV
     L = np.concatenate([small.reshape(-1, 3) * above, above], 1)
     cos = np.clip(d @ d.T, -1.0, 1.0)  # (out, in)
     maps = []
-    for r in GLOSS_ROUGHNESS:
+    for r in cfg.gloss_roughness:
         a2 = float(_ggx_alpha(r)) ** 2
         # GGX D(h) with h halfway between r and l, weighted by n.l (n = r), as a
         # function of cos(r, l): cos(theta_h) = sqrt((1 + cos) / 2)
@@ -250,16 +245,16 @@ def prefilter(img: np.ndarray, frame, *, convention: str = equirect.DEFAULT_CONV
         wgt = D * np.maximum(cos, 0.0) * om[None]
         wgt /= np.maximum(wgt.sum(1, keepdims=True), 1e-30)
         maps.append((wgt @ L).reshape(h, w, 4))
-    return PrefilteredProbe(maps=np.stack(maps), roughness=GLOSS_ROUGHNESS, frame=frame,
+    return PrefilteredProbe(maps=np.stack(maps), roughness=cfg.gloss_roughness, frame=frame,
                             convention=convention, rotation_deg=float(rotation_deg), name=name)
 
 
 def load_probe(path, frame, *, convention: str = equirect.DEFAULT_CONVENTION,
-               rotation_deg: float = 0.0) -> ProbeLights:
+               rotation_deg: float = 0.0, cfg: ProbeConfig = DEFAULT) -> ProbeLights:
     """``split_probe`` of the probe file ``path``."""
-    return split_probe(read_probe(path), frame, convention=convention, rotation_deg=rotation_deg,
-                       name=Path(path).name)
+    return split_probe(read_probe(path, cfg), frame, convention=convention, rotation_deg=rotation_deg,
+                       name=Path(path).name, cfg=cfg)
 
 
 __all__ = ["ProbeSource", "ProbeLights", "PrefilteredProbe", "read_probe", "split_probe", "prefilter",
-           "load_probe", "MAX_SOURCES", "MIN_SOURCE_SHARE"]
+           "load_probe"]

@@ -70,7 +70,12 @@ class RayCaster:
         o = np.asarray(origins, np.float64).reshape(-1, 3)
         d = np.broadcast_to(np.asarray(dirs, np.float64), o.shape)
         t = np.full(len(o), np.inf) if tmax is None else np.broadcast_to(np.asarray(tmax, np.float64), (len(o),))
-        good = np.all(np.isfinite(o), 1) & np.all(np.isfinite(d), 1) & (np.linalg.norm(d, axis=1) > 1e-12) & (t > 0)
+        with np.errstate(invalid="ignore", over="ignore"):
+            n2 = np.einsum("ij,ij->i", d, d)
+            good = np.isfinite(o.sum(1) + d.sum(1)) & (n2 > 1e-24) & (t > 0)
+        # unit directions: distances and ``tmax`` in metres whatever the length given
+        # (Embree measures them in units of the direction's length)
+        d = d / np.sqrt(np.where(good, n2, 1.0))[:, None]
         return o, d, t, good
 
     def occluded(self, origins, dirs, tmax=None) -> np.ndarray:
@@ -81,14 +86,17 @@ class RayCaster:
         out = np.zeros(len(o), bool)
         if self.backend == "none" or not good.any():
             return out
-        idx = np.flatnonzero(good)
         if self.backend == "embree":
-            for s in range(0, len(idx), RAY_CHUNK):
-                j = idx[s:s + RAY_CHUNK]
+            all_good = bool(good.all())
+            idx = None if all_good else np.flatnonzero(good)
+            n = len(o) if all_good else len(idx)
+            for s in range(0, n, RAY_CHUNK):
+                j = slice(s, min(n, s + RAY_CHUNK)) if all_good else idx[s:s + RAY_CHUNK]
                 tf = np.minimum(t[j], _FAR).astype(np.float32)
                 r = self._scene.run(o[j].astype(np.float32), d[j].astype(np.float32), dists=tf, query="OCCLUDED")
                 out[j] = np.asarray(r) != -1
             return out
+        idx = np.flatnonzero(good)
         dist = self.hit_distance(o[idx], d[idx])
         out[idx] = dist < t[idx]
         return out

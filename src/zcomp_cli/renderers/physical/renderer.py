@@ -12,6 +12,11 @@ Steps of ``render``:
    visibility (screen-space occlusion, and the object's mesh), the support's bounce,
    each sun and lamp with its soft shadow, the scene's albedo offset, and on the object its
    glossy reflection where the bundle has roughness and metallic maps.
+
+With ``--debug`` (``RenderRequest.debug``), a job whose light's direction was searched
+also returns the evidence the fit read, at the job's resolution, as
+``RenderOutput.debug_maps`` (``evidence_maps``: the soft cast-shadow mask, its
+confidence, the support's shadow ratio, the casters and the support).
 """
 
 from __future__ import annotations
@@ -24,12 +29,25 @@ import numpy as np
 from zcomp_cli.conventions import DEFAULT_SEED
 from zcomp_cli.errors import InputError, NumericalError, UsageError
 from zcomp_cli.renderers.base import Renderer, RenderOutput, RenderRequest
+from zcomp_cli.renderers.physical.evidence_maps import LightEvidence
 from zcomp_cli.renderers.physical.lightmodel import LightModel, ShadowKind
-from zcomp_cli.renderers.physical.settings import PhysicalSettings
-from zcomp_cli.renderers.physical.softshadow import (AO_BLUR_PX, AO_BOUNCE, MAX_PENUMBRA_PX, WINDOW_MARGIN_PX,
-                                                     classwise_blur, penumbra_filter, pixel_jitter,
-                                                     sky_samples, weighted_visibility)
+from zcomp_cli.renderers.physical.settings import PhysicalSettings, TransportConfig
+from zcomp_cli.renderers.physical.softshadow import (classwise_blur, penumbra_filter, pixel_jitter, sky_samples,
+                                                     weighted_visibility)
 from zcomp_cli.renderers.physical.visibility import march_visibility
+
+# The synthesis's constants (the march's reach, bias and thickness, the penumbra's
+# levels, the sky's visibility and bounce, the fades, the strided grids' threshold, the
+# mesh's shadow map and sky elements, the probe's and the gloss's) are
+# ``settings.TransportConfig``'s and ``settings.ProbeConfig``'s, each with its
+# provenance: the renderer passes its own (``PhysicalSettings.transport``, ``.probe``).
+DEFAULT = TransportConfig()
+
+
+def _march_kw(cfg: TransportConfig) -> dict:
+    """The screen-space shadow march's reach, bias and thickness from ``cfg``."""
+    return {"max_distance_rel": cfg.march_range_rel, "bias_rel": cfg.march_bias_rel,
+            "thickness_rel": cfg.march_thickness_rel}
 
 
 def _clean(a, lo, hi):
@@ -47,6 +65,9 @@ class PhysicalRenderer(Renderer):
     def __init__(self, **settings):
         self._settings = PhysicalSettings.from_kwargs(**settings)
         self._cache: dict = {}
+        # per cache key, the evidence the scene's fit read (``evidence_maps.LightEvidence``,
+        # None: none, a given light's direction), for --debug
+        self._evidence: dict = {}
 
     def settings(self) -> dict:
         return {"name": self.name, **self._settings.as_dict()}
@@ -56,12 +77,19 @@ class PhysicalRenderer(Renderer):
         """The scene's light: the tree of ``req.light`` (``lightparams.LightParams``, its
         given parameters frozen; None: everything free) fitted to the known shading
         (``lightfit.fit_light``)."""
+        return self.light_and_evidence(req, seed)[0]
+
+    def light_and_evidence(self, req: RenderRequest,
+                           seed: int = DEFAULT_SEED) -> tuple[LightModel, LightEvidence | None]:
+        """``light`` and the evidence its fit read (``evidence_maps.LightEvidence``;
+        None where no direction was searched, or where ``fit_light`` does not say),
+        cached together per scene."""
         from zcomp_cli.lightparams import LightParams
 
         params = getattr(req, "light", None) or LightParams.estimate()
         key = (req.scene_key, seed, params.key()) if req.scene_key is not None else None
         if key is not None and key in self._cache:
-            return self._cache[key]
+            return self._cache[key], self._evidence.get(key)
         d, n, sh, known = self._inputs(req)
         albedo = _clean(req.maps.albedo, 0.0, 1.0)
         if key is not None:
@@ -70,16 +98,21 @@ class PhysicalRenderer(Renderer):
             # result would depend on which job of its scene a process ran first, and
             # shards or Ray workers would give other composites than one local run.
             known = (d > 0) & np.all(np.isfinite(req.shading), axis=-1)
-        from zcomp_cli.renderers.physical.lightfit import fit_light
         from zcomp_cli.renderers.physical.scene_frame import scene_up
 
         valid = known & (d > 0) & (np.abs(np.linalg.norm(n, axis=-1) - 1) < 0.2)
-        up, up_from = scene_up(params.tilt, n, valid)
-        model, _ = fit_light(params, d, n, sh, known, albedo, req.camera, up=up, up_from=up_from,
-                             settings=self._settings, seed=seed)
+        up, up_from = scene_up(params.tilt, n, valid, self._settings.frame)
+        diagnostics: dict = {}
+        from zcomp_cli.renderers.physical import lightfit
+
+        # (looked up on the module at each call: a test may replace it)
+        model, _ = lightfit.fit_light(params, d, n, sh, known, albedo, req.camera, up=up, up_from=up_from,
+                                      settings=self._settings, seed=seed, diagnostics=diagnostics)
+        evidence = LightEvidence.from_diagnostics(diagnostics)
         if key is not None:
             self._cache[key] = model
-        return model
+            self._evidence[key] = evidence
+        return model, evidence
 
     # (the name the benchmark scripts and older callers know)
     estimate = light
@@ -104,7 +137,7 @@ class PhysicalRenderer(Renderer):
             raise UsageError("physical renderer needs at least one request")
         timings = {"estimate": 0.0, "synthesis": 0.0}
         t0 = time.perf_counter()
-        model = self.light(requests[0], seed)
+        model, evidence = self.light_and_evidence(requests[0], seed)
         timings["estimate"] = time.perf_counter() - t0
         grown = None
         if model.source == "manifest" and model.shadows is ShadowKind.CAST:
@@ -128,7 +161,11 @@ class PhysicalRenderer(Renderer):
         light = model.to_info()
         info = {"light": light, "fallback": light["fallback"], "shadow": str(model.shadows),
                 "settings": self.settings()}
-        return RenderOutput(images=images, info=info, timings=timings, shading_mask=grown)
+        debug_maps = {}
+        if evidence is not None and any(getattr(r, "debug", False) for r in requests):
+            # the light's evidence at the job's resolution (``evidence_maps``)
+            debug_maps = evidence.maps(np.shape(requests[0].known))
+        return RenderOutput(images=images, info=info, timings=timings, shading_mask=grown, debug_maps=debug_maps)
 
     def _shadow_reach(self, req: RenderRequest, model: LightModel) -> np.ndarray:
         """(H, W) bool: known pixels in the shadow of what the request's shading mask
@@ -137,13 +174,14 @@ class PhysicalRenderer(Renderer):
         cut at the mask's edge is a visible straight end."""
         import cv2
 
+        cfg = self._settings.transport
         d, n, _, known = self._inputs(req)
         H, W = d.shape
         occ = ~known & (d > 0)
         out = np.zeros((H, W), bool)
         if not occ.any():
             return out
-        st = 2 if H * W > FULL_RES_PIXELS else 1
+        st = 2 if H * W > cfg.full_res_pixels else 1
         geo = (d > 0) & (np.abs(np.linalg.norm(n, axis=-1) - 1) < 0.2)
         gy, gx, Pg, Ng, ok = _grid_points(d, n, geo, req.camera, (0, 0, H, W), st)
         for light in _direct_lights(model):
@@ -155,9 +193,9 @@ class PhysicalRenderer(Renderer):
             ys, xs, P, N = gy[cand], gx[cand], Pg[cand], Ng[cand]
             v, t = march_visibility(P, N, L[cand], d, req.camera, steps=int(self._settings.march_steps),
                                     nearest=True, return_distance=True, occluder_mask=occ,
-                                    max_distance=dist[cand], walls=model.walls)
+                                    max_distance=dist[cand], walls=model.walls, **_march_kw(cfg))
             if req.occluder is not None:
-                vm, tm = light.mesh_shadow(req.occluder, P, N)
+                vm, tm = light.mesh_shadow(req.occluder, P, N, cfg)
                 v, t = np.minimum(v, vm), np.minimum(t, tm)
             hit = v < 0.5
             if not hit.any():
@@ -165,7 +203,7 @@ class PhysicalRenderer(Renderer):
             # the widest penumbra among them (t tan a f / z), then the compositor's blur
             tan_a = light.tan_radius(P[hit])
             pen = float(np.max(t[hit] * tan_a * req.camera.fx / np.maximum(d[ys[hit], xs[hit]], 1e-6)))
-            r = int(np.ceil(min(pen, MAX_PENUMBRA_PX) + st + 2))
+            r = int(np.ceil(min(pen, cfg.max_penumbra_px) + st + 2))
             one = np.zeros((H, W), np.uint8)
             one[ys[hit], xs[hit]] = 1
             k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
@@ -208,10 +246,11 @@ class PhysicalRenderer(Renderer):
         stride-2 grid (4 on large frames), each direction weighted by the sky's radiance
         there (``weighted_visibility``), the object's mesh occlusion where the bundle has
         one, class-aware blur, the bounce off the occluders."""
+        cfg = self._settings.transport
         H, W = d.shape
         ys, xs = np.nonzero(todo)
-        ao_st = 4 if H * W > FULL_RES_PIXELS else 2
-        ay0, ax0, ay1, ax1 = _window(ys, xs, H, W, int(3 * max(AO_BLUR_PX, 1.5 * ao_st)) + 4, even=ao_st)
+        ao_st = 4 if H * W > cfg.full_res_pixels else 2
+        ay0, ax0, ay1, ax1 = _window(ys, xs, H, W, int(3 * max(cfg.sky_blur_px, 1.5 * ao_st)) + 4, even=ao_st)
         gy, gx, P, N, ok = _grid_points(d, n, geo_all, camera, (ay0, ax0, ay1, ax1), ao_st)
         ao_c = np.ones(gy.shape + (3,))
         scene_only = None
@@ -223,7 +262,8 @@ class PhysicalRenderer(Renderer):
             scene_only = ~mesh_silhouette(occluder, camera, (H, W))
         occ_c = dist_c = None
         if ok.any():
-            smp = sky_samples(P[ok], N[ok], gy[ok], gx[ok], d, camera, occluder_mask=scene_only, walls=walls)
+            smp = sky_samples(P[ok], N[ok], gy[ok], gx[ok], d, camera, cfg=cfg, occluder_mask=scene_only,
+                              walls=walls)
             ao_c[ok] = weighted_visibility(*smp, radiance_sh)
             if occluder is not None:
                 # the sky the object hides, from its mesh (``mesh_occlusion``): smooth,
@@ -233,9 +273,9 @@ class PhysicalRenderer(Renderer):
                 occ_c, dist_c = np.zeros(gy.shape + (3,)), np.zeros(gy.shape)
                 # (the exact near field for the scene's points by the object, not the
                 # object's own: ``refine``; each element hides the sky's radiance behind it)
-                occ_c[ok], dist_c[ok] = mesh_occlusion(mesh_discs(occluder), P[ok], N[ok], mesh=occluder,
+                occ_c[ok], dist_c[ok] = mesh_occlusion(mesh_discs(occluder, cfg=cfg), P[ok], N[ok], mesh=occluder,
                                                        refine=scene_only[gy[ok], gx[ok]], return_distance=True,
-                                                       radiance_sh=radiance_sh)
+                                                       radiance_sh=radiance_sh, cfg=cfg)
         h_, w_ = ay1 - ay0, ax1 - ax0
         up2 = lambda a: np.repeat(np.repeat(a, ao_st, 0), ao_st, 1)[:h_, :w_]
         okf = geo_all[ay0:ay1, ax0:ax1]
@@ -244,14 +284,14 @@ class PhysicalRenderer(Renderer):
         # (a light rim): only pixels of their anchor's class vouch for it; the
         # normalised blur fills the others from their own class
         same = up2(ok) & (up2(cls[::ao_st, ::ao_st]) == cls)
-        rad = max(AO_BLUR_PX, 1.5 * ao_st)
+        rad = max(cfg.sky_blur_px, 1.5 * ao_st)
         ao = np.stack([classwise_blur(up2(ao_c[..., c]), cls, okf & same, rad, fill=okf) for c in range(3)], -1)
         if occ_c is not None:
             occ = np.stack([classwise_blur(up2(occ_c[..., c]), cls, okf & same, rad, fill=okf) for c in range(3)], -1)
             dist = up2(dist_c)
             # The sky occlusion reaches past the shading mask (a sphere still hides a
             # quarter of the sky one radius past its side); cut at the mask's edge it
-            # drew an ellipse. It fades out over the outer MESH_AO_FADE of the mask's
+            # drew an ellipse. It fades out over the outer ``mesh_ao_fade`` of the mask's
             # radius, the farthest of its pixels from the mesh (in metres: the mask is
             # a ball around the object, squeezed on screen below it), after the blur.
             # Any other mask (an API caller's) ends it within 2 blur radii of its edge.
@@ -260,14 +300,14 @@ class PhysicalRenderer(Renderer):
             if R > 0:  # (a mesh without area has no elements: nothing hidden)
                 import cv2
 
-                t = np.clip((R - dist) / max(MESH_AO_FADE * R, 1e-9), 0.0, 1.0)
+                t = np.clip((R - dist) / max(cfg.mesh_ao_fade * R, 1e-9), 0.0, 1.0)
                 px = cv2.distanceTransform(np.pad(todo[ay0:ay1, ax0:ax1], 1).astype(np.uint8),
                                            cv2.DIST_L2, 5)[1:-1, 1:-1]
                 u = np.clip(px / (2.0 * rad), 0.0, 1.0)
                 ao = ao * (1.0 - occ * (t * t * (3.0 - 2.0 * t) * u * u * (3.0 - 2.0 * u))[..., None])
         # occluded directions still see light bounced off the occluders
         rho = float(np.clip(np.mean(albedo_mean), 0.0, 0.9))
-        ao = ao + (1.0 - ao) * rho * AO_BOUNCE
+        ao = ao + (1.0 - ao) * rho * cfg.sky_bounce
         return ao[ys - ay0, xs - ax0], scene_only
 
     def _parts(self, d, n, todo, camera, model: LightModel, albedo_mean, occluder, unknown=None):
@@ -291,10 +331,11 @@ class PhysicalRenderer(Renderer):
         direct = np.zeros_like(ambient)
         lit = []
         if model.shadows is ShadowKind.CAST:
-            box = _window(ys, xs, H, W, WINDOW_MARGIN_PX, even=(H * W > FULL_RES_PIXELS))
+            cfg = self._settings.transport
+            box = _window(ys, xs, H, W, cfg.window_margin_px, even=(H * W > cfg.full_res_pixels))
             P = camera.ray(xs + 0.5, ys + 0.5) * d[ys, xs][:, None]
-            fade = (_edge_fade(todo if unknown is None else unknown, ys, xs) if model.source != "manifest"
-                    else None)
+            fade = (_edge_fade(todo if unknown is None else unknown, ys, xs, cfg.edge_fade_px)
+                    if model.source != "manifest" else None)
             for light in _direct_lights(model):
                 L, _, E = light.toward(P)
                 v_t = self._soft_visibility(d, n, geo_all, camera, light, box, ys, xs, occluder, scene_only,
@@ -335,6 +376,7 @@ class PhysicalRenderer(Renderer):
         beneath keeps what the specular layer does not reflect (a metal none)."""
         from zcomp_cli.renderers.physical.gloss import ggx_direct, prefiltered_light, specular_albedo
 
+        pc = self._settings.probe
         P = camera.ray(xs + 0.5, ys + 0.5) * d[ys, xs][:, None]
         v = -P / np.maximum(np.linalg.norm(P, axis=1, keepdims=True), 1e-12)
         ndv = np.clip(np.sum(nv * v, 1), 1e-4, 1.0)
@@ -342,14 +384,14 @@ class PhysicalRenderer(Renderer):
         rough = np.clip(np.nan_to_num(np.asarray(roughness, np.float64)[ys, xs]), 0.0, 1.0)
         met = np.zeros(len(ys)) if metallic is None else np.clip(np.nan_to_num(np.asarray(metallic)[ys, xs]), 0, 1)
         f0 = 0.04 * (1.0 - met)[:, None] + np.clip(albedo[ys, xs], 0, 1) * met[:, None]
-        L = prefiltered_light(model).lookup(r, rough, ground=model.sky.ground)
-        out = vis_sky.mean(1, keepdims=True) * L * specular_albedo(rough, ndv, f0)
+        L = prefiltered_light(model, pc).lookup(r, rough, ground=model.sky.ground)
+        out = vis_sky.mean(1, keepdims=True) * L * specular_albedo(rough, ndv, f0, pc)
         for light, Ld, E, v_t in lit:
             # E is the shading of a facing surface: its irradiance over pi
-            out = out + (np.pi * v_t)[:, None] * E * ggx_direct(nv, v, Ld, rough, f0, light.tan_radius(P))
+            out = out + (np.pi * v_t)[:, None] * E * ggx_direct(nv, v, Ld, rough, f0, light.tan_radius(P), cfg=pc)
         # Cycles' Principled layering: the diffuse gets one minus the dielectric
         # layer's directional albedo toward the viewer
-        keep = (1.0 - met) * (1.0 - specular_albedo(rough, ndv, np.full((len(ys), 1), 0.04))[:, 0])
+        keep = (1.0 - met) * (1.0 - specular_albedo(rough, ndv, np.full((len(ys), 1), 0.04), pc)[:, 0])
         return cov[:, None] * out, keep
 
     def _soft_visibility(self, d, n, geo_all, camera, light, box, ys, xs, occluder,
@@ -357,10 +399,11 @@ class PhysicalRenderer(Renderer):
         """Filtered visibility of ``light`` (``_DirectLight``) at pixels (ys, xs),
         marched over the window ``box``; ``scene_only``: (H, W) bool, the texels that
         occlude in the march (None: all), the ``occluder`` mesh shadowing for the rest.
-        Above FULL_RES_PIXELS the march runs on a stride-2 grid (the filter smooths it
-        anyway): a quarter of the rays."""
+        Above ``transport.full_res_pixels`` the march runs on a stride-2 grid (the filter
+        smooths it anyway): a quarter of the rays."""
+        cfg = self._settings.transport
         H, W = d.shape
-        st = 2 if H * W > FULL_RES_PIXELS else 1
+        st = 2 if H * W > cfg.full_res_pixels else 1
         wy0, wx0, wy1, wx1 = box
         gy, gx, P, N, ok = _grid_points(d, n, geo_all, camera, box, st)
         L, dist, _ = light.toward(P.reshape(-1, 3))
@@ -373,9 +416,9 @@ class PhysicalRenderer(Renderer):
                                     steps=int(self._settings.march_steps),
                                     jitter=pixel_jitter(gy[lit], gx[lit]), return_distance=True,
                                     nearest=True, occluder_mask=scene_only, max_distance=dist[lit],
-                                    walls=walls)
+                                    walls=walls, **_march_kw(cfg))
             if occluder is not None:
-                vm, tm = light.mesh_shadow(occluder, P[lit], N[lit])
+                vm, tm = light.mesh_shadow(occluder, P[lit], N[lit], cfg)
                 v, t = np.minimum(v, vm), np.minimum(t, tm)
             vis[lit], t_hit[lit] = v, t
         vis = np.where(ok & ~lit, 1.0, vis)  # facing away: n.l = 0 does the shading
@@ -395,29 +438,19 @@ class PhysicalRenderer(Renderer):
         # context for the blurs)
         by0, bx0 = int(ys.min()) - wy0, int(xs.min()) - wx0
         vs = penumbra_filter(vis, t_hit, d[wy0:wy1, wx0:wx1], cls_w, ok, camera.fx, tan_a,
-                             box=(by0, bx0, int(ys.max()) + 1 - wy0, int(xs.max()) + 1 - wx0))
+                             box=(by0, bx0, int(ys.max()) + 1 - wy0, int(xs.max()) + 1 - wx0), cfg=cfg)
         return vs[ys - wy0 - by0, xs - wx0 - bx0]
 
 
-def _edge_fade(region: np.ndarray, ys, xs) -> np.ndarray:
+def _edge_fade(region: np.ndarray, ys, xs, width_px: float = DEFAULT.edge_fade_px) -> np.ndarray:
     """(M,) in [0, 1] at pixels (ys, xs) of ``region`` (H, W) bool (the shading mask, the
     whole frame's: the same with or without a region of interest): 0 on its edge,
-    rising smoothly to 1 at EDGE_FADE_PX inside it."""
+    rising smoothly to 1 at ``width_px`` inside it (``TransportConfig.edge_fade_px``)."""
     import cv2
 
     px = cv2.distanceTransform(np.pad(region, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1][ys, xs]
-    u = np.clip(px / EDGE_FADE_PX, 0.0, 1.0)
+    u = np.clip(px / width_px, 0.0, 1.0)
     return u * u * (3.0 - 2.0 * u)
-
-
-# Pixels over which an estimated light's shadow fades out at the shading mask's edge:
-# twice the sky occlusion's blur radius (softshadow.AO_BLUR_PX), the width over which the
-# compositor's own blur would otherwise show the cut.
-EDGE_FADE_PX = 2.0 * AO_BLUR_PX
-
-# Outer share of the shading mask's radius over which the object's sky occlusion fades
-# out (``_synthesise``).
-MESH_AO_FADE = 0.35
 
 
 
@@ -447,12 +480,12 @@ class _DirectLight:
         s = np.clip(self.lamp.radius_m / np.maximum(r, 1e-6), 0.0, 0.99)
         return s / np.sqrt(1 - s * s)
 
-    def mesh_shadow(self, mesh, P, N):
+    def mesh_shadow(self, mesh, P, N, cfg: TransportConfig = DEFAULT):
         from zcomp_cli.renderers.physical.meshshadow import mesh_shadow, mesh_shadow_point
 
         if self.sun is not None:
-            return mesh_shadow(mesh, P, N, self.sun.direction)
-        return mesh_shadow_point(mesh, P, N, self.lamp.position)
+            return mesh_shadow(mesh, P, N, self.sun.direction, cfg=cfg)
+        return mesh_shadow_point(mesh, P, N, self.lamp.position, cfg=cfg)
 
 
 def _direct_lights(model: LightModel) -> list[_DirectLight]:
@@ -493,10 +526,6 @@ def _grown_request(req: RenderRequest, reach: np.ndarray) -> RenderRequest:
         x0, y0, x1, y1 = roi
         roi = (min(x0, int(cols[0])), min(y0, int(rows[0])), max(x1, int(cols[-1]) + 1), max(y1, int(rows[-1]) + 1))
     return dataclasses.replace(req, known=known, roi=roi)
-
-
-# Frames larger than this march the direct shadow on a stride-2 grid.
-FULL_RES_PIXELS = 256 * 256
 
 
 def _depth_classes(depth: np.ndarray, rel_jump: float = 0.1) -> np.ndarray:

@@ -5,13 +5,13 @@ On the support (``depthmesh``: the plane the scene stands on), the known shading
 light that reaches each point: a cast shadow is a region darker than its lit
 surroundings on the same surface. Dividing the shading by the **lit level** -- a smooth
 upper envelope of the support's shading, fitted on the pixels not yet called dark and
-refitted (``LIT_ITERS``) -- leaves the **ratio** ``r = shading / lit level``: about 1
+refitted (``lit_iters``) -- leaves the **ratio** ``r = shading / lit level``: about 1
 where the light reaches, the shadowed/lit ratio in an umbra (the sky's share of the
 light there, Madsen and Nielsen's measurement), in between across a penumbra. Dividing by
 the albedo (the caller's shading) keeps texture out of it.
 
 A dark region counts as a cast shadow only where it can be tied to a caster: its pixels
-next to (within ``ATTACH_REL`` of the frame) an occluder of the depth mesh that stands on
+next to (within ``attach_rel`` of the frame) an occluder of the depth mesh that stands on
 the support (has a base). Dark regions tied to nothing (the shadow of something outside
 the frame, an albedo error) are left out of the evidence: ``weight`` is 0 there, 1 on
 the lit support and on tied dark regions.
@@ -27,28 +27,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-# Iterations of the lit level (fit, call the pixels below it dark, refit without them).
-LIT_ITERS = 4
-# Darker than the lit level by this many noise scales (and at least by Weber's 2 %
-# contrast, the least a viewer sees): a dark pixel.
-DARK_SIGMAS = 3.0
-WEBER = 0.02
-# A dark region is tied to a caster within this share of the frame's long side of it.
-ATTACH_REL = 1.0 / 60.0
-# The band of pixels along the support's outline and the albedo's edges whose ratio is
-# not read (the erosion and the edge's dilation, a pixel each).
-UNREAD_PX = 2
-# A tied shadow lies within this many times its caster's height of it (along the
-# ground): the shadow of a light at least atan(1/4) = 14 deg above the horizon.
-REACH_HEIGHTS = 4.0
-# Points of a caster its ground distance is measured to (a stride of them).
-MAX_REACH_POINTS = 2000
-# An albedo whose log spreads less than this over the support is one albedo.
-ALBEDO_SPREAD = 0.02
-# A change of the albedo's log this large between neighbours (per pixel) is an edge.
-ALBEDO_EDGE = 0.05
-# Pixels of a dark region fewer than this share of the support are noise.
-MIN_REGION_REL = 1e-3
+from zcomp_cli.renderers.physical.settings import EvidenceConfig
+
+# The constants are ``settings.EvidenceConfig``'s, each with its provenance.
+DEFAULT = EvidenceConfig()
 
 
 @dataclass(frozen=True)
@@ -89,10 +71,11 @@ class ShadowEvidence:
         return out
 
 
-def lit_basis(points, up, ok, albedo=None) -> np.ndarray:
-    """(h, w, P) the lit level's basis: the quadratic monomials of the pixels' ground
-    coordinates (along the ground's right and forward axes, centred and scaled by their
-    spread on ``ok``), and, with ``albedo`` (h, w), its log and the log's square (a
+def lit_basis(points, up, ok, albedo=None, albedo_spread: float = DEFAULT.albedo_spread,
+              degree: int = DEFAULT.lit_degree) -> np.ndarray:
+    """(h, w, P) the lit level's basis: the monomials up to ``degree`` of the pixels'
+    ground coordinates (along the ground's right and forward axes, centred and scaled by
+    their spread on ``ok``), and, with ``albedo`` (h, w), its log and the log's square (a
     surface's apparent shading depends on its albedo: its specular layer adds a share
     that does not scale with it, more at grazing angles), where it varies."""
     from zcomp_cli.worldframe import ground_frame
@@ -102,30 +85,21 @@ def lit_basis(points, up, ok, albedo=None) -> np.ndarray:
     su, sv = u[ok], v[ok]
     u = (u - su.mean()) / max(float(su.std()), 1e-9)
     v = (v - sv.mean()) / max(float(sv.std()), 1e-9)
-    cols = [np.ones_like(u), u, v, u * u, u * v, v * v]
+    cols = [u ** (k - j) * v ** j for k in range(int(degree) + 1) for j in range(k + 1)]
     if albedo is not None:
         la = np.log(np.maximum(np.nan_to_num(np.asarray(albedo, np.float64)), 1e-4))
         sa = la[ok]
-        if len(sa) and float(sa.std()) > ALBEDO_SPREAD:
+        if len(sa) and float(sa.std()) > albedo_spread:
             la = (la - sa.mean()) / float(sa.std())
             cols += [la, la * la]
     return np.stack(cols, -1)
 
 
-def _normalized_blur(values, weight, radius):
-    import cv2
-
-    k = 2 * int(math.ceil(1.5 * radius)) + 1
-    num = cv2.GaussianBlur((values * weight).astype(np.float32), (k, k), radius / 2.0, borderType=cv2.BORDER_REPLICATE)
-    den = cv2.GaussianBlur(weight.astype(np.float32), (k, k), radius / 2.0, borderType=cv2.BORDER_REPLICATE)
-    return np.where(den > 1e-3, num / np.maximum(den, 1e-6), np.nan)
-
-
 def within_reach(points: np.ndarray, casters: np.ndarray, up, support: np.ndarray,
-                 labels: np.ndarray | None = None) -> np.ndarray:
+                 labels: np.ndarray | None = None, cfg: EvidenceConfig = DEFAULT) -> np.ndarray:
     """(h, w) bool: the support's pixels whose distance along the ground from a caster is
-    at most REACH_HEIGHTS times that caster's height above the support: where its shadow
-    can fall under a light at least ``atan(1 / REACH_HEIGHTS)`` above the horizon.
+    at most ``cfg.reach_heights`` times that caster's height above the support: where its
+    shadow can fall under a light at least ``atan(1 / reach_heights)`` above the horizon.
     ``labels``: the casters' components (each with its own height; None: one)."""
     from scipy.spatial import cKDTree
 
@@ -143,13 +117,13 @@ def within_reach(points: np.ndarray, casters: np.ndarray, up, support: np.ndarra
     hit = np.zeros(len(S), bool)
     for k in np.unique(lab[lab > 0]):
         C = points[lab == k]
-        if len(C) > MAX_REACH_POINTS:  # a stride of its points: the ground distance to within a pixel or two
-            C = C[np.linspace(0, len(C) - 1, MAX_REACH_POINTS).astype(np.int64)]
+        if len(C) > cfg.max_reach_points:  # a stride of its points: the ground distance to within a pixel or two
+            C = C[np.linspace(0, len(C) - 1, cfg.max_reach_points).astype(np.int64)]
         height = float(np.max(C @ up) - h0)
         if height <= 0:
             continue
         tree = cKDTree(np.stack([C @ right, C @ fwd], 1))
-        dist, _ = tree.query(Sg, k=1, distance_upper_bound=REACH_HEIGHTS * height)
+        dist, _ = tree.query(Sg, k=1, distance_upper_bound=cfg.reach_heights * height)
         hit |= np.isfinite(dist)
     out[support] = hit
     return out
@@ -157,7 +131,7 @@ def within_reach(points: np.ndarray, casters: np.ndarray, up, support: np.ndarra
 
 def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarray, points: np.ndarray, up,
                     known: np.ndarray | None = None, albedo: np.ndarray | None = None,
-                    labels: np.ndarray | None = None) -> ShadowEvidence:
+                    labels: np.ndarray | None = None, cfg: EvidenceConfig = DEFAULT) -> ShadowEvidence:
     """The support's cast-shadow evidence (module docstring).
 
     Args:
@@ -167,6 +141,7 @@ def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarra
         known: (h, w) bool, the pixels whose shading is known (default: finite > 0).
         points: (h, w, 3) the pixels' camera-frame points; up: (3,) world up.
         labels: (h, w) int, the occluders' components (each caster's reach its own).
+        cfg: the evidence's constants (``settings.EvidenceConfig``).
         albedo: (h, w) luminance of the albedo: where it changes from pixel to pixel the
             image and the albedo map rarely line up (an anti-aliased edge over a sampled
             one), and the ratio there tells nothing (weight 0).
@@ -183,7 +158,7 @@ def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarra
     if albedo is not None:
         la = np.log(np.maximum(np.nan_to_num(np.asarray(albedo, np.float64)), 1e-4))
         grad = np.maximum(np.abs(cv2.Sobel(la, cv2.CV_64F, 1, 0, ksize=3)), np.abs(cv2.Sobel(la, cv2.CV_64F, 0, 1, ksize=3))) / 4
-        ok &= cv2.dilate((grad > ALBEDO_EDGE).astype(np.uint8), np.ones((3, 3), np.uint8)) == 0
+        ok &= ~(grad > cfg.albedo_edge)  # (the 3 x 3 Sobel already marks both sides of an edge)
     h, w = s.shape
     nan = np.full((h, w), np.nan)
     empty = np.zeros((h, w), bool)
@@ -192,13 +167,25 @@ def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarra
                               lit_level=nan, reach=empty, shading=np.asarray(shading, np.float64),
                               basis=np.ones((h, w, 1)))
     logs = np.where(ok, np.log(np.where(ok, s, 1.0)), 0.0)
-    X = lit_basis(points, up, ok, albedo)
+    X = lit_basis(points, up, ok, albedo, cfg.albedo_spread, cfg.lit_degree)
     lit = ok.copy()
-    sigma = WEBER
+    # the lit level is fitted on the pixels not called dark, called dark at the pixels'
+    # own noise (the differences between neighbours on the support: a render's noise, a
+    # texture's residue), so that any light the lit level does not hold -- an unseen
+    # occluder's band, a shadow -- is left out of it, however large
+    pair = ok[:, 1:] & ok[:, :-1]
+    diffs = np.abs(np.diff(logs, axis=1))[pair]
+    floor = cfg.weber / cfg.dark_sigmas
+    sigma = max(1.4826 * float(np.median(diffs)) / math.sqrt(2.0), floor) if len(diffs) else floor
     level = nan
-    for _ in range(LIT_ITERS):
-        # the lit level in log space (exposure and albedo scale out), from lit pixels only
-        beta = np.linalg.lstsq(X[lit], logs[lit], rcond=None)[0]
+    med = 0.0
+    res = np.full((h, w), np.nan)
+    for _ in range(cfg.lit_iters):
+        fit_px = np.flatnonzero(lit.ravel())
+        if len(fit_px) > cfg.max_lit_pixels:  # a stride: a low-order surface needs few
+            fit_px = fit_px[np.linspace(0, len(fit_px) - 1, cfg.max_lit_pixels).astype(np.int64)]
+        Xf = X.reshape(-1, X.shape[-1])[fit_px]
+        beta = np.linalg.lstsq(Xf, logs.ravel()[fit_px], rcond=None)[0]
         lv = np.full((h, w), np.nan)
         lv[ok] = X[ok] @ beta
         res = np.where(ok, logs - np.nan_to_num(lv), np.nan)
@@ -206,27 +193,33 @@ def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarra
         if len(rl) < 10:
             break
         med = float(np.median(rl))
-        sigma = max(1.4826 * float(np.median(np.abs(rl - med))), WEBER / DARK_SIGMAS)
-        # the envelope: lit pixels scatter about it, dark ones fall below
-        dark = ok & (res < med + math.log(1.0 - max(DARK_SIGMAS * sigma, WEBER)))
-        lit = ok & ~dark
+        lit = ok & ~(res < med + math.log(1.0 - min(max(cfg.dark_sigmas * sigma, cfg.weber), cfg.darkest)))
         level = np.exp(lv + med)
+    # then the noise of a pixel's ratio is the lit level's own misfit on the lit pixels
+    # (at least the pixels' noise): what a dark pixel must stand out of
+    rl = res[lit & np.isfinite(res)]
+    if len(rl) >= 10:
+        sigma = max(1.4826 * float(np.median(np.abs(rl - med))), sigma)
     ratio = np.where(ok, s / np.where(np.isfinite(level) & (level > 0), level, np.nan), np.nan)
-    dark = ok & np.isfinite(ratio) & (ratio < 1.0 - max(DARK_SIGMAS * sigma, WEBER))
-    # regions, and which of them touch a caster that stands on the support
-    n_lab, lab = cv2.connectedComponents(dark.astype(np.uint8), connectivity=8)
+    dark = ok & np.isfinite(ratio) & (ratio < 1.0 - min(max(cfg.dark_sigmas * sigma, cfg.weber), cfg.darkest))
+    # regions, and which of them touch a caster that stands on the support; a region is
+    # grouped across the unread bands (an albedo edge's, the outline's) it crosses: a
+    # shadow on a checker floor is one shadow, not a piece per tile
+    unread = np.asarray(support, bool) & ~ok
+    k = 2 * cfg.unread_px + 1
+    near_dark = cv2.dilate(dark.astype(np.uint8), np.ones((k, k), np.uint8)) > 0
+    n_lab, lab = cv2.connectedComponents((dark | (unread & near_dark)).astype(np.uint8), connectivity=8)
     casters = np.asarray(casters, bool)
-    reach_m = within_reach(points, casters, up, np.asarray(support, bool), labels)
-    # (beyond the band the support's outline and the albedo's edges leave unread: a
-    # pixel each)
-    reach = max(1, int(round(ATTACH_REL * max(h, w)))) + UNREAD_PX
+    reach_m = within_reach(points, casters, up, np.asarray(support, bool), labels, cfg)
+    # (beyond the band the support's outline and the albedo's edges leave unread)
+    reach = max(1, int(round(cfg.attach_rel * max(h, w)))) + cfg.unread_px
     kern = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach + 1, 2 * reach + 1))
     near_caster = cv2.dilate(casters.astype(np.uint8), kern) > 0
     tied = np.zeros((h, w), bool)
-    min_px = max(3, int(MIN_REGION_REL * ok.sum()))
+    min_px = max(3, int(cfg.min_region_rel * ok.sum()))
     if n_lab > 1:
-        sizes = np.bincount(lab.ravel(), minlength=n_lab)
-        touch = np.bincount(lab[near_caster & dark], minlength=n_lab) > 0
+        sizes = np.bincount(lab[dark], minlength=n_lab)
+        touch = np.bincount(lab[near_caster & (dark | unread)], minlength=n_lab) > 0
         keep = touch & (sizes >= min_px)
         keep[0] = False
         tied = keep[lab] & dark & reach_m

@@ -13,13 +13,14 @@ cone's average). On the support, whose normal is up, a light's irradiance is a c
 share of the lit level (a lamp's fall-off, the sky's gradient and the albedo's own
 shading are the lit level's, ``shadow_evidence.lit_basis``), so
 
-    log s = X beta + log(rho + (1 - rho) V)
+    log s = X beta + c (1 - V),   c = log rho <= 0
 
 with ``X beta`` the lit level and ``rho`` the shadowed/lit ratio -- the sky's share of
-the support's light, Madsen and Nielsen's measurement, read off the shadow itself.
-``beta`` is fitted by least squares for every candidate at once (the residual of one
-projection), ``rho`` profiled over ``RATIO_GRID``. The Gaussian log-likelihood at the
-best candidate's noise scale counts each **block** of the frame (``atoms.HOLDOUT_BLOCKS``)
+the support's light, Madsen and Nielsen's measurement, read off the shadow itself (exact
+where V is 0 or 1; across a penumbra the log-linear interpolation). ``beta`` and ``c``
+are fitted by least squares for every candidate at once (the residual of one
+projection). The Gaussian log-likelihood at the
+best candidate's noise scale counts each **block** of the frame (``FrameConfig.holdout_blocks``)
 the receivers span as one observation: residuals within a block are correlated (a
 shadow's edge, an albedo error), so a pixel is not one.
 
@@ -34,20 +35,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from zcomp_cli.renderers.physical.atoms import HOLDOUT_BLOCKS
+from zcomp_cli.renderers.physical.settings import SearchConfig
 
-# The shadowed/lit ratios of the open support a candidate's shadow is fitted with (a
-# sampling resolution: 5 % steps; 1 is no direct light).
-RATIO_GRID = tuple(np.round(np.arange(0.05, 1.0001, 0.05), 2))
-# The least modelled shading over the lit level (a logarithm's floor: an umbra with no
-# sky left).
-LOG_FLOOR = 1e-3
-# The least noise scale of the log shading (Weber's 2 % contrast, the least a viewer
-# sees, over 3: exact renders have none).
-SIGMA_MIN = 0.02 / 3.0
-# Origins leave the surface by this share of their depth along the normal (the mesh is
-# float32 in Embree and the depth map's own steps are about a percent).
-BIAS_REL = 0.01
+# The constants are ``settings.SearchConfig``'s (``bias_rel``, ``sigma_min``,
+# ``log_floor``), each with its provenance.
+DEFAULT = SearchConfig()
+# (kept for the tests and callers that start rays the way the search does)
+BIAS_REL = DEFAULT.bias_rel
 
 
 @dataclass(frozen=True)
@@ -74,7 +68,8 @@ class Receivers:
         return len(self.ys)
 
 
-def receivers(mesh, evidence, *, max_receivers: int) -> Receivers:
+def receivers(mesh, evidence, *, max_receivers: int, bias_rel: float = DEFAULT.bias_rel,
+              blocks: int = 12) -> Receivers:  # (FrameConfig.holdout_blocks)
     """The support's receivers (module docstring): every support pixel where a caster's
     shadow can fall (``evidence.reach``), the rest of the support on a sparser stride,
     each weighted by the share of the support it stands for, at most ``max_receivers``."""
@@ -100,11 +95,11 @@ def receivers(mesh, evidence, *, max_receivers: int) -> Receivers:
     ys, xs = np.divmod(idx, w)
     P = mesh.points[ys, xs]
     up = mesh.up
-    O = P + up[None] * (BIAS_REL * np.maximum(-P[:, 2], 1e-6))[:, None]
-    blk = max(h, w) / HOLDOUT_BLOCKS
-    blocks = len(np.unique((ys // blk).astype(int) * (HOLDOUT_BLOCKS + 1) + (xs // blk).astype(int)))
+    O = P + up[None] * (bias_rel * np.maximum(-P[:, 2], 1e-6))[:, None]
+    blk = max(h, w) / blocks
+    n_blocks = len(np.unique((ys // blk).astype(int) * (blocks + 1) + (xs // blk).astype(int)))
     return Receivers(ys=ys, xs=xs, origins=O, distance=np.linalg.norm(P, axis=1), ratio=evidence.ratio[ys, xs],
-                     weight=evidence.weight[ys, xs] * area, blocks=max(1, blocks),
+                     weight=evidence.weight[ys, xs] * area, blocks=max(1, n_blocks),
                      sigma=float(evidence.sigma), log_shading=np.log(np.maximum(evidence.shading[ys, xs], 1e-12)),
                      basis=evidence.basis[ys, xs])
 
@@ -144,65 +139,55 @@ class ShadowFit:
     weight: np.ndarray
     ratio: np.ndarray
     blocks: int
+    sigma_min: float = DEFAULT.sigma_min
 
     @property
     def best_sigma(self) -> float:
-        """The noise scale the best candidate implies: the weighted median absolute
-        residual of the candidate with the least (x 1.4826: a Gaussian's sigma), at least
-        SIGMA_MIN. (A pre-pass's scale is inflated by the shadows it reads.)"""
+        """The noise scale the best candidate implies: the root of its weighted mean
+        squared residual (its maximum-likelihood scale: the model's own misfit, a wrong
+        lit level or an edge, counts as noise), at least ``sigma_min``. (A pre-pass's scale
+        is inflated by the shadows it reads.)"""
         if self.resid.size == 0:
-            return SIGMA_MIN
-        k = int(np.argmin((self.weight[:, None] * self.resid ** 2).sum(0)))
-        a = np.abs(self.resid[:, k])
-        o = np.argsort(a)
-        cw = np.cumsum(self.weight[o])
-        med = float(a[o][np.searchsorted(cw, 0.5 * cw[-1])]) if cw[-1] > 0 else 0.0
-        return max(1.4826 * med, SIGMA_MIN)
+            return self.sigma_min
+        msr = (self.weight[:, None] * self.resid ** 2).sum(0) / max(float(self.weight.sum()), 1e-12)
+        return max(math.sqrt(float(msr.min())), self.sigma_min)
 
     def loglik(self, sigma: float) -> np.ndarray:
         """(K,) Gaussian log-likelihoods at noise scale ``sigma``, each block one
         observation. (Huber's loss instead, tried on the development seeds, let a
         misread region cost less but also the shadow's own pixels: the direction's
         median error on the shown shadows went from 26 to 32 deg.)"""
-        sig = max(float(sigma), SIGMA_MIN)
+        sig = max(float(sigma), self.sigma_min)
         mean = (self.weight[:, None] * self.resid ** 2).sum(0) / max(float(self.weight.sum()), 1e-12)
         return -0.5 * self.blocks * mean / sig ** 2
 
 
-def shadow_fit(rec: Receivers, V: np.ndarray) -> ShadowFit:
-    """Fit ``log s ~ X beta + log(rho + (1 - rho) V)`` for every candidate column of
-    ``V`` (R, K) (module docstring): ``X`` the lit level's basis (fitted by least
-    squares: one SVD for all candidates), ``rho`` the shadowed/lit ratio, profiled over
-    ``RATIO_GRID`` (1: no direct light, every candidate alike). (The sky the depth mesh
-    hides from each receiver, ``rho A`` for ``rho``, was tried on the development seeds:
-    the mesh's occlusion of a uniform sky is not the photograph's, and the log score of
-    the true direction fell from -1.6 to -4.3.)"""
+def shadow_fit(rec: Receivers, V: np.ndarray, cfg: SearchConfig = DEFAULT) -> ShadowFit:
+    """Fit ``log s ~ X beta + c (1 - V)`` for every candidate column of ``V`` (R, K)
+    (module docstring: ``c = log rho``, exact where V is 0 or 1, the log-linear
+    interpolation across a penumbra), ``c <= 0``, by least squares on the residual of
+    ``X``'s projection: one SVD and one product for all candidates."""
     K = V.shape[1]
     if len(rec) == 0:
-        return ShadowFit(resid=np.zeros((0, K)), weight=np.zeros(0), ratio=np.ones(K), blocks=1)
+        return ShadowFit(resid=np.zeros((0, K)), weight=np.zeros(0), ratio=np.ones(K), blocks=1,
+                         sigma_min=cfg.sigma_min)
     w = np.maximum(rec.weight, 0.0)
     sw = np.sqrt(w)
     X = rec.basis * sw[:, None]
     U, sv, _ = np.linalg.svd(X, full_matrices=False)
     Q = U[:, sv > 1e-9 * max(float(sv.max()), 1e-300)]  # the basis's span (its albedo terms may be constant)
-    Vc = np.clip(np.asarray(V, np.float64), 0.0, 1.0)
-    best_err = np.full(K, np.inf)
-    best_rho = np.ones(K)
-    best_res = np.zeros((len(rec), K))
-    for rho in RATIO_GRID:
-        M = np.log(np.maximum(rho + (1.0 - rho) * Vc, LOG_FLOOR))
-        Y = (rec.log_shading[:, None] - M) * sw[:, None]
-        Yr = Y - Q @ (Q.T @ Y)
-        err = (Yr * Yr).sum(0)
-        better = err < best_err
-        if better.any():
-            best_err = np.where(better, err, best_err)
-            best_rho = np.where(better, rho, best_rho)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                res = np.where(sw[:, None] > 0, Yr / np.maximum(sw, 1e-300)[:, None], 0.0)
-            best_res[:, better] = res[:, better]
-    return ShadowFit(resid=best_res, weight=w, ratio=best_rho, blocks=rec.blocks)
+    y = rec.log_shading * sw
+    yr = y - Q @ (Q.T @ y)
+    D = (1.0 - np.clip(np.asarray(V, np.float64), 0.0, 1.0)) * sw[:, None]
+    Dr = D - Q @ (Q.T @ D)
+    dd = np.einsum("rk,rk->k", Dr, Dr)
+    dy = Dr.T @ yr
+    with np.errstate(divide="ignore", invalid="ignore"):
+        c = np.where(dd > 1e-12, dy / dd, 0.0)
+    c = np.clip(c, math.log(cfg.log_floor), 0.0)  # a shadow darkens, never below the floor
+    with np.errstate(divide="ignore", invalid="ignore"):
+        resid = np.where(sw[:, None] > 0, (yr[:, None] - Dr * c[None]) / np.maximum(sw, 1e-300)[:, None], 0.0)
+    return ShadowFit(resid=resid, weight=w, ratio=np.exp(c), blocks=rec.blocks, sigma_min=cfg.sigma_min)
 
 
-__all__ = ["Receivers", "receivers", "sun_visibility", "lamp_visibility", "ShadowFit", "shadow_fit", "BIAS_REL",
-           "RATIO_GRID"]
+__all__ = ["Receivers", "receivers", "sun_visibility", "lamp_visibility", "ShadowFit", "shadow_fit", "BIAS_REL"]

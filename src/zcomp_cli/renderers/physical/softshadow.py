@@ -26,25 +26,14 @@ from __future__ import annotations
 import numpy as np
 
 from zcomp_cli.camera import Camera
+from zcomp_cli.renderers.physical.settings import TransportConfig
 from zcomp_cli.renderers.physical.visibility import march_visibility
 
-# Radii (pixels) of the blur levels; the filter interpolates between neighbours.
-LEVEL_RADII = (0.0, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
-MAX_PENUMBRA_PX = LEVEL_RADII[-1]
-# Context (pixels) a window needs around the pixels it must shade: the widest blur
-# kernel (3 sigma, sigma = r / 2) and the blocker search.
-WINDOW_MARGIN_PX = 48
-BLOCKER_SEARCH_PX = 24
-# The sky's visibility: directions, samples per ray, ray length (fraction of depth: as
-# far as a shadow ray goes, so that a wall metres away hides the sky behind it).
-AO_DIRECTIONS = 8
-AO_STEPS = 12
-AO_RANGE_REL = 0.8
-AO_BLUR_PX = 3.0
-# Share of the mean scene albedo that occluded ambient directions still receive
-# (light bounced off the occluder): pure ambient occlusion makes objects standing on a
-# floor too dark at their base.
-AO_BOUNCE = 0.5
+# The constants (the blur levels, the blocker search, the sky's directions, steps and
+# reach) are ``settings.TransportConfig``'s, each with its provenance; the window's
+# margin and the widest penumbra follow from them (``window_margin_px``,
+# ``max_penumbra_px``).
+DEFAULT = TransportConfig()
 
 
 def pixel_jitter(ys: np.ndarray, xs: np.ndarray, salt: int = 0) -> np.ndarray:
@@ -108,7 +97,7 @@ def classwise_blur(values: np.ndarray, classes: np.ndarray, valid: np.ndarray, r
 
 def penumbra_filter(vis: np.ndarray, t_hit: np.ndarray, z: np.ndarray, classes: np.ndarray,
                     valid: np.ndarray, focal_px: float, tan_radius: float,
-                    box: tuple[int, int, int, int] | None = None) -> np.ndarray:
+                    box: tuple[int, int, int, int] | None = None, cfg: TransportConfig = DEFAULT) -> np.ndarray:
     """Smooth a hard shadow into the penumbra a light of angular radius ``atan(tan_radius)``
     casts.
 
@@ -124,6 +113,7 @@ def penumbra_filter(vis: np.ndarray, t_hit: np.ndarray, z: np.ndarray, classes: 
             then reads only the context its kernel reaches around the box: the result
             there is the same as on the whole frame, for a fraction of the work when the
             frame carries a wide margin for the widest penumbra.
+        cfg: the blur levels (``penumbra_levels_px``) and the blocker search's radius.
     Returns:
         (H, W) float64 visibility in [0, 1], or (y1 - y0, x1 - x0) with ``box``.
     """
@@ -144,19 +134,21 @@ def penumbra_filter(vis: np.ndarray, t_hit: np.ndarray, z: np.ndarray, classes: 
     if not np.any(tan_b > 0) or not (vis < 1).any():
         return vis[y0:y1, x0:x1]
     # 2. blocker search: mean occluder distance of the shadowed pixels nearby
-    sl = around(blur_reach(BLOCKER_SEARCH_PX))
+    search = cfg.blocker_search_px
+    sl = around(blur_reach(search))
     v_c, ok_c, t_c = vis[sl], valid[sl], t_hit[sl]
     shadowed = ok_c & (v_c < 0.5) & np.isfinite(t_c)
-    tb = normalized_blur(np.where(shadowed, t_c, 0.0), shadowed, BLOCKER_SEARCH_PX)[inner(sl)]
-    has = normalized_blur(shadowed.astype(np.float64), ok_c, BLOCKER_SEARCH_PX)[inner(sl)] > 1e-3
+    tb = normalized_blur(np.where(shadowed, t_c, 0.0), shadowed, search)[inner(sl)]
+    has = normalized_blur(shadowed.astype(np.float64), ok_c, search)[inner(sl)] > 1e-3
     # 3. penumbra half-width in pixels
     ok_b = valid[y0:y1, x0:x1]
     r = np.where(has & ok_b, tb * np.maximum(tan_b, 0.0) * focal_px / np.maximum(z[y0:y1, x0:x1], 1e-6), 0.0)
-    r = np.clip(np.nan_to_num(r), 0.0, MAX_PENUMBRA_PX)
+    r = np.clip(np.nan_to_num(r), 0.0, cfg.max_penumbra_px)
     # 4. interpolate between blur levels (linear in log2(1 + r): continuous, monotone)
     # only the levels up to the widest penumbra present, each over the context it reads
-    n_lv = max(2, int(np.searchsorted(LEVEL_RADII, r.max())) + 1)
-    radii = LEVEL_RADII[:n_lv]
+    levels_px = cfg.penumbra_levels_px
+    n_lv = max(2, int(np.searchsorted(levels_px, r.max())) + 1)
+    radii = levels_px[:n_lv]
     levels = []
     for rad in radii:
         sl = around(blur_reach(rad))
@@ -190,20 +182,23 @@ def _hemisphere_dirs(normals: np.ndarray, jitter: np.ndarray, k: int) -> list[np
 
 
 def sky_samples(points: np.ndarray, normals: np.ndarray, ys: np.ndarray, xs: np.ndarray,
-                depth: np.ndarray, camera: Camera, *, k: int = AO_DIRECTIONS, steps: int = AO_STEPS,
-                range_rel: float = AO_RANGE_REL, occluder_mask: np.ndarray | None = None, walls=()):
+                depth: np.ndarray, camera: Camera, *, cfg: TransportConfig = DEFAULT,
+                occluder_mask: np.ndarray | None = None, walls=()):
     """The sky seen from (N,) camera-frame points over the depth map (screen space, like
-    the direct shadow), in ``k`` cosine-distributed directions turned per pixel:
-    (directions (k, N, 3), visibility (k, N) in {0, 1}). ``occluder_mask``: (H, W) bool,
-    the texels that may occlude (None: all); ``walls`` (``planes.Wall``) beyond the frame
-    occlude at any distance. Noisy by design: filter what is made of it."""
+    the direct shadow), in ``k = cfg.sky_directions`` cosine-distributed directions turned
+    per pixel, each marched ``cfg.sky_steps`` times up to ``cfg.sky_range_rel`` of the
+    depth: (directions (k, N, 3), visibility (k, N) in {0, 1}). ``occluder_mask``: (H, W)
+    bool, the texels that may occlude (None: all); ``walls`` (``planes.Wall``) beyond the
+    frame occlude at any distance. Noisy by design: filter what is made of it."""
+    k = cfg.sky_directions
     if len(points) == 0:
         return np.zeros((k, 0, 3)), np.zeros((k, 0))
     jit = pixel_jitter(ys, xs, salt=1)
     dirs = _hemisphere_dirs(normals, jit, k)
-    vis = [march_visibility(points, normals, d, depth, camera, steps=steps, max_distance_rel=range_rel,
-                            jitter=pixel_jitter(ys, xs, salt=i + 2), nearest=True, occluder_mask=occluder_mask,
-                            walls=walls)
+    vis = [march_visibility(points, normals, d, depth, camera, steps=cfg.sky_steps,
+                            max_distance_rel=cfg.sky_range_rel, bias_rel=cfg.march_bias_rel,
+                            thickness_rel=cfg.march_thickness_rel, jitter=pixel_jitter(ys, xs, salt=i + 2),
+                            nearest=True, occluder_mask=occluder_mask, walls=walls)
            for i, d in enumerate(dirs)]
     return np.stack(dirs), np.stack(vis)
 

@@ -6,7 +6,7 @@ colour channel (the light's colour is fitted), or coloured (N, 3), with one weig
 all three channels (a light whose colour is known, such as a probe's).
 
 The loss is Huber's (``c = 1.345 sigma``, 95 % efficiency under Gaussian noise), the
-scale ``sigma`` the median absolute residual (x 1.4826), at least ``SIGMA_FLOOR`` of the
+scale ``sigma`` the median absolute residual (x 1.4826), at least ``sigma_floor`` of the
 data's median (a render's noise; exact synthetic data has none). It is minimised by
 iteratively reweighted NNLS (``scipy.optimize.nnls``) with a ridge that pulls the
 weights toward a prior solution (``prior``, ``ridge``): where the pixels cannot tell two
@@ -22,7 +22,7 @@ the model says (probability ``1 - pi``) or in an unseen shadow (``pi``), its sha
 model's less ``d``, both with the same noise (Huber, scale sigma). EM: each IRLS step
 fits the lit responsibility's share of a pixel to the whole model and the shadowed share
 to the model without its direct atoms (the sky still explains it: an unseen shadow says
-how bright the sky is), then refits ``pi`` (at most ``MAX_UNSEEN``). The atoms an unseen
+how bright the sky is), then refits ``pi`` (at most ``max_unseen``; ``settings.SolverConfig``). The atoms an unseen
 occluder can hide are named by ``direct`` (the suns and lamps; not the sky).
 
 ``score_candidates`` scores many one-atom extensions of a base dictionary at once (the
@@ -35,23 +35,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-HUBER_C = 1.345
-MAD_TO_SIGMA = 1.4826
-SIGMA_FLOOR = 0.02
-IRLS_ITERS = 4
-# The unseen shadows' share is at most half the pixels (beyond that the light's
-# contribution is not what the rest of the frame says it is: its weight must drop).
-MAX_UNSEEN = 0.5
-UNSEEN_INIT = 0.1
+from zcomp_cli.renderers.physical.settings import SolverConfig
+
+# The constants (Huber's, the noise floor, the iterations, the unseen shadows' share)
+# are ``settings.SolverConfig``'s, each with its provenance.
+DEFAULT = SolverConfig()
 
 
-def _huber_density(r, sig):
-    c = HUBER_C * sig
+def _huber_density(r, sig, huber_c: float = DEFAULT.huber_c):
+    c = huber_c * sig
     a = np.abs(r)
     return np.exp(-np.where(a <= c, 0.5 * (a / sig) ** 2, (c / sig) * (a / sig) - 0.5 * (c / sig) ** 2))
 
 
-def unseen_responsibility(r, d, sigma, pi):
+def unseen_responsibility(r, d, sigma, pi, huber_c: float = DEFAULT.huber_c):
     """The responsibility of "lit as the model says" for residuals ``r`` (``d`` >= 0 the
     direct part of each prediction) under the mixture of the module docstring: noise
     around the full prediction (1 - pi), or around the prediction less its direct
@@ -59,8 +56,8 @@ def unseen_responsibility(r, d, sigma, pi):
     r = np.asarray(r, np.float64)
     d = np.asarray(d, np.float64)
     sig = np.maximum(sigma, 1e-300)
-    lit = (1.0 - pi) * _huber_density(r, sig)
-    shadowed = np.where(d > 1e-12, pi * _huber_density(r + d, sig), 0.0)
+    lit = (1.0 - pi) * _huber_density(r, sig, huber_c)
+    shadowed = np.where(d > 1e-12, pi * _huber_density(r + d, sig, huber_c), 0.0)
     return lit / np.maximum(lit + shadowed, 1e-300)
 
 
@@ -82,17 +79,17 @@ class Atom:
         return np.ndim(self.values) == 2
 
 
-def huber_weights(r: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+def huber_weights(r: np.ndarray, sigma: float, huber_c: float = DEFAULT.huber_c) -> tuple[np.ndarray, np.ndarray]:
     """IRLS weights and per-residual Huber loss of residuals ``r`` at scale ``sigma``."""
-    c = HUBER_C * sigma
+    c = huber_c * sigma
     a = np.abs(r)
     w = np.where(a <= c, 1.0, c / np.maximum(a, 1e-300))
     loss = np.where(a <= c, 0.5 * a * a, c * (a - 0.5 * c))
     return w, loss
 
 
-def robust_scale(r: np.ndarray, data_scale: float) -> float:
-    return max(MAD_TO_SIGMA * float(np.median(np.abs(r))), SIGMA_FLOOR * data_scale, 1e-12)
+def robust_scale(r: np.ndarray, data_scale: float, cfg: SolverConfig = DEFAULT) -> float:
+    return max(cfg.mad_to_sigma * float(np.median(np.abs(r))), cfg.sigma_floor * data_scale, 1e-12)
 
 
 def _design(atoms, channels: int) -> tuple[np.ndarray, list[tuple[int, int]]]:
@@ -129,7 +126,7 @@ class FitResult:
 
 
 def fit(atoms, target: np.ndarray, *, train: np.ndarray | None = None, prior: dict | None = None,
-        ridge: float = 0.0, direct=()) -> FitResult:
+        ridge: float = 0.0, direct=(), cfg: SolverConfig = DEFAULT) -> FitResult:
     """Robust NNLS of ``target`` (N, 3) RGB or (N,) grey on ``atoms``.
 
     Args:
@@ -140,6 +137,7 @@ def fit(atoms, target: np.ndarray, *, train: np.ndarray | None = None, prior: di
         prior: per atom name the (C,) weight the ridge pulls toward (missing: 0).
         ridge: the ridge's strength, per fit pixel, relative to the data's scale.
         direct: names of the atoms an unseen occluder can hide (module docstring).
+        cfg: the solver's constants (``settings.SolverConfig``).
     """
     from scipy.optimize import nnls
 
@@ -170,18 +168,18 @@ def fit(atoms, target: np.ndarray, *, train: np.ndarray | None = None, prior: di
     mix = bool(is_direct.any())
     beta = p0.copy() if (mix and p0.any()) else np.zeros(X.shape[1])
     sigma = None
-    pi = UNSEEN_INIT if mix else 0.0
+    pi = cfg.unseen_init if mix else 0.0
     resp = np.ones(tr.sum())
     w_lit = w_sh = None
     if mix and p0.any():
         # the EM starts from the prior's light: from a fit with no light, every pixel of
         # a shadow the frame does not show would be an outlier, and it would stay there
         r0 = yt - Xt @ p0
-        s0 = robust_scale(r0, scale)
-        resp = unseen_responsibility(r0, Xt[:, is_direct] @ p0[is_direct], s0, pi)
-        w_lit = huber_weights(r0, s0)[0] * resp
-        w_sh = huber_weights(r0 + Xt[:, is_direct] @ p0[is_direct], s0)[0] * (1.0 - resp)
-    for _ in range(IRLS_ITERS):
+        s0 = robust_scale(r0, scale, cfg)
+        resp = unseen_responsibility(r0, Xt[:, is_direct] @ p0[is_direct], s0, pi, cfg.huber_c)
+        w_lit = huber_weights(r0, s0, cfg.huber_c)[0] * resp
+        w_sh = huber_weights(r0 + Xt[:, is_direct] @ p0[is_direct], s0, cfg.huber_c)[0] * (1.0 - resp)
+    for _ in range(cfg.irls_iters):
         if w_lit is None:
             w_lit, w_sh = np.ones(len(yt)), np.zeros(len(yt))
         A = np.concatenate([Xt * np.sqrt(w_lit)[:, None], Xs * np.sqrt(w_sh)[:, None], np.diag(lam)], 0)
@@ -190,22 +188,22 @@ def fit(atoms, target: np.ndarray, *, train: np.ndarray | None = None, prior: di
         r = yt - Xt @ beta
         d = Xt[:, is_direct] @ beta[is_direct] if mix else np.zeros_like(r)
         if mix:
-            resp = unseen_responsibility(r, d, sigma if sigma is not None else robust_scale(r, scale), pi)
+            resp = unseen_responsibility(r, d, sigma if sigma is not None else robust_scale(r, scale, cfg), pi, cfg.huber_c)
         near = np.where(resp >= 0.5, r, r + d)  # each pixel's residual under its likelier case
-        sigma = robust_scale(near, scale)
+        sigma = robust_scale(near, scale, cfg)
         if mix:
-            resp = unseen_responsibility(r, d, sigma, pi)
-            pi = float(np.clip(1.0 - resp.mean(), 1e-3, MAX_UNSEEN))
-        w_lit = huber_weights(r, sigma)[0] * resp
-        w_sh = huber_weights(r + d, sigma)[0] * (1.0 - resp)
+            resp = unseen_responsibility(r, d, sigma, pi, cfg.huber_c)
+            pi = float(np.clip(1.0 - resp.mean(), 1e-3, cfg.max_unseen))
+        w_lit = huber_weights(r, sigma, cfg.huber_c)[0] * resp
+        w_sh = huber_weights(r + d, sigma, cfg.huber_c)[0] * (1.0 - resp)
     r_all = yv - X @ beta
-    _, loss = huber_weights(r_all, sigma)
+    _, loss = huber_weights(r_all, sigma, cfg.huber_c)
     if mix:
         d_all = X[:, is_direct] @ beta[is_direct]
-        g = unseen_responsibility(r_all, d_all, sigma, pi)
+        g = unseen_responsibility(r_all, d_all, sigma, pi, cfg.huber_c)
         # a pixel in an unseen shadow costs its residual against the sky alone, and the
         # one-sigma price of being a shadow nothing in the frame casts
-        loss = g * loss + (1.0 - g) * (huber_weights(r_all + d_all, sigma)[1] + unseen_loss(sigma))
+        loss = g * loss + (1.0 - g) * (huber_weights(r_all + d_all, sigma, cfg.huber_c)[1] + unseen_loss(sigma))
     loss = loss.reshape(C, N).mean(0) if C > 1 else loss
     held = ~train
     lt = float(loss[train].mean()) / scale ** 2
@@ -219,7 +217,8 @@ def fit(atoms, target: np.ndarray, *, train: np.ndarray | None = None, prior: di
 
 
 def score_candidates(base: np.ndarray, cands: np.ndarray, y: np.ndarray, train: np.ndarray, *,
-                     sigma: float | None = None, iters: int = 4) -> tuple[np.ndarray, np.ndarray]:
+                     sigma: float | None = None, iters: int | None = None,
+                     cfg: SolverConfig = DEFAULT) -> tuple[np.ndarray, np.ndarray]:
     """Held-out and training loss of ``y`` (N,) fitted on ``base`` (N, B) plus each
     candidate column of ``cands`` (N, K), for K candidates at once.
 
@@ -246,9 +245,9 @@ def score_candidates(base: np.ndarray, cands: np.ndarray, y: np.ndarray, train: 
     BB = (Bt[:, :, None] * Bt[:, None, :]).reshape(nt, nb * nb)
     By = Bt * yt[:, None]
     if sigma is None:
-        sigma = base_sigma(Bt, yt, scale=scale)
+        sigma = base_sigma(Bt, yt, scale=scale, cfg=cfg)
     w = np.ones((nt, K))
-    for _ in range(iters):
+    for _ in range(cfg.irls_iters if iters is None else iters):
         wd = w * Dt
         A = np.empty((K, nb + 1, nb + 1))
         A[:, :nb, :nb] = (BB.T @ w).T.reshape(K, nb, nb)
@@ -270,16 +269,16 @@ def score_candidates(base: np.ndarray, cands: np.ndarray, y: np.ndarray, train: 
             coef[neg, :nb] = np.linalg.solve(An, rhs[neg, :nb, None])[..., 0]  # (regularised above)
             coef[neg, nb] = 0.0
         r = yt[:, None] - Bt @ coef[:, :nb].T - Dt * coef[:, nb][None]
-        w, _ = huber_weights(r, sigma)
+        w, _ = huber_weights(r, sigma, cfg.huber_c)
     r = y[:, None] - B @ coef[:, :nb].T - D * coef[:, nb][None]
-    loss = huber_weights(r, sigma)[1] / scale ** 2
+    loss = huber_weights(r, sigma, cfg.huber_c)[1] / scale ** 2
     held = ~tr
     lh = loss[held].mean(0) if held.any() else loss[tr].mean(0)
     return lh, loss[tr].mean(0)
 
 
 def base_sigma(B: np.ndarray, y: np.ndarray, ridge: np.ndarray | None = None,
-               scale: float | None = None) -> float:
+               scale: float | None = None, cfg: SolverConfig = DEFAULT) -> float:
     """Robust scale of ``y`` (N,) fitted on the columns ``B`` (N, P) alone (Huber IRLS,
     unconstrained): the scale candidates are scored at."""
     B = np.asarray(B, np.float64)
@@ -287,15 +286,14 @@ def base_sigma(B: np.ndarray, y: np.ndarray, ridge: np.ndarray | None = None,
     scale = max(float(np.median(np.abs(y))), 1e-12) if scale is None else scale
     rb = np.zeros(B.shape[1]) if ridge is None else np.asarray(ridge, np.float64)
     w = np.ones(len(y))
-    s = SIGMA_FLOOR * scale
-    for _ in range(IRLS_ITERS):
+    s = cfg.sigma_floor * scale
+    for _ in range(cfg.irls_iters):
         A = B.T @ (B * w[:, None]) + np.diag(rb * len(y))
         coef = np.linalg.lstsq(A, B.T @ (w * y), rcond=None)[0]
         r = y - B @ coef
-        s = robust_scale(r, scale)
-        w, _ = huber_weights(r, s)
+        s = robust_scale(r, scale, cfg)
+        w, _ = huber_weights(r, s, cfg.huber_c)
     return s
 
 
-__all__ = ["Atom", "base_sigma", "FitResult", "fit", "score_candidates", "huber_weights", "robust_scale",
-           "SIGMA_FLOOR", "HUBER_C"]
+__all__ = ["Atom", "base_sigma", "FitResult", "fit", "score_candidates", "huber_weights", "robust_scale", "DEFAULT"]

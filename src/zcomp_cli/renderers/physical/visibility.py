@@ -5,6 +5,11 @@ from __future__ import annotations
 import numpy as np
 
 from zcomp_cli.camera import Camera
+from zcomp_cli.renderers.physical.settings import TransportConfig
+
+# The march's defaults (its reach, bias and occluder thickness) are
+# ``settings.TransportConfig``'s, each with its provenance; the renderer passes its own.
+DEFAULT = TransportConfig()
 
 
 def sample_depth(depth: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -35,8 +40,8 @@ def sample_depth(depth: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndarray,
                      depth: np.ndarray, camera: Camera, *, steps: int = 24,
-                     max_distance_rel: float = 0.8, bias_rel: float = 0.01,
-                     thickness_rel: float = 0.15, jitter: np.ndarray | None = None,
+                     max_distance_rel: float = DEFAULT.march_range_rel, bias_rel: float = DEFAULT.march_bias_rel,
+                     thickness_rel: float = DEFAULT.march_thickness_rel, jitter: np.ndarray | None = None,
                      return_distance: bool = False, nearest: bool = False,
                      occluder_mask: np.ndarray | None = None, max_distance=None, walls=()):
     """Binary visibility of points toward directional light(s).
@@ -56,8 +61,9 @@ def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndar
         occluder_mask: optional (H, W) bool: only texels where it is True occlude (the
             shadow of one part of the frame, such as an inserted object).
         max_distance_rel, bias_rel, thickness_rel: ray length, occluder bias and
-            occluder thickness as fractions of the point's own depth (scale-free);
-            ``max_distance_rel`` None: no relative limit.
+            occluder thickness as fractions of the point's own depth (scale-free;
+            defaults ``TransportConfig.march_range_rel``, ``march_bias_rel``,
+            ``march_thickness_rel``); ``max_distance_rel`` None: no relative limit.
         max_distance: optional (N,) or scalar ray length in metres (a lamp's distance:
             nothing beyond the light occludes it); the shorter of the two limits holds.
         walls: the scene's walls beyond the frame (``planes.Wall``): they occlude too,

@@ -1,0 +1,258 @@
+"""Cast shadows on the support tied to what casts them
+(renderers/physical/shadow_evidence.py): on analytic floor scenes with exact shadows
+(zcomp_cli.testing), the tied dark pixels against the exact shadow, an off-frame
+occluder's shadow left out, invariance to texture and exposure, degenerate input; the
+reach and the lit level's basis on synthetic grids."""
+
+import numpy as np
+import pytest
+
+from zcomp_cli.renderers.physical.depthmesh import build_depth_mesh
+from zcomp_cli.renderers.physical.scene_frame import scene_up
+from zcomp_cli.renderers.physical.shadow_evidence import (DEFAULT, ShadowEvidence, lit_basis, shadow_evidence,
+                                                          within_reach)
+from zcomp_cli.testing import floor_scene
+
+W, H = 160, 120
+# the box's shadow falls to the camera's right; an occluder outside the frustum, far
+# left, throws its own into the frame's left
+LIGHT = (-0.6, 0.8, 0.3)
+BOX = dict(with_box=True, box_center=(-0.3, -3.2), box_size=(0.6, 0.8, 0.6), sky_occlusion=False)
+OFF_FRAME = [((-3.2, -3.6), (0.8, 1.6, 0.8))]
+
+
+def _scene(light=LIGHT, **kw):
+    return floor_scene(W, H, light_dir=light, **{**BOX, **kw})
+
+
+def _evidence(s, shading=None, albedo=None, mesh_of=None):
+    """(mesh, evidence) of a scene; ``shading``/``albedo`` (h, w, 3) override the scene's;
+    ``mesh_of``: another scene whose geometry to use (same camera)."""
+    g = s if mesh_of is None else mesh_of
+    up, _ = scene_up(None, g.normals, g.depth > 0)
+    m = build_depth_mesh(g.depth, g.normals, g.camera, up)
+    sh = (s.shading if shading is None else shading).mean(-1)
+    al = (s.albedo if albedo is None else albedo).mean(-1)
+    ev = shadow_evidence(sh, m.support, m.casters, m.points, up, known=s.depth > 0, albedo=al, labels=m.labels)
+    return m, ev
+
+
+def _checker(square: int, low: float = 0.4) -> np.ndarray:
+    yy, xx = np.mgrid[0:H, 0:W]
+    return np.where(((yy // square) + (xx // square)) % 2 == 0, 1.0, low)[..., None]
+
+
+def test_shapes_and_ranges():
+    s = _scene()
+    m, ev = _evidence(s)
+    assert isinstance(ev, ShadowEvidence)
+    for a in (ev.ratio, ev.weight, ev.lit_level, ev.shading, ev.soft_mask):
+        assert a.shape == (H, W)
+    for a in (ev.dark, ev.tied, ev.reach):
+        assert a.shape == (H, W) and a.dtype == bool
+    assert ev.basis.shape[:2] == (H, W)
+    # tied within dark within the support; weight 0 or 1, and 0 off the support
+    assert not (ev.tied & ~ev.dark).any() and not (ev.dark & ~m.support).any()
+    assert set(np.unique(ev.weight)) <= {0.0, 1.0} and not ev.weight[~m.support].any()
+    assert np.isnan(ev.ratio[~m.support]).all()
+    assert not (ev.reach & ~m.support).any() and not (ev.tied & ~ev.reach).any()
+    # the ratio is about 1 where lit, below it where dark
+    lit = np.isfinite(ev.ratio) & ~ev.dark
+    assert abs(float(np.median(ev.ratio[lit])) - 1.0) < 0.01 and (ev.ratio[ev.dark] < 1.0).all()
+    assert ev.shown and 0 < ev.sigma < 0.1
+    sm = ev.soft_mask
+    assert sm.min() >= 0 and sm.max() <= 1 and not sm[~ev.tied].any() and sm[ev.tied].max() > 0.9
+
+
+@pytest.mark.parametrize("light", [(0.7, 1.0, 0.2), LIGHT, (0.5, 0.7, 0.6), (0.3, 1.0, -0.5)])
+def test_tied_dark_pixels_cover_the_exact_shadow(light):
+    s = _scene(light)
+    m, ev = _evidence(s)
+    true = m.support & (s.visibility < 0.5)
+    lit = m.support & (s.visibility > 0.99)
+    assert true.sum() > 150
+    assert (ev.tied & true).sum() > 0.6 * true.sum()
+    assert (ev.tied & lit).sum() < 0.05 * lit.sum()
+    # the umbra's ratio is the sky's share of the lit floor
+    share = s.ambient / (s.ambient + s.light_intensity * max(float(s.light_dir_cam @ s.up_cam), 0.0))
+    core = ev.tied & true & (s.visibility == 0)
+    assert abs(float(np.median(ev.ratio[core])) - share) < 0.03
+
+
+def test_an_off_frame_occluders_shadow_is_dark_but_not_tied():
+    s0 = _scene()
+    s = _scene(occluders=OFF_FRAME)
+    m, ev = _evidence(s)
+    # the occluder is outside the frustum: the frame's geometry is the box scene's
+    assert np.array_equal(s.depth > 0, s0.depth > 0) and np.allclose(s.depth, s0.depth)
+    box_shadow = m.support & (s0.visibility < 0.5)
+    off = m.support & (s.visibility < 0.5) & ~(s0.visibility < 0.5)
+    assert off.sum() > 50
+    read = off & np.isfinite(ev.ratio)
+    assert ev.dark[read].mean() > 0.9
+    assert not ev.tied[off].any() and not ev.weight[off].any()
+    # the box's own shadow is still tied, as without the other occluder
+    _, ev0 = _evidence(s0)
+    assert (ev.tied & box_shadow).sum() > 0.6 * box_shadow.sum()
+    assert np.array_equal(ev.tied, ev0.tied)
+
+
+def test_exposure_invariance():
+    s = _scene()
+    _, a = _evidence(s)
+    _, b = _evidence(s, shading=s.shading * 7.0)
+    assert np.array_equal(a.dark, b.dark) and np.array_equal(a.tied, b.tied)
+    assert np.array_equal(a.weight, b.weight)
+    np.testing.assert_allclose(b.ratio, a.ratio, rtol=1e-6, equal_nan=True)
+    np.testing.assert_allclose(b.lit_level, 7.0 * a.lit_level, rtol=1e-6, equal_nan=True)
+    assert abs(a.sigma - b.sigma) < 1e-9
+
+
+@pytest.mark.parametrize("square", [8, 16, 40])
+def test_a_textured_floor_leaves_each_readable_pixels_ratio_unchanged(square):
+    """Texture (a checkerboard albedo; the image follows it, the shading is unchanged):
+    its edges are unread (weight 0), every other pixel reads as without it."""
+    s = _scene()
+    _, plain = _evidence(s)
+    _, tex = _evidence(s, albedo=s.albedo * _checker(square))
+    read = np.isfinite(tex.ratio)
+    assert 0.2 < read.sum() / np.isfinite(plain.ratio).sum() < 1.0  # the edges' bands are left out
+    assert not (read & ~np.isfinite(plain.ratio)).any()
+    np.testing.assert_allclose(tex.ratio[read], plain.ratio[read], rtol=1e-6)
+    assert np.array_equal(tex.dark[read], plain.dark[read])
+    assert not tex.weight[~read].any()
+    assert abs(tex.sigma - plain.sigma) < 1e-6
+
+
+def test_a_texture_far_from_the_shadow_leaves_the_tied_shadow_unchanged():
+    s = _scene()
+    m, plain = _evidence(s)
+    # the floor's left third a darker material: one edge, far from the box's shadow
+    alb = s.albedo.copy()
+    alb[:, : W // 3] *= 0.5
+    _, tex = _evidence(s, albedo=alb)
+    assert np.array_equal(tex.tied, plain.tied) and plain.tied.sum() > 150
+
+
+def test_a_checkerboard_floor_leaves_the_tied_shadow_unchanged():
+    s = _scene()
+    m, plain = _evidence(s)
+    _, tex = _evidence(s, albedo=s.albedo * _checker(12))
+    read = np.isfinite(tex.ratio)
+    true = m.support & (s.visibility < 0.5) & read
+    assert true.sum() > 100 and tex.dark[true].mean() > 0.9  # every readable shadow pixel is dark...
+    # ...and, as without the texture, tied to the box
+    assert (tex.tied & true).sum() > 0.9 * (plain.tied & true).sum()
+
+
+def test_without_a_caster_nothing_is_tied():
+    # the same shading, read with the box's geometry taken away: its shadow is no cast
+    # shadow the photograph ties to anything
+    s = _scene()
+    bare = floor_scene(W, H, light_dir=LIGHT, sky_occlusion=False)
+    m, ev = _evidence(s, mesh_of=bare)
+    assert not m.casters.any()
+    assert ev.dark.sum() > 150 and not ev.tied.any() and not ev.shown and not ev.reach.any()
+    assert not ev.weight[ev.dark].any()
+
+
+@pytest.mark.parametrize("case", ["no support", "all nan", "all zero", "unknown"])
+def test_degenerate_input_gives_empty_masks(case):
+    s = _scene()
+    up, _ = scene_up(None, s.normals, s.depth > 0)
+    m = build_depth_mesh(s.depth, s.normals, s.camera, up)
+    sh, sup, known = s.shading.mean(-1), m.support, None
+    if case == "no support":
+        sup = np.zeros_like(m.support)
+    elif case == "all nan":
+        sh = np.full_like(sh, np.nan)
+    elif case == "all zero":
+        sh = np.zeros_like(sh)
+    else:
+        known = np.zeros_like(m.support)
+    ev = shadow_evidence(sh, sup, m.casters, m.points, up, known=known, albedo=s.albedo.mean(-1), labels=m.labels)
+    assert ev.ratio.shape == (H, W) and np.isnan(ev.ratio).all()
+    assert not ev.dark.any() and not ev.tied.any() and not ev.reach.any() and not ev.weight.any()
+    assert not ev.shown and not ev.soft_mask.any()
+
+
+def _ground_grid(h=60, w=80):
+    """Points on the plane y = 0 (up +y): x in [-4, 4], z in [-10, -2]."""
+    x = np.linspace(-4, 4, w)
+    z = np.linspace(-10, -2, h)
+    P = np.stack(np.broadcast_arrays(x[None, :], np.zeros((h, w)), z[:, None]), -1).astype(np.float64)
+    return P
+
+
+def test_within_reach_is_four_heights_along_the_ground():
+    P = _ground_grid()
+    h, w = P.shape[:2]
+    up = np.array([0.0, 1.0, 0.0])
+    casters = np.zeros((h, w), bool)
+    casters[28:32, 38:42] = True
+    P[casters, 1] = np.linspace(0.0, 0.5, int(casters.sum()))  # a post 0.5 m high
+    support = ~casters
+    reach = within_reach(P, casters, up, support)
+    C = P[casters][:, [0, 2]]
+    d = np.min(np.linalg.norm(P[..., None, [0, 2]] - C[None, None], axis=-1), axis=-1)
+    want = support & (d <= DEFAULT.reach_heights * 0.5)
+    # within a hair of the bound either way
+    edge = np.abs(d - DEFAULT.reach_heights * 0.5) < 1e-6
+    assert np.array_equal(reach & ~edge, want & ~edge) and want.sum() > 50 and (support & ~want).sum() > 1000
+    # twice as high: twice as far
+    P2 = P.copy()
+    P2[casters, 1] *= 2
+    d2 = within_reach(P2, casters, up, support)
+    assert (d2 & ~reach).sum() > 0 and not (reach & ~d2).any()
+    # no caster, or one not above the support: no reach
+    assert not within_reach(P, np.zeros_like(casters), up, support).any()
+    P3 = P.copy()
+    P3[casters, 1] = -0.2
+    assert not within_reach(P3, casters, up, support).any()
+
+
+def test_within_reach_per_component():
+    P = _ground_grid()
+    h, w = P.shape[:2]
+    up = np.array([0.0, 1.0, 0.0])
+    labels = np.zeros((h, w), np.int64)
+    labels[10:12, 10:12] = 1  # a tall post
+    labels[50:52, 70:72] = 2  # a short one
+    P[labels == 1, 1] = 1.0
+    P[labels == 2, 1] = 0.1
+    casters = labels > 0
+    support = ~casters
+    one = within_reach(P, casters, up, support)  # one caster: the tallest's height for all
+    each = within_reach(P, casters, up, support, labels)
+    assert not (each & ~one).any() and (one & ~each).sum() > 20
+    # near the short post, only 0.4 m
+    near_short = np.linalg.norm(P[..., [0, 2]] - P[50, 70, [0, 2]], axis=-1)
+    assert not (each & (near_short > 0.6) & (near_short < 3.0)).any()
+
+
+def test_lit_basis_columns():
+    P = _ground_grid()
+    h, w = P.shape[:2]
+    up = np.array([0.0, 1.0, 0.0])
+    ok = np.ones((h, w), bool)
+    X = lit_basis(P, up, ok, degree=2)
+    assert X.shape == (h, w, 6)
+    np.testing.assert_allclose(X[..., 0], 1.0)
+    np.testing.assert_allclose(X[ok][:, 1:3].mean(0), 0.0, atol=1e-9)
+    np.testing.assert_allclose(X[ok][:, 1:3].std(0), 1.0, atol=1e-9)
+    np.testing.assert_allclose(X[..., 3], X[..., 1] ** 2)
+    np.testing.assert_allclose(X[..., 4], X[..., 1] * X[..., 2])
+    # every monomial up to the degree: (d + 1)(d + 2) / 2 of them
+    assert lit_basis(P, up, ok, degree=3).shape == (h, w, 10)
+    # a constant albedo adds nothing, a varying one its log and the log's square
+    assert lit_basis(P, up, ok, np.full((h, w), 0.5), degree=2).shape == (h, w, 6)
+    a = np.where(np.arange(w)[None, :] < w // 2, 0.2, 0.8) * np.ones((h, 1))
+    Xa = lit_basis(P, up, ok, a, degree=2)
+    assert Xa.shape == (h, w, 8)
+    np.testing.assert_allclose(Xa[ok][:, 6].mean(), 0.0, atol=1e-9)
+    np.testing.assert_allclose(Xa[..., 7], Xa[..., 6] ** 2)
+    # the lit level's fit: a quadratic log shading is spanned exactly
+    u, v = X[..., 1], X[..., 2]
+    y = 0.3 - 0.2 * u + 0.1 * v + 0.05 * u * v
+    beta = np.linalg.lstsq(X[ok], y[ok], rcond=None)[0]
+    np.testing.assert_allclose(X[ok] @ beta, y[ok], atol=1e-9)
