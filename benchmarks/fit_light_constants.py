@@ -15,9 +15,14 @@
   (the log posterior density at the dominant true light reaching the object's base,
   or at the nearest light whose cast shadows the background shows) -- a proper scoring
   rule: it is best in expectation for the posterior that states the true uncertainty.
-  The value with the best mean log score over the cases with a true light is chosen.
+  The value with the best mean log score over the cases with a true light is chosen;
+* ``search.photo_weight``: the photometric likelihood's independent observations per
+  held-out block, with the temperature: the search runs once per value of
+  ``--photo-grid`` (it decides which lamps are scored), and the pair with the best mean
+  log score is chosen.
 
-    python benchmarks/fit_light_constants.py BENCH_1618 BENCH_7777 [...] [--grid 1,2,5,10,20,50,100]
+    python benchmarks/fit_light_constants.py BENCH_1618 BENCH_7777 [...] \
+        [--grid 1,2,5,10,20,50,100] [--photo-grid 1,2,4,8]
 
 Each BENCH is a ``make-benchmark`` folder. The constants are built into a search
 configuration (``settings.SearchConfig``, the others at their defaults: no source file is
@@ -93,36 +98,43 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("benches", nargs="+", type=Path)
     ap.add_argument("--grid", default="1,2,3,5,7,10,15,20,30,50,100", help="temperatures to score")
+    ap.add_argument("--photo-grid", default="1,2,4,8", help="photometric weights to search with")
     args = ap.parse_args(argv)
+    import dataclasses
+
+    from zcomp_cli.renderers.physical.settings import DEFAULTS, SearchConfig
+
     grid = [float(x) for x in args.grid.split(",") if x.strip()]
-    shares, posts = [], []
+    photo_grid = [float(x) for x in args.photo_grid.split(",") if x.strip()]
+    shares = []
     for b in args.benches:
         cases = json.loads((b / "benchmark.json").read_text())["cases"]
         s = [true_sky_share(c) for c in cases]
         shares += s
         print(f"{b}: {len(cases)} cases, true sky share median {statistics.median(s):.3f}", flush=True)
-        posts += [p for p in case_posteriors(b) if p[2] is not None]
     share = statistics.median(shares)
     spread = 1.4826 * statistics.median([abs(x - share) for x in shares])
     print(f"prior_sky_share = {share:.2f}  (median of {len(shares)} cases)")
     print(f"prior_sky_share_spread = {spread:.2f}  (1.4826 x their median absolute deviation)")
     uniform = -math.log(2 * math.pi)
     scores = []
-    for T in grid:
-        ls = [p.tempered(T).log_density(t) for _, p, t in posts]
-        scores.append((statistics.mean(ls), T))
-        print(f"  TEMPERATURE {T:g}: mean log score {statistics.mean(ls):.3f} over {len(ls)} cases "
-              f"(a uniform hemisphere: {uniform:.3f})")
+    for w in photo_grid:
+        settings = dataclasses.replace(DEFAULTS, search=dataclasses.replace(DEFAULTS.search, photo_weight=w))
+        posts = []
+        for b in args.benches:
+            posts += [p for p in case_posteriors(b, settings) if p[2] is not None]
+        for T in grid:
+            ls = [p.tempered(T).log_density(t) for _, p, t in posts]
+            scores.append((statistics.mean(ls), w, T))
+            print(f"  PHOTO_WEIGHT {w:g} TEMPERATURE {T:g}: mean log score {statistics.mean(ls):.3f} over "
+                  f"{len(ls)} cases (a uniform hemisphere: {uniform:.3f})", flush=True)
     best = max(scores)
-    print(f"temperature = {best[1]:g}")
-    import dataclasses
-
-    from zcomp_cli.renderers.physical.settings import SearchConfig
-
+    print(f"photo_weight = {best[1]:g}, temperature = {best[2]:g}")
     fitted = dataclasses.replace(SearchConfig(), prior_sky_share=round(share, 2),
-                                 prior_sky_share_spread=round(spread, 2), temperature=best[1])
+                                 prior_sky_share_spread=round(spread, 2), photo_weight=best[1], temperature=best[2])
     print(f"SearchConfig(prior_sky_share={fitted.prior_sky_share}, prior_sky_share_spread="
-          f"{fitted.prior_sky_share_spread}, temperature={fitted.temperature:g})")
+          f"{fitted.prior_sky_share_spread}, photo_weight={fitted.photo_weight:g}, "
+          f"temperature={fitted.temperature:g})")
     return 0
 
 

@@ -4,16 +4,13 @@ confidence, in the debug outputs").
 
 The pipeline writes a renderer's maps as ``debug/<name>.exr`` with ``--debug`` only,
 beside the background on ``light_evidence.png``; names and shapes are checked. The
-physical renderer returns the evidence its light fit read (``evidence_maps``) once
-``lightfit.fit_light`` fills its ``diagnostics`` dict; until then the fixture
-``fit_light_with_diagnostics`` emulates that change (it captures ``estimate.prepare``'s
-depth mesh and ``estimate.search``'s evidence while the real fit runs).
+physical renderer returns the evidence its light fit read (``evidence_maps``), which
+``lightfit.fit_light`` fills its ``diagnostics`` dict with.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import inspect
 import json
 from types import SimpleNamespace
 
@@ -36,42 +33,6 @@ JOB = "000_room_ball"
 
 
 # ----------------------------------------------------------------------------- fixtures
-@pytest.fixture
-def fit_light_with_diagnostics(monkeypatch):
-    """``lightfit.fit_light`` taking ``diagnostics`` (the change the renderer waits
-    for): emulated around the real fit where it does not take it yet."""
-    from zcomp_cli.renderers.physical import estimate as est
-    from zcomp_cli.renderers.physical import lightfit
-
-    real = lightfit.fit_light
-    if "diagnostics" in inspect.signature(real).parameters:
-        return real
-
-    def fit_light(*args, diagnostics=None, **kwargs):
-        if diagnostics is None:
-            return real(*args, **kwargs)
-        prepare, search = est.prepare, est.search
-
-        def prepare_(*a, **k):
-            pp = prepare(*a, **k)
-            if pp.grid is not None:
-                diagnostics["mesh"] = pp.grid.mesh
-            return pp
-
-        def search_(*a, **k):
-            s, sc = search(*a, **k)
-            diagnostics["evidence"] = s.evidence
-            return s, sc
-
-        with monkeypatch.context() as m:
-            m.setattr(est, "prepare", prepare_)
-            m.setattr(est, "search", search_)
-            return real(*args, **kwargs)
-
-    monkeypatch.setattr(lightfit, "fit_light", fit_light)
-    return fit_light
-
-
 @pytest.fixture
 def naive_with_maps(monkeypatch):
     """The ``naive`` renderer returning debug maps (``maps(requests) -> dict``, settable:
@@ -295,7 +256,7 @@ def _requests(s, debug, key="boxed"):
     return [RenderRequest(maps, s.shading, known, s.camera, scene_key=key, debug=debug) for _ in range(2)]
 
 
-def test_the_physical_renderer_returns_the_light_evidence(boxed, fit_light_with_diagnostics):
+def test_the_physical_renderer_returns_the_light_evidence(boxed):
     # a shadow grid half the frame's size: the maps come back at the frame's
     r = PhysicalRenderer(shadow_resolution=56, n_light_candidates=64)
     out = r.render(_requests(boxed, debug=True), seed=3)
@@ -320,15 +281,11 @@ def test_the_physical_renderer_returns_the_light_evidence(boxed, fit_light_with_
 
 def test_the_renderer_reads_the_evidence_it_keeps_per_scene(boxed):
     """The hook: what ``light_and_evidence`` caches per scene (``_evidence``) is what
-    ``render`` returns; a fit that says nothing (``fit_light`` without diagnostics, or
-    a given light) gives no maps."""
+    ``render`` returns; a fit that says nothing (a given light) gives no maps."""
     r = PhysicalRenderer(n_light_candidates=32)
     reqs = _requests(boxed, debug=True, key="kept")
     model, evidence = r.light_and_evidence(reqs[0], 3)
-    from zcomp_cli.renderers.physical import lightfit
-
-    takes = "diagnostics" in inspect.signature(lightfit.fit_light).parameters
-    assert (evidence is not None) == takes
+    assert evidence is not None
     (key,) = list(r._cache)
     ev, mesh = _fake_fit(42, 56)
     r._evidence[key] = LightEvidence.from_fit(ev, mesh)
@@ -339,7 +296,7 @@ def test_the_renderer_reads_the_evidence_it_keeps_per_scene(boxed):
     assert r.render(reqs, seed=3).debug_maps == {}
 
 
-def test_a_composite_with_debug_writes_the_light_evidence(tmp_path, fit_light_with_diagnostics):
+def test_a_composite_with_debug_writes_the_light_evidence(tmp_path):
     make_project(tmp_path)
     out = tmp_path / "out"
     r = run_composite(tmp_path / "jobs.yaml", out, "--renderer", "physical", "--debug", "--jobs", "0")

@@ -156,3 +156,17 @@ def test_a_confident_shadow_is_drawn_crisp_and_a_vague_one_soft():
     for m in (crisp, bare):
         assert m.suns[0].radius_deg >= min(DEFAULTS.search.cone_per_rms * m.fit.uncertainty_deg,
                                            DEFAULTS.search.max_radius_deg) - 1e-6
+
+
+@pytest.mark.parametrize("position", [(0.5, 1.5, -3.0), (-1.0, 2.0, -4.0), (1.5, 1.0, -2.5)])
+def test_a_lamps_pool_of_light_places_it_where_no_shadow_shows(position):
+    """A lamp over a bare floor casts no shadow the photograph shows, but its pool of
+    light (the falloff with distance and angle) says where it hangs: the photometric
+    likelihood, at the noise of the best candidate of every kind (a sun cannot explain a
+    pool), finds the lamp and is sure of it."""
+    s = floor_scene(160, 120, ambient=0.3, sky_occlusion=True, light_intensity=0.0, lamp=(position, 3.0))
+    m = _estimate(s)
+    true = np.asarray(s.meta["lamp_cam"], np.float64)
+    assert len(m.lamps) == 1 and not m.suns
+    assert np.linalg.norm(m.lamps[0].position - true) < 0.3 * np.linalg.norm(true)
+    assert m.fit.uncertainty_deg < 15.0

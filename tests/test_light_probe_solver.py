@@ -9,7 +9,7 @@ from zcomp_cli import equirect
 from zcomp_cli.errors import InputError
 from zcomp_cli.renderers.physical import sh
 from zcomp_cli.renderers.physical.probe import prefilter, read_probe, split_probe
-from zcomp_cli.renderers.physical.solver import Atom, fit, score_candidates
+from zcomp_cli.renderers.physical.solver import Atom, fit, score_candidates, solve_spd
 from zcomp_cli.worldframe import ground_frame, up_from_pitch_roll
 
 
@@ -157,6 +157,21 @@ def _parse(value, tmp_path=None):
     out = parse_light(value, "scenes.s.light", lambda c, k, w, m: probs.append((w, m)),
                       (lambda c, k, w: tmp_path / c[k]) if tmp_path else None)
     return out, probs
+
+
+def test_batched_spd_solve_known_values_and_a_singular_system():
+    """``solve_spd`` (the candidates' normal equations, batched): the exact solution of
+    known systems, any size of batch, and ``np.linalg.solve``'s answer where a system is
+    not positive definite (no Cholesky factor)."""
+    rng = np.random.default_rng(3)
+    X = rng.normal(size=(64, 30, 5))
+    A = np.einsum("kni,knj->kij", X, X)
+    x_true = rng.normal(size=(64, 5))
+    b = np.einsum("kij,kj->ki", A, x_true)
+    assert np.allclose(solve_spd(A, b), x_true, rtol=1e-9, atol=1e-9)
+    assert solve_spd(A[:1], b[:1]).shape == (1, 5) and solve_spd(A[:0], b[:0]).shape == (0, 5)
+    indefinite = np.array([[[1.0, 0.0], [0.0, -2.0]]])
+    assert np.allclose(solve_spd(indefinite, np.array([[1.0, 4.0]])), [[1.0, -2.0]])
 
 
 def test_light_schema_defaults_and_kinds(tmp_path):

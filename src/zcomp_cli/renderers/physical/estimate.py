@@ -290,16 +290,23 @@ class _Scorer:
             self.sigma = fit_.best_sigma
         return _Shadow(fit_.loglik(self.sigma), fit_.ratio)
 
+    def set_photo_noise(self, lh_best: float) -> None:
+        """The photometric fit's noise: the one the best candidate's held-out loss
+        ``lh_best`` implies (the model's misfit counts as noise, as the shadow term's
+        does), over every kind of light scored, so that a lamp whose pool of light the
+        support shows is not judged at the noise of the suns that cannot explain it."""
+        self.photo_s2 = max(2.0 * float(lh_best), (self.settings.solver.sigma_floor) ** 2)
+
     def loglik_photo(self, lh, lh_ref: float) -> np.ndarray:
         """(K,) the photometric log-likelihoods of held-out losses ``lh`` (per pixel, over
         the data scale squared: half a squared residual where it is small) relative to
-        ``lh_ref``, each held-out block one observation, at the noise the best candidate
-        implies (its held-out loss: the model's misfit counts as noise, as the shadow
-        term's does; set by the first, coarse, scoring)."""
+        ``lh_ref``, each held-out block ``search.photo_weight`` observations, at the noise
+        of ``set_photo_noise`` (not set: the best of ``lh``'s)."""
         lh = np.asarray(lh, np.float64)
         if self.photo_s2 is None:
-            self.photo_s2 = max(2.0 * float(lh.min()), (self.settings.solver.sigma_floor) ** 2)
-        return -self.blocks * (lh - lh_ref) / (2.0 * self.photo_s2)
+            self.set_photo_noise(float(lh.min()))
+        n = self.blocks * self.settings.search.photo_weight
+        return -n * (lh - lh_ref) / (2.0 * self.photo_s2)
 
     def loglik(self, sfit, lh, lh_ref: float):
         """((K,) the summed log-likelihood, (K,) its photometric part): the photometric
@@ -372,12 +379,13 @@ def search(pp: Prepared, settings: PhysicalSettings, seed: int = 0) -> tuple[Sea
     dists = float(np.median(np.linalg.norm(pts, axis=1))) * np.asarray(cfg.lamp_distances_rel, np.float64)
     anchor = caster_anchor(pp, ev, settings.evidence)
 
-    def suns(dirs):
+    def suns(dirs, scored=None):
         """Per direction: the sun's log-likelihood, its photometric part, the ratio, the
-        shadow's blocks, the shadow part, the held-out losses."""
-        sf, lh, _, V = sc.suns_any_size(dirs)
-        ll_sun, ll_ph = sc.loglik(sf, lh, lh_ref if lh_ref is not None else float(lh.min()))
-        return ll_sun, ll_ph, sf.ratio, _shadow_area_blocks(sc.rec, V), sf.loglik, lh
+        shadow's blocks, the shadow part (``scored``: ``sc.suns_any_size(dirs)`` when
+        already run)."""
+        sf, lh, _, V = sc.suns_any_size(dirs) if scored is None else scored
+        ll_sun, ll_ph = sc.loglik(sf, lh, lh_ref)
+        return ll_sun, ll_ph, sf.ratio, _shadow_area_blocks(sc.rec, V), sf.loglik
 
     def lamps(positions):
         sl, lhl, _ = sc.lamps(np.asarray(positions, np.float64).reshape(-1, 3))
@@ -398,11 +406,8 @@ def search(pp: Prepared, settings: PhysicalSettings, seed: int = 0) -> tuple[Sea
             best[i] = terms[int(np.argmax(vals))][0]
         return marg, best
 
-    lh_ref = None
     coarse = hemisphere(settings.n_light_candidates, up, cfg.min_elevation_deg)
-    ll_sun_c, llp, ratio_c, area_c, llsh_c, lh_c = suns(coarse)
-    lh_ref = float(lh_c.min())
-    prior_c = log_elevation_prior(coarse, up)
+    scored_c = sc.suns_any_size(coarse)
     # the lamps worth scoring: every (direction, distance) screened by its unshadowed
     # photometric fit plus the sun's shadow along that direction; the LAMP_TOP best, and
     # the lamps along the LAMP_TOP best suns
@@ -410,6 +415,11 @@ def search(pp: Prepared, settings: PhysicalSettings, seed: int = 0) -> tuple[Sea
     Q = anchor[None, None] + dists[None, :, None] * coarse[:, None, :]
     C0 = at.lamp_columns(fp, Q.reshape(-1, 3))
     lh0, _ = score_candidates(sc.B, C0, sc.y, fp.train, sigma=sc.sig, iters=cfg.screen_iters, cfg=settings.solver)
+    # the photometric noise and reference: the best candidate's, sun or lamp
+    lh_ref = float(min(scored_c[1].min(), lh0.min()))
+    sc.set_photo_noise(lh_ref)
+    ll_sun_c, llp, ratio_c, area_c, llsh_c = suns(coarse, scored_c)
+    prior_c = log_elevation_prior(coarse, up)
     screen = (llsh_c[:, None] + sc.loglik_photo(lh0, lh_ref).reshape(K, nd)) / T + prior_c[:, None]
     pairs = {tuple(int(v) for v in np.unravel_index(i, (K, nd))) for i in np.argsort(-screen.ravel())[:cfg.lamp_top]}
     for i in np.argsort(-(ll_sun_c / T + prior_c))[:cfg.lamp_top]:
@@ -427,7 +437,7 @@ def search(pp: Prepared, settings: PhysicalSettings, seed: int = 0) -> tuple[Sea
     cap = 1.5 * spacing_deg(2 * settings.n_light_candidates)
     fine = fine_spiral(best, cap, cfg.refine_directions, up=up)
     fine = fine[fine @ up > math.sin(math.radians(cfg.min_elevation_deg))]
-    ll_sun_f, llp_f, r_f, a_f, sh_f, _ = suns(fine)
+    ll_sun_f, llp_f, r_f, a_f, sh_f = suns(fine)
     if option[ib] >= 0:  # the best option a lamp: its distance along the fine directions
         ll_lf = lamps(anchor[None] + dists[option[ib]] * fine)
         m_f, opt_f = marginal(ll_sun_f, [[(int(option[ib]), float(v))] for v in ll_lf])

@@ -119,6 +119,10 @@ class SearchConfig:
     temperature: float = knob(20.0, "fitted", "the posterior's one temperature: the best mean log score of the "
                                               "true direction (benchmarks/fit_light_constants.py, "
                                               "docs/fit_light_constants.txt)")
+    photo_weight: float = knob(3.0, "fitted", "the photometric likelihood's independent observations per held-out "
+                                              "block (its pixels are correlated: between one and the block's "
+                                              "pixel count): the best mean log score with the temperature "
+                                              "(fit_light_constants.py)")
     prior_sky_share: float = knob(0.46, "fitted", "the sky's share of the support's light where the photograph does "
                                                   "not tell it: the median true share (fit_light_constants.py)")
     prior_sky_share_spread: float = knob(0.23, "fitted", "that share's spread over the development cases: the "

@@ -216,6 +216,29 @@ def fit(atoms, target: np.ndarray, *, train: np.ndarray | None = None, prior: di
     return FitResult(weights=weights, loss_train=lt, loss_held=lh, sigma=float(sigma), residual=res)
 
 
+def solve_spd(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Solve the symmetric positive definite systems ``A x = b``: ``A`` (K, n, n), ``b``
+    (K, n) -> ``x`` (K, n), float64, by a batched Cholesky factor and substitution
+    vectorised over K. (numpy's batched ``solve`` calls LAPACK once per system, and a
+    threaded OpenBLAS synchronises its threads on each call: on a busy 2-core machine
+    1024 systems of 7 took 100-230 ms against 0.7 ms.) A system that is not positive
+    definite falls back to ``np.linalg.solve``."""
+    A = np.asarray(A, np.float64)
+    b = np.asarray(b, np.float64)
+    try:
+        L = np.linalg.cholesky(A)
+    except np.linalg.LinAlgError:
+        return np.linalg.solve(A, b[..., None])[..., 0]
+    n = b.shape[-1]
+    z = np.empty_like(b)
+    for i in range(n):  # L z = b
+        z[:, i] = (b[:, i] - np.einsum("kj,kj->k", L[:, i, :i], z[:, :i])) / L[:, i, i]
+    x = np.empty_like(b)
+    for i in range(n - 1, -1, -1):  # L^T x = z
+        x[:, i] = (z[:, i] - np.einsum("kj,kj->k", L[:, i + 1:, i], x[:, i + 1:])) / L[:, i, i]
+    return x
+
+
 def score_candidates(base: np.ndarray, cands: np.ndarray, y: np.ndarray, train: np.ndarray, *,
                      sigma: float | None = None, iters: int | None = None,
                      cfg: SolverConfig = DEFAULT) -> tuple[np.ndarray, np.ndarray]:
@@ -262,11 +285,10 @@ def score_candidates(base: np.ndarray, cands: np.ndarray, y: np.ndarray, train: 
         rhs = np.empty((K, nb + 1))
         rhs[:, :nb] = (By.T @ w).T
         rhs[:, nb] = wd.T @ yt
-        coef = np.linalg.solve(A, rhs[..., None])[..., 0]
+        coef = solve_spd(A, rhs)
         neg = coef[:, nb] < 0
         if neg.any():  # refit those without the candidate
-            An = A[neg][:, :nb, :nb]
-            coef[neg, :nb] = np.linalg.solve(An, rhs[neg, :nb, None])[..., 0]  # (regularised above)
+            coef[neg, :nb] = solve_spd(A[neg][:, :nb, :nb], rhs[neg, :nb])  # (regularised above)
             coef[neg, nb] = 0.0
         r = yt[:, None] - Bt @ coef[:, :nb].T - Dt * coef[:, nb][None]
         w, _ = huber_weights(r, sigma, cfg.huber_c)
@@ -296,4 +318,4 @@ def base_sigma(B: np.ndarray, y: np.ndarray, ridge: np.ndarray | None = None,
     return s
 
 
-__all__ = ["Atom", "base_sigma", "FitResult", "fit", "score_candidates", "huber_weights", "robust_scale", "DEFAULT"]
+__all__ = ["Atom", "base_sigma", "FitResult", "fit", "score_candidates", "solve_spd", "huber_weights", "robust_scale", "DEFAULT"]
