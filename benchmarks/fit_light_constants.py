@@ -13,7 +13,8 @@
   log-likelihood of every direction it scores); for each value of ``--grid`` the
   posterior is tempered with it and scored by the **log score** of the true direction
   (the log posterior density at the dominant true light reaching the object's base,
-  or at the nearest light whose cast shadows the background shows) -- a proper scoring
+  or at the nearest light whose cast shadows the background shows; an area lamp's
+  direction as the search states it, from the point it hangs its lamps from) -- a proper scoring
   rule: it is best in expectation for the posterior that states the true uncertainty.
   The value with the best mean log score over the cases with a true light is chosen;
 * ``search.photo_weight``: the photometric likelihood's independent observations per
@@ -59,6 +60,19 @@ def true_sky_share(case: dict) -> float:
     return sky / max(sky + sun, 1e-12)
 
 
+def true_direction(light: dict, anchor):
+    """The direction the search's posterior states for a true light (``true_lights``
+    item): a sun's own; an area lamp's seen from ``anchor``, the point the search hangs
+    its lamps from (``estimate.caster_anchor``), not from the object's base."""
+    import numpy as np
+
+    pos = light.get("lamp", {}).get("position")
+    if light["kind"] == "HDR-sun" or pos is None:
+        return np.asarray(light["direction"], np.float64)
+    d = np.asarray(pos, np.float64) - np.asarray(anchor, np.float64)
+    return d / max(float(np.linalg.norm(d)), 1e-12)
+
+
 def case_posteriors(bench: Path, settings=None):
     """[(case id, the search's posterior (untempered parts kept), the true direction or
     None)] of a benchmark's cases; the true direction is the nearest light whose shadows
@@ -82,6 +96,7 @@ def case_posteriors(bench: Path, settings=None):
         if len(pp.fp) < settings.search.few_pixels:
             continue
         s, _ = estimate.search(pp, settings)
+        anchor = estimate.caster_anchor(pp, s.evidence, settings.evidence)
         t = truths[case["id"]]
         lights = [x for x in t["lights"] if x["visible"]]
         ref = None
@@ -89,7 +104,7 @@ def case_posteriors(bench: Path, settings=None):
             ref = max(t["shown"], key=lambda x: float(np.asarray(x["direction"]) @ s.posterior.map_direction))
         elif lights:
             ref = lights[0]
-        out.append((case["id"], s.posterior, None if ref is None else np.asarray(ref["direction"], np.float64)))
+        out.append((case["id"], s.posterior, None if ref is None else true_direction(ref, anchor)))
         print(f"  {bench.name}/{case['id']}", flush=True)
     return out
 

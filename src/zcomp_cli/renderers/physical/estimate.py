@@ -251,7 +251,7 @@ class _Scorer:
         else:
             V = sun_visibility(self.pp.grid.caster, self.rec, D)
             C = at.sun_columns(self.fp, D, steps=self.settings.estimate_march_steps)
-        lh, _ = score_candidates(self.B, C, self.y, self.fp.train, sigma=self.sig, cfg=self.settings.solver)
+        lh = self.photo_losses(C)
         return self._scored(shadow_fit(self.rec, V, self.settings.search)), lh, C
 
     def suns_any_size(self, dirs):
@@ -262,7 +262,7 @@ class _Scorer:
         visibility (R, K))."""
         D = np.asarray(dirs, np.float64).reshape(-1, 3)
         C = at.sun_columns(self.fp, D, steps=self.settings.estimate_march_steps)
-        lh, _ = score_candidates(self.B, C, self.y, self.fp.train, sigma=self.sig, cfg=self.settings.solver)
+        lh = self.photo_losses(C)
         V = sun_visibility(self.pp.grid.caster, self.rec, D)
         near = (D @ D.T >= math.cos(math.radians(self.settings.search.soft_deg))).astype(np.float64)
         hard = shadow_fit(self.rec, V, self.settings.search)
@@ -282,13 +282,21 @@ class _Scorer:
         Q = np.asarray(positions, np.float64).reshape(-1, 3)
         V = lamp_visibility(self.pp.grid.caster, self.rec, Q)
         C = at.lamp_columns(self.fp, Q, steps=self.settings.estimate_march_steps)
-        lh, _ = score_candidates(self.B, C, self.y, self.fp.train, sigma=self.sig, cfg=self.settings.solver)
+        lh = self.photo_losses(C)
         return self._scored(shadow_fit(self.rec, V, self.settings.search)), lh, C
 
     def _scored(self, fit_) -> "_Shadow":
         if self.sigma is None:
             self.sigma = fit_.best_sigma
         return _Shadow(fit_.loglik(self.sigma), fit_.ratio)
+
+    def photo_losses(self, C, iters: int | None = None) -> np.ndarray:
+        """(K,) the photometric held-out losses of candidate columns ``C`` (N, K): the
+        base dictionary plus each, scored alike at the base's noise scale
+        (``solver.score_candidates``)."""
+        lh, _ = score_candidates(self.B, C, self.y, self.fp.train, sigma=self.sig, iters=iters,
+                                 cfg=self.settings.solver)
+        return lh
 
     def set_photo_noise(self, lh_best: float) -> None:
         """The photometric fit's noise: the one the best candidate's held-out loss
@@ -414,7 +422,7 @@ def search(pp: Prepared, settings: PhysicalSettings, seed: int = 0) -> tuple[Sea
     K, nd = len(coarse), len(dists)
     Q = anchor[None, None] + dists[None, :, None] * coarse[:, None, :]
     C0 = at.lamp_columns(fp, Q.reshape(-1, 3))
-    lh0, _ = score_candidates(sc.B, C0, sc.y, fp.train, sigma=sc.sig, iters=cfg.screen_iters, cfg=settings.solver)
+    lh0 = sc.photo_losses(C0, iters=cfg.screen_iters)
     # the photometric noise and reference: the best candidate's, sun or lamp
     lh_ref = float(min(scored_c[1].min(), lh0.min()))
     sc.set_photo_noise(lh_ref)

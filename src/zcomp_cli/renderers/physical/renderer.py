@@ -334,7 +334,7 @@ class PhysicalRenderer(Renderer):
             cfg = self._settings.transport
             box = _window(ys, xs, H, W, cfg.window_margin_px, even=(H * W > cfg.full_res_pixels))
             P = camera.ray(xs + 0.5, ys + 0.5) * d[ys, xs][:, None]
-            fade = (_edge_fade(todo if unknown is None else unknown, ys, xs, cfg.edge_fade_px)
+            fade = (_edge_fade(todo if unknown is None else unknown, ys, xs, cfg.edge_fade_px, cfg.mesh_ao_fade)
                     if model.source != "manifest" else None)
             for light in _direct_lights(model):
                 L, _, E = light.toward(P)
@@ -442,14 +442,20 @@ class PhysicalRenderer(Renderer):
         return vs[ys - wy0 - by0, xs - wx0 - bx0]
 
 
-def _edge_fade(region: np.ndarray, ys, xs, width_px: float = DEFAULT.edge_fade_px) -> np.ndarray:
+def _edge_fade(region: np.ndarray, ys, xs, width_px: float = DEFAULT.edge_fade_px,
+               share: float = DEFAULT.mesh_ao_fade) -> np.ndarray:
     """(M,) in [0, 1] at pixels (ys, xs) of ``region`` (H, W) bool (the shading mask, the
     whole frame's: the same with or without a region of interest): 0 on its edge,
-    rising smoothly to 1 at ``width_px`` inside it (``TransportConfig.edge_fade_px``)."""
+    rising smoothly to 1 at ``width_px`` inside it (``TransportConfig.edge_fade_px``) or
+    at the outer ``share`` of the region's radius (the deepest pixel's distance to its
+    edge; ``TransportConfig.mesh_ao_fade``, as the object's sky occlusion fades),
+    whichever is wider: a soft light's shadow reaches past the mask, and cut over a few
+    pixels it drew the mask's ellipse."""
     import cv2
 
-    px = cv2.distanceTransform(np.pad(region, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1][ys, xs]
-    u = np.clip(px / width_px, 0.0, 1.0)
+    dt = cv2.distanceTransform(np.pad(region, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1]
+    width = max(float(width_px), share * float(dt.max()) if dt.size else 0.0, 1e-9)
+    u = np.clip(dt[ys, xs] / width, 0.0, 1.0)
     return u * u * (3.0 - 2.0 * u)
 
 

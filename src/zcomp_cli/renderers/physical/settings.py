@@ -119,7 +119,7 @@ class SearchConfig:
     temperature: float = knob(20.0, "fitted", "the posterior's one temperature: the best mean log score of the "
                                               "true direction (benchmarks/fit_light_constants.py, "
                                               "docs/fit_light_constants.txt)")
-    photo_weight: float = knob(3.0, "fitted", "the photometric likelihood's independent observations per held-out "
+    photo_weight: float = knob(0.3, "fitted", "the photometric likelihood's independent observations per held-out "
                                               "block (its pixels are correlated: between one and the block's "
                                               "pixel count): the best mean log score with the temperature "
                                               "(fit_light_constants.py)")
