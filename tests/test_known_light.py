@@ -157,6 +157,40 @@ def test_a_manifest_direction_is_kept_on_a_bare_floor():
     assert _shadow(out, sel).sum() > 10
 
 
+def test_a_manifest_direction_and_size_with_a_free_strength_split_the_level():
+    """The benchmark's ``--oracle size`` light: direction and angular radius given, the
+    strength ``auto``. The sun's column is built from the given size (it was left empty,
+    and its unit on the support, 0, blew the irradiance up to 1e7); the split keeps the
+    support's level, and the shadow is the given direction's."""
+    s = floor_scene(96, 72, light_dir=(0.3, 1.0, 0.4), ambient=0.3)
+    bg, comp, sel, _ = _insert(s, [0.0, 0.3, -2.8])
+    ctx = light_context({"direction": [float(v) for v in s.light_dir_cam], "angular_radius_deg": 4.0, "strength": "auto"})
+    out = _render(bg, comp, ctx)
+    sun = out.info["light"]["lights"][0]
+    assert sun["angular_radius_deg"] == pytest.approx(4.0)
+    e = np.asarray(sun["irradiance_rgb"])
+    assert np.all(np.isfinite(e)) and np.all(e > 0)
+    lit = float(s.shading[s.depth > 0].mean())
+    m = PhysicalRenderer().light(RenderRequest(bg.maps, bg.shading, bg.known, bg.camera, light=ctx))
+    on_up = float(m.sky.shading(m.up[None])[0].mean()) + float(m.suns[0].irradiance.mean()) * float(
+        max(m.suns[0].direction @ m.up, 0.0))
+    assert abs(on_up - lit) / lit < 0.25
+    assert _shadow(out, sel).sum() > 10
+
+
+def test_a_given_sun_that_reaches_none_of_the_support_stays_finite():
+    """A sun given below the horizon of every support pixel (its column 0 there): nothing
+    to split the level with; the fit stays finite and the sky keeps the level."""
+    s = floor_scene(96, 72, light_dir=(0.3, 1.0, 0.4), ambient=0.3)
+    bg, comp, sel, _ = _insert(s, [0.0, 0.3, -2.8])
+    ctx = light_context({"direction": [0.0, -0.2, -1.0], "strength": "auto"})
+    m = PhysicalRenderer().light(RenderRequest(bg.maps, bg.shading, bg.known, bg.camera, light=ctx))
+    assert all(np.all(np.isfinite(x.irradiance)) and np.all(x.irradiance < 1e3) for x in m.suns)
+    assert np.all(np.isfinite(m.sky.radiance_sh))
+    out = _render(bg, comp, ctx)
+    assert all(np.all(np.isfinite(im)) for im in out.images)
+
+
 def test_physical_strengths_share_one_exposure():
     """A probe, a sun in W/m^2 and a lamp in W hold relative to each other: scaling the
     photo scales the one exposure, not their ratios."""

@@ -69,6 +69,19 @@ class _Light:
     strength_from: Origin = Origin.FIT
 
 
+def _support_unit(column: np.ndarray, sup: np.ndarray) -> float | None:
+    """A light's shading on the support that its share of the level is measured in:
+    the median over the support's fit pixels, else (a light that reaches less than half
+    of it) the mean over those it reaches; None where it reaches none (nothing to
+    split)."""
+    c = np.asarray(column, np.float64)[sup]
+    m = float(np.median(c)) if len(c) else 0.0
+    if m > 1e-9:
+        return m
+    lit = c[c > 1e-9]
+    return float(lit.mean()) if len(lit) else None
+
+
 def _sun_columns(fp, d, r, settings, seed):
     return at.sun_column(fp, d, r, steps=settings.estimate_march_steps, cone_samples=settings.cone_samples, seed=seed)
 
@@ -165,6 +178,8 @@ def fit_light(params: LightParams | None, depth, normals, shading, known, albedo
             lights.append(lt)
             shares.append((lt, float(sp.share)))
         else:
+            if fl.radius is not None:  # a given size: its column now (a free one is chosen below)
+                fl.column = _sun_columns(fp, d, fl.radius, settings, seed)
             lights.append(_Light(fl, color, Origin.MANIFEST))
     for lp in params.lamps:
         q = np.asarray(lp.position.value, np.float64)
@@ -209,11 +224,14 @@ def fit_light(params: LightParams | None, depth, normals, shading, known, albedo
         # (a searched light's split is read across its most probable shadow's edges)
         at_light = search.map_light if (search is not None and key.fl is search.light) else key.fl
         share, n_eff = est.split_from_shadows(sc, at_light)
+    light_unit = _support_unit(key.fl.column, sup) if key is not None else None
+    if key is not None and lobes and light_unit is not None:
         sky_unit = max(float(np.median(lobes[0].values[sup])), 1e-9)
-        light_unit = max(float(np.median(key.fl.column[sup])), 1e-9)
         atoms.append(Atom("key", share * lobes[0].values / sky_unit + (1.0 - share) * key.fl.column / light_unit))
         atoms += lobes[1:]
     else:
+        # (no sky lobes, or a key light that reaches none of the support: a sun behind a
+        # wall cannot share the support's level; its own atom, the fit's weight)
         atoms += lobes
         if key is not None:
             atoms.append(Atom("light0", key.fl.column))
