@@ -80,7 +80,7 @@ COLUMNS = ["psnr", "rmse", "si-rmse", "ssim", "mae", "lpips", "flip", "shadow-io
 EXTRA = ["psnr_near", "psnr_object", "light_dir_err_deg",
          "dominant_light_err_deg", "dominant_under_10", "dominant_under_20",
          "shown_light_err_deg", "shown_under_10", "shown_under_20", "cast_shadow_err_deg",
-         "sphere_si_rmse_diffuse", "sphere_si_rmse_silver", "median_s_per_job"]
+         "sphere_si_rmse_diffuse", "sphere_si_rmse_silver", "median_s_per_job", "jobs_done"]
 # The direction-error thresholds (degrees) whose share of cases the table reports: the
 # ones light-estimation papers report beside the median (issue 37, item 9), so the rows
 # compare with theirs; not tuned to anything.
@@ -400,6 +400,16 @@ def median_job_seconds(out_dir: Path) -> float:
     return statistics.median(secs) if secs else float("nan")
 
 
+def jobs_done(out_dir: Path) -> str:
+    """"done/all" of a composite run (its summary.json): a row's means are over its done
+    jobs only, so a row with failed jobs must say so."""
+    try:
+        summary = json.loads((out_dir / "summary.json").read_text())
+    except (OSError, ValueError):
+        return "?"
+    return f"{summary.get('done', 0) + summary.get('skipped', 0)}/{len(summary.get('jobs', []))}"
+
+
 def read_means(eval_json: Path) -> dict:
     data = json.loads(eval_json.read_text())
     means = data.get("mean") or data.get("means") or {}
@@ -497,7 +507,7 @@ def main(argv=None) -> int:
                      **{f"shown_under_{d:g}": _share_under(shown, d) for d in UNDER_DEG},
                      "cast_shadow_err_deg": _median_n(cast),
                      "sphere_si_rmse_diffuse": None, "sphere_si_rmse_silver": None,
-                     "median_s_per_job": median_job_seconds(res_dir)})
+                     "median_s_per_job": median_job_seconds(res_dir), "jobs_done": jobs_done(res_dir)})
 
     # the light scored apart from the composite, against the full oracle's (module docstring)
     ref_dir = out / "results" / SPHERE_REFERENCE

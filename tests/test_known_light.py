@@ -178,6 +178,29 @@ def test_a_manifest_direction_and_size_with_a_free_strength_split_the_level():
     assert _shadow(out, sel).sum() > 10
 
 
+def test_two_given_suns_with_free_strengths_and_a_shadow_to_read_the_split_from():
+    """The benchmark's ``--oracle size`` light of a two-sun scene whose background shows a
+    box's shadow: both directions and sizes given, both strengths ``auto``. The split is
+    read across the key sun's shadow without a search before it (its noise scale was
+    unset: a crash), and the second sun's weight is found by identity (a light's ``==``
+    compares arrays: a crash)."""
+    key, second = (0.8, 1.0, -0.2), (-0.6, 0.8, 0.2)
+    s = floor_scene(96, 72, light_dir=key, ambient=0.3, with_box=True, box_center=(0.8, -3.2),
+                    extra_lights=((second, 0.4),))
+    bg, comp, sel, _ = _insert(s, [-1.0, 0.15, -3.5], radius=0.15)
+    dirs = [s.light_dir_cam, s.meta["extra_lights_cam"][0]]
+    ctx = light_context(*({"direction": [float(v) for v in d], "angular_radius_deg": 1.0, "strength": "auto"}
+                          for d in dirs))
+    m = PhysicalRenderer().light(RenderRequest(bg.maps, bg.shading, bg.known, bg.camera, light=ctx))
+    assert len(m.suns) == 2 and m.fit.shadow_blocks > 0  # the split was read from the box's shadow
+    for sun, d in zip(m.suns, dirs):
+        assert np.all(np.isfinite(sun.irradiance)) and np.all(sun.irradiance >= 0)
+        assert np.degrees(np.arccos(np.clip(sun.direction @ d, -1, 1))) < 1e-3
+    assert float(m.suns[0].irradiance.mean()) > float(m.suns[1].irradiance.mean())
+    out = _render(bg, comp, ctx)
+    assert all(np.all(np.isfinite(im)) for im in out.images) and _shadow(out, sel).sum() > 10
+
+
 def test_a_given_sun_that_reaches_none_of_the_support_stays_finite():
     """A sun given below the horizon of every support pixel (its column 0 there): nothing
     to split the level with; the fit stays finite and the sky keeps the level."""

@@ -566,8 +566,12 @@ def split_from_shadows(sc: "_Scorer", light: FitLight) -> tuple[float, float]:
     n_eff = share * sc.rec.blocks
     if n_eff <= 0:
         return cfg.prior_sky_share, 0.0
-    rho = float(np.clip(shadow_fit(sc.rec, V, cfg).ratio[0], 0.0, 1.0))
-    return _shrunk_share(rho, n_eff, sc.sigma, cfg), n_eff
+    fit_ = shadow_fit(sc.rec, V, cfg)
+    # (no search scored a light before, as with a given direction: this shadow's own
+    # noise scale, as the first scoring of a search sets it)
+    sigma = fit_.best_sigma if sc.sigma is None else sc.sigma
+    rho = float(np.clip(fit_.ratio[0], 0.0, 1.0))
+    return _shrunk_share(rho, n_eff, sigma, cfg), n_eff
 
 
 def estimate_light(depth, normals, shading, known, albedo, camera: Camera, *, up, up_from: Origin = Origin.SUPPORT,

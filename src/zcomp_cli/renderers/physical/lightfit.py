@@ -277,7 +277,8 @@ def fit_light(params: LightParams | None, depth, normals, shading, known, albedo
         elif lt is key and "key" in w:
             e, s_from = (1.0 - share) * np.asarray(w["key"]) / light_unit, (Origin.SHADOWS if n_eff > 0 else Origin.PRIOR)
         else:
-            e, s_from = np.asarray(w[f"light{free.index(lt)}"]), Origin.FIT
+            # (by identity: a light's == compares its arrays)
+            e, s_from = np.asarray(w[f"light{next(i for i, f in enumerate(free) if f is lt)}"]), Origin.FIT
         if fl.kind == "sun":
             suns.append(Sun(direction=fl.param, radius_deg=fl.radius, irradiance=e, direction_from=lt.direction_from,
                             radius_from=fl.radius_from, strength_from=s_from))
