@@ -75,8 +75,9 @@ def true_direction(light: dict, anchor):
 
 def case_posteriors(bench: Path, settings=None):
     """[(case id, the search's posterior (untempered parts kept), the true direction or
-    None)] of a benchmark's cases; the true direction is the nearest light whose shadows
-    the background shows, else the dominant light reaching the object's base."""
+    None, whether the background shows cast shadows)] of a benchmark's cases; the true
+    direction is the nearest light whose shadows the background shows, else the dominant
+    light reaching the object's base."""
     import numpy as np
 
     from audit_light import load_case_inputs
@@ -104,7 +105,7 @@ def case_posteriors(bench: Path, settings=None):
             ref = max(t["shown"], key=lambda x: float(np.asarray(x["direction"]) @ s.posterior.map_direction))
         elif lights:
             ref = lights[0]
-        out.append((case["id"], s.posterior, None if ref is None else true_direction(ref, anchor)))
+        out.append((case["id"], s.posterior, None if ref is None else true_direction(ref, anchor), bool(t["shown"])))
         print(f"  {bench.name}/{case['id']}", flush=True)
     return out
 
@@ -139,10 +140,15 @@ def main(argv=None) -> int:
         for b in args.benches:
             posts += [p for p in case_posteriors(b, settings) if p[2] is not None]
         for T in grid:
-            ls = [p.tempered(T).log_density(t) for _, p, t in posts]
+            ls = [p.tempered(T).log_density(t) for _, p, t, _ in posts]
             scores.append((statistics.mean(ls), w, T))
+            # (not fitted on: where the score comes from, the cases whose background shows
+            # cast shadows and the others)
+            parts = [[x for x, (_, _, _, sh) in zip(ls, posts) if sh is shown] for shown in (True, False)]
+            part = ", ".join(f"{name} {statistics.mean(x):.3f} ({len(x)})" for name, x in zip(("shown", "not shown"), parts)
+                             if x)
             print(f"  PHOTO_WEIGHT {w:g} TEMPERATURE {T:g}: mean log score {statistics.mean(ls):.3f} over "
-                  f"{len(ls)} cases (a uniform hemisphere: {uniform:.3f})", flush=True)
+                  f"{len(ls)} cases (a uniform hemisphere: {uniform:.3f}; {part})", flush=True)
     best = max(scores)
     print(f"photo_weight = {best[1]:g}, temperature = {best[2]:g}")
     fitted = dataclasses.replace(SearchConfig(), prior_sky_share=round(share, 2),
