@@ -274,6 +274,40 @@ def test_mesh_occlusion_known_values():
     assert mesh_occlusion(mesh_discs(sph), np.zeros((0, 3)), np.zeros((0, 3))).shape == (0,)
 
 
+def test_mesh_occlusion_of_a_sky_weights_each_element_by_the_radiance_behind_it():
+    """With ``radiance_sh`` each disc hides its form factor times the sky's radiance
+    behind it over the point's sky shading: a uniform sky gives the plain share; a sky
+    brighter on one side is hidden more by an object on that side; and the sum is the
+    direct one (each element's SH radiance from ``sh.basis``) to float32's precision."""
+    from zcomp_cli.renderers.physical import sh
+    from zcomp_cli.renderers.physical.meshshadow import mesh_discs, mesh_occlusion
+
+    r, c = 0.5, np.array([0.0, 0.5, 0.0])
+    sph = _sphere_mesh(c, r)
+    discs = mesh_discs(sph)
+    x = np.array([0.7, 1.0, 1.5, -1.0, -1.5])
+    P = np.stack([x, np.zeros_like(x), np.zeros_like(x)], 1)
+    up = np.tile([0.0, 1.0, 0.0], (len(x), 1))
+    plain = mesh_occlusion(discs, P, up)
+    uniform = mesh_occlusion(discs, P, up, radiance_sh=np.eye(9, 1) * 0.7)
+    assert np.allclose(uniform[:, 0], plain, rtol=1e-4)
+    # a sky brighter toward -x: the sphere (at x = 0) hides more of it from points at +x
+    lop = np.zeros((9, 1))
+    lop[0], lop[3] = 1.0, -1.5  # Y_11 ~ x
+    side = mesh_occlusion(discs, P, up, radiance_sh=lop)[:, 0]
+    assert side[1] > plain[1] and side[3] < plain[3]
+    # the direct sum, element by element
+    from zcomp_cli.renderers.physical.meshshadow import _form_factors
+
+    f, _ = _form_factors(discs, P, up)
+    w = discs.centres[None] - P[:, None]
+    w = w / np.linalg.norm(w, axis=-1, keepdims=True)
+    L = np.maximum(sh.basis(w.reshape(-1, 3)) @ lop, 0.0).reshape(f.shape)
+    total = sh.evaluate(sh.shading_coeffs(lop), up)[:, 0]
+    direct = np.clip((f * L).sum(1) / total, 0.0, 1.0)
+    assert np.allclose(side, direct, rtol=1e-4, atol=1e-6)
+
+
 def test_a_dense_meshs_near_field_is_simplified_and_keeps_its_values():
     # 81920 faces: more than NEAR_FIELD_TRIANGLES in a point's near field, so the exact
     # form factors run on a vertex-clustered copy (fewer faces, never the original

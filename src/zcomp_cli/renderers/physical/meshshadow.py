@@ -302,10 +302,11 @@ def mesh_occlusion(discs: MeshDiscs, points: np.ndarray, normals: np.ndarray, *,
         out = out[:, 0] if radiance_sh is None else out
         return (out, dmin) if return_distance else out
     weigh = _radiance_weights(radiance_sh, Nn)
+    cen32 = discs.centres.astype(np.float32)
     rho2 = cfg.near_field_spacings ** 2 * float(discs.areas.mean()) if mesh is not None else 0.0
     for i in range(0, len(P), chunk):
         f, r2 = _form_factors(discs, P[i:i + chunk], Nn[i:i + chunk])
-        out[i:i + chunk] = weigh(f, discs.centres[None] - P[i:i + chunk, None], slice(i, i + chunk))
+        out[i:i + chunk] = weigh(f, cen32[None] - P[i:i + chunk, None].astype(np.float32), slice(i, i + chunk))
         dmin[i:i + chunk] = np.sqrt(r2.min(1))
     if mesh is not None:
         idx = np.flatnonzero((dmin ** 2 < rho2) & (True if refine is None else np.asarray(refine, bool)))
@@ -314,7 +315,7 @@ def mesh_occlusion(discs: MeshDiscs, points: np.ndarray, normals: np.ndarray, *,
             # points: computed again for them rather than kept for all)
             f, r2 = _form_factors(discs, P[idx], Nn[idx])
             part = np.zeros((len(P), C))
-            part[idx] = weigh(f * (r2 < rho2), discs.centres[None] - P[idx, None], idx)
+            part[idx] = weigh(f * (r2 < rho2), cen32[None] - P[idx, None].astype(np.float32), idx)
             whole = _area_triangles(mesh)
             near_mesh = _near_field_mesh(mesh, np.sqrt(rho2), area=whole[2], cfg=cfg)
             tri, _, _, inside_out = whole if near_mesh is mesh else _area_triangles(near_mesh)
@@ -353,19 +354,35 @@ class _radiance_weights:
             from zcomp_cli.renderers.physical import sh
 
             self.total = np.maximum(sh.evaluate(sh.shading_coeffs(self.c), normals), 1e-9)
+            # the radiance as a polynomial of the direction (``sh.quadratic_form``), in
+            # float32 as the form factors are: the (n M, 9) basis of every element seen
+            # from every point was most of the cost of a posed mesh's sky occlusion
+            a, b, A = sh.quadratic_form(self.c)
+            nc = self.c.shape[1]
+            self._a, self._b = a.astype(np.float32), b.astype(np.float32)
+            self._A = A.reshape(3, 3 * nc).astype(np.float32)
 
     def _L(self, offsets):
-        from zcomp_cli.renderers.physical import sh
-
-        w = offsets.reshape(-1, 3)
-        w = w / np.maximum(np.linalg.norm(w, axis=1, keepdims=True), 1e-12)
-        return np.maximum(sh.basis(w) @ self.c, 0.0)
+        """(K, C) the radiance toward ``offsets`` (..., 3), not normalised: the
+        polynomial's linear and quadratic terms are divided by the length and its
+        square instead."""
+        w = np.asarray(offsets, np.float32).reshape(-1, 3)
+        r2 = np.einsum("kj,kj->k", w, w)
+        inv2 = 1.0 / np.maximum(r2, np.float32(1e-24))
+        nc = len(self._a)
+        quad = np.einsum("kjc,kj->kc", (w @ self._A).reshape(-1, 3, nc), w)
+        quad *= inv2[:, None]
+        lin = w @ self._b
+        lin *= np.sqrt(inv2)[:, None]
+        quad += lin
+        quad += self._a
+        return np.maximum(quad, 0.0, out=quad)
 
     def __call__(self, f, offsets, rows):
         if self.c is None:
             return f.sum(1)[:, None]
         L = self._L(offsets).reshape(f.shape + (-1,))
-        return np.einsum("nm,nmc->nc", f.astype(np.float64), L) / self.total[rows]
+        return np.einsum("nm,nmc->nc", np.asarray(f, np.float32), L).astype(np.float64) / self.total[rows]
 
     def pairs(self, ff, offsets, rows):
         if self.c is None:

@@ -35,6 +35,22 @@ def basis(dirs: np.ndarray) -> np.ndarray:
         1.092548 * x * z, 0.546274 * (x * x - y * y)], 1)
 
 
+def quadratic_form(coeffs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The order-2 expansion ``basis(w) @ coeffs`` (9, C) as a polynomial of ``w``:
+    ``(a (C,), b (3, C), A (3, 3, C))`` with ``basis(w) @ coeffs = a + w @ b + w^T A w``
+    for every vector ``w`` (the nine functions are polynomials of degree 2 in x, y, z).
+    Evaluated this way over many directions at once, nothing of size (N, 9) is built."""
+    c = np.asarray(coeffs, np.float64).reshape(N_COEFFS, -1)
+    a = 0.282095 * c[0] - 0.315392 * c[6]
+    b = 0.488603 * np.stack([c[3], c[1], c[2]])
+    A = np.zeros((3, 3, c.shape[1]))
+    A[0, 0], A[1, 1], A[2, 2] = 0.546274 * c[8], -0.546274 * c[8], 3.0 * 0.315392 * c[6]
+    A[0, 1] = A[1, 0] = 0.5 * 1.092548 * c[4]
+    A[1, 2] = A[2, 1] = 0.5 * 1.092548 * c[5]
+    A[0, 2] = A[2, 0] = 0.5 * 1.092548 * c[7]
+    return a, b, A
+
+
 def project(dirs: np.ndarray, radiance: np.ndarray, solid_angle: np.ndarray) -> np.ndarray:
     """(9, C) SH coefficients of a radiance sampled at ``dirs`` (N, 3), ``radiance``
     (N, C) or (N,), each sample covering ``solid_angle`` (N,) sr."""
