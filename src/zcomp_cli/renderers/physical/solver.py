@@ -83,9 +83,16 @@ def huber_weights(r: np.ndarray, sigma: float, huber_c: float = DEFAULT.huber_c)
     """IRLS weights and per-residual Huber loss of residuals ``r`` at scale ``sigma``."""
     c = huber_c * sigma
     a = np.abs(r)
-    w = np.where(a <= c, 1.0, c / np.maximum(a, 1e-300))
     loss = np.where(a <= c, 0.5 * a * a, c * (a - 0.5 * c))
-    return w, loss
+    return _huber_w(a, c), loss
+
+
+def _huber_w(a: np.ndarray, c: float) -> np.ndarray:
+    """The IRLS weights alone of absolute residuals ``a`` at the Huber threshold ``c``:
+    1 within it, ``c / a`` beyond (the loops that discard the loss skip it)."""
+    if not c > 0:
+        return np.where(a <= c, 1.0, 0.0)
+    return np.minimum(c / np.maximum(a, 1e-300), 1.0)
 
 
 def robust_scale(r: np.ndarray, data_scale: float, cfg: SolverConfig = DEFAULT) -> float:
@@ -291,7 +298,7 @@ def score_candidates(base: np.ndarray, cands: np.ndarray, y: np.ndarray, train: 
             coef[neg, :nb] = solve_spd(A[neg][:, :nb, :nb], rhs[neg, :nb])  # (regularised above)
             coef[neg, nb] = 0.0
         r = yt[:, None] - Bt @ coef[:, :nb].T - Dt * coef[:, nb][None]
-        w, _ = huber_weights(r, sigma, cfg.huber_c)
+        w = _huber_w(np.abs(r), cfg.huber_c * sigma)
     r = y[:, None] - B @ coef[:, :nb].T - D * coef[:, nb][None]
     loss = huber_weights(r, sigma, cfg.huber_c)[1] / scale ** 2
     held = ~tr
