@@ -20,10 +20,20 @@
 * ``search.photo_weight``: the photometric likelihood's independent observations per
   held-out block, with the temperature: the search runs once per value of
   ``--photo-grid`` (it decides which lamps are scored), and the pair with the best mean
-  log score is chosen.
+  log score is chosen;
+* ``search.elevation_prior_power``: the prior's density over directions, ``cos(elevation)
+  ** -power`` per steradian, each power of ``--prior-grid`` scored with every weight and
+  temperature.
+
+The temperatures and powers of the grids are scored on the directions of each weight's
+search, which ran at the default temperature and power (its lamp screening and its
+refinement follow them): an approximation, off by up to 0.1 in the mean log score away
+from the defaults. ``--exact W,T,P ...`` scores given triples exactly (the search run at
+each; a minute or two apiece), and the best of those is chosen.
 
     python benchmarks/fit_light_constants.py BENCH_1618 BENCH_7777 [...] \
-        [--grid 1,2,5,10,20,50,100] [--photo-grid 1,2,4,8]
+        [--grid 1,2,5,10,20,50,100] [--photo-grid 1,2,4,8] [--prior-grid 0,0.5,1] \
+        [--exact 0.3,20,1 1,30,0]
 
 Each BENCH is a ``make-benchmark`` folder. The constants are built into a search
 configuration (``settings.SearchConfig``, the others at their defaults: no source file is
@@ -75,7 +85,8 @@ def true_direction(light: dict, anchor):
 
 def case_posteriors(bench: Path, settings=None):
     """[(case id, the search's posterior (untempered parts kept), the true direction or
-    None, whether the background shows cast shadows)] of a benchmark's cases; the true
+    None, whether the background shows cast shadows, the elevation prior's log density
+    at power 1 on the posterior's directions)] of a benchmark's cases; the true
     direction is the nearest light whose shadows the background shows, else the dominant
     light reaching the object's base."""
     import numpy as np
@@ -105,7 +116,10 @@ def case_posteriors(bench: Path, settings=None):
             ref = max(t["shown"], key=lambda x: float(np.asarray(x["direction"]) @ s.posterior.map_direction))
         elif lights:
             ref = lights[0]
-        out.append((case["id"], s.posterior, None if ref is None else true_direction(ref, anchor), bool(t["shown"])))
+        # (the prior's log density at power 1, to score other powers on the same grid)
+        base_prior = estimate.log_elevation_prior(s.posterior.dirs, up, 1.0)
+        out.append((case["id"], s.posterior, None if ref is None else true_direction(ref, anchor), bool(t["shown"]),
+                    base_prior))
         print(f"  {bench.name}/{case['id']}", flush=True)
     return out
 
@@ -115,13 +129,18 @@ def main(argv=None) -> int:
     ap.add_argument("benches", nargs="+", type=Path)
     ap.add_argument("--grid", default="1,2,3,5,7,10,15,20,30,50,100", help="temperatures to score")
     ap.add_argument("--photo-grid", default="1,2,4,8", help="photometric weights to search with")
+    ap.add_argument("--prior-grid", default="0,0.5,1", help="elevation prior powers to score (on each search's grid)")
+    ap.add_argument("--exact", nargs="*", default=[], metavar="W,T,P",
+                    help="photo weight, temperature, prior power triples scored exactly (the search run at each)")
     args = ap.parse_args(argv)
     import dataclasses
 
+    from zcomp_cli.renderers.physical.posterior import DirectionPosterior
     from zcomp_cli.renderers.physical.settings import DEFAULTS, SearchConfig
 
     grid = [float(x) for x in args.grid.split(",") if x.strip()]
     photo_grid = [float(x) for x in args.photo_grid.split(",") if x.strip()]
+    prior_grid = [float(x) for x in args.prior_grid.split(",") if x.strip()]
     shares = []
     for b in args.benches:
         cases = json.loads((b / "benchmark.json").read_text())["cases"]
@@ -139,23 +158,43 @@ def main(argv=None) -> int:
         posts = []
         for b in args.benches:
             posts += [p for p in case_posteriors(b, settings) if p[2] is not None]
-        for T in grid:
-            ls = [p.tempered(T).log_density(t) for _, p, t, _ in posts]
-            scores.append((statistics.mean(ls), w, T))
-            # (not fitted on: where the score comes from, the cases whose background shows
-            # cast shadows and the others)
-            parts = [[x for x, (_, _, _, sh) in zip(ls, posts) if sh is shown] for shown in (True, False)]
-            part = ", ".join(f"{name} {statistics.mean(x):.3f} ({len(x)})" for name, x in zip(("shown", "not shown"), parts)
-                             if x)
-            print(f"  PHOTO_WEIGHT {w:g} TEMPERATURE {T:g}: mean log score {statistics.mean(ls):.3f} over "
-                  f"{len(ls)} cases (a uniform hemisphere: {uniform:.3f}; {part})", flush=True)
+        for k in prior_grid:
+            for T in grid:
+                # (another power than the default's is scored on this search's grid, whose
+                # lamp screening and refinement followed the default's prior)
+                ls = [DirectionPosterior.from_parts(p.dirs, p.loglik, k * bp, p.solid_angle, T).log_density(t)
+                      for _, p, t, _, bp in posts]
+                scores.append((statistics.mean(ls), w, T, k))
+                # (not fitted on: where the score comes from, the cases whose background
+                # shows cast shadows and the others)
+                parts = [[x for x, q in zip(ls, posts) if q[3] is shown] for shown in (True, False)]
+                part = ", ".join(f"{name} {statistics.mean(x):.3f} ({len(x)})"
+                                 for name, x in zip(("shown", "not shown"), parts) if x)
+                print(f"  PHOTO_WEIGHT {w:g} TEMPERATURE {T:g} PRIOR_POWER {k:g}: mean log score "
+                      f"{statistics.mean(ls):.3f} over {len(ls)} cases (a uniform hemisphere: {uniform:.3f}; {part})",
+                      flush=True)
     best = max(scores)
-    print(f"photo_weight = {best[1]:g}, temperature = {best[2]:g}")
+    if args.exact:
+        exact = []
+        for triple in args.exact:
+            w, T, k = (float(x) for x in triple.split(","))
+            search = dataclasses.replace(DEFAULTS.search, photo_weight=w, temperature=T, elevation_prior_power=k)
+            posts = []
+            for b in args.benches:
+                posts += [p for p in case_posteriors(b, dataclasses.replace(DEFAULTS, search=search))
+                          if p[2] is not None]
+            ls = [p.log_density(t) for _, p, t, _, _ in posts]
+            exact.append((statistics.mean(ls), w, T, k))
+            print(f"  EXACT PHOTO_WEIGHT {w:g} TEMPERATURE {T:g} PRIOR_POWER {k:g}: mean log score "
+                  f"{statistics.mean(ls):.3f} over {len(ls)} cases", flush=True)
+        best = max(exact)
+    print(f"photo_weight = {best[1]:g}, temperature = {best[2]:g}, elevation_prior_power = {best[3]:g}")
     fitted = dataclasses.replace(SearchConfig(), prior_sky_share=round(share, 2),
-                                 prior_sky_share_spread=round(spread, 2), photo_weight=best[1], temperature=best[2])
+                                 prior_sky_share_spread=round(spread, 2), photo_weight=best[1], temperature=best[2],
+                                 elevation_prior_power=best[3])
     print(f"SearchConfig(prior_sky_share={fitted.prior_sky_share}, prior_sky_share_spread="
           f"{fitted.prior_sky_share_spread}, photo_weight={fitted.photo_weight:g}, "
-          f"temperature={fitted.temperature:g})")
+          f"temperature={fitted.temperature:g}, elevation_prior_power={fitted.elevation_prior_power:g})")
     return 0
 
 

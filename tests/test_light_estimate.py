@@ -151,7 +151,9 @@ def test_a_confident_shadow_is_drawn_crisp_and_a_vague_one_soft():
 
     crisp = _estimate(_scene())
     bare = _estimate(floor_scene(120, 90, light_dir=(0.7, 1.0, 0.2), ambient=0.3, sky_occlusion=True))
-    assert crisp.suns[0].radius_deg < 12.0 and not crisp.fit.unfixed
+    # (crisp: a third of the widest light at most -- the spread follows the fitted
+    # temperature, the contrast with the bare floor's widest light is the claim)
+    assert crisp.suns[0].radius_deg < DEFAULTS.search.max_radius_deg / 3.0 and not crisp.fit.unfixed
     assert bare.suns[0].radius_deg == DEFAULTS.search.max_radius_deg and bare.fit.unfixed
     for m in (crisp, bare):
         assert m.suns[0].radius_deg >= min(DEFAULTS.search.cone_per_rms * m.fit.uncertainty_deg,

@@ -181,12 +181,14 @@ def held_out_blocks(fp: at.FitPixels) -> int:
     return max(1, len(np.unique(ids)))
 
 
-def log_elevation_prior(dirs: np.ndarray, up) -> np.ndarray:
-    """(K,) log density (per steradian, up to a constant) of a prior uniform in the
-    elevation angle: ``1 / cos(elevation)`` (a uniform density over the sphere would put
-    most of the light near the horizon), bounded at 89 deg (a pole, not a spike)."""
+def log_elevation_prior(dirs: np.ndarray, up, power: float = 1.0) -> np.ndarray:
+    """(K,) log density (per steradian, up to a constant) of the prior over directions,
+    ``cos(elevation) ** -power``: ``power`` 1 is uniform in the elevation angle (a
+    ninth of the light within 10 deg of the zenith), 0 uniform over the hemisphere
+    (``search.elevation_prior_power``, fitted), bounded at 89 deg (a pole, not a
+    spike)."""
     e = np.arcsin(np.clip(np.asarray(dirs, np.float64) @ np.asarray(up, np.float64), -1.0, 1.0))
-    return -np.log(np.maximum(np.cos(e), math.cos(math.radians(89.0))))
+    return -float(power) * np.log(np.maximum(np.cos(e), math.cos(math.radians(89.0))))
 
 
 @dataclass(frozen=True)
@@ -427,7 +429,7 @@ def search(pp: Prepared, settings: PhysicalSettings, seed: int = 0) -> tuple[Sea
     lh_ref = float(min(scored_c[1].min(), lh0.min()))
     sc.set_photo_noise(lh_ref)
     ll_sun_c, llp, ratio_c, area_c, llsh_c = suns(coarse, scored_c)
-    prior_c = log_elevation_prior(coarse, up)
+    prior_c = log_elevation_prior(coarse, up, cfg.elevation_prior_power)
     screen = (llsh_c[:, None] + sc.loglik_photo(lh0, lh_ref).reshape(K, nd)) / T + prior_c[:, None]
     pairs = {tuple(int(v) for v in np.unravel_index(i, (K, nd))) for i in np.argsort(-screen.ravel())[:cfg.lamp_top]}
     for i in np.argsort(-(ll_sun_c / T + prior_c))[:cfg.lamp_top]:
@@ -455,8 +457,8 @@ def search(pp: Prepared, settings: PhysicalSettings, seed: int = 0) -> tuple[Sea
     cap_area = float(omega[inside].sum())
     dirs = np.concatenate([coarse[~inside], fine])
     om = np.concatenate([omega[~inside], np.full(len(fine), cap_area / len(fine))])
-    post = DirectionPosterior.from_parts(dirs, np.concatenate([marg[~inside], m_f]), log_elevation_prior(dirs, up),
-                                         om, T)
+    post = DirectionPosterior.from_parts(dirs, np.concatenate([marg[~inside], m_f]),
+                                         log_elevation_prior(dirs, up, cfg.elevation_prior_power), om, T)
     opts = np.concatenate([option[~inside], opt_f])
     # the light: the posterior's mean direction, as a sun or as a lamp at the distance
     # the most probable direction's best option says

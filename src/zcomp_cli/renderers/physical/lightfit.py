@@ -290,8 +290,10 @@ def fit_light(params: LightParams | None, depth, normals, shading, known, albedo
         fl = search.light
         note = (f"the photograph fixes the light's direction to within {spread:.0f} deg (RMS): its shadow is drawn "
                 f"as soft as that ({fl.radius:.3g} {'deg' if fl.kind == 'sun' else 'm'} radius)")
-    unfixed = bool(hedged and search.light.kind == "sun"
-                   and search.light.radius >= settings.search.max_radius_deg - 1e-9)
+    # (the hedge reached the widest light: a lamp's as well as a sun's, its radius in
+    # metres covering that angle from the anchor)
+    unfixed = bool(hedged and min(settings.search.cone_per_rms * spread, settings.search.max_radius_deg)
+                   >= settings.search.max_radius_deg - 1e-9)
     summary = FitSummary(shadow_blocks=float(n_eff), uncertainty_deg=float(spread) if search is not None else float("nan"),
                          residual=float(res.loss_train), pixels=len(fp), exposure=exposure, note=note,
                          unfixed=unfixed)

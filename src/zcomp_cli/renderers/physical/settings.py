@@ -116,10 +116,15 @@ class SearchConfig:
     """The direction search, its posterior, the light's size and strength (``estimate``,
     ``shadowcast``)."""
 
-    temperature: float = knob(20.0, "fitted", "the posterior's one temperature: the best mean log score of the "
+    temperature: float = knob(30.0, "fitted", "the posterior's one temperature: the best mean log score of the "
                                               "true direction (benchmarks/fit_light_constants.py, "
                                               "docs/fit_light_constants.txt)")
-    photo_weight: float = knob(0.3, "fitted", "the photometric likelihood's independent observations per held-out "
+    elevation_prior_power: float = knob(0.0, "fitted", "the prior over directions has the density "
+                                                       "cos(elevation) ** -power per steradian (1: uniform in the "
+                                                       "elevation angle; 0: uniform over the hemisphere): the best "
+                                                       "mean log score with the temperature and the photometric "
+                                                       "weight (fit_light_constants.py --prior-grid)")
+    photo_weight: float = knob(1.0, "fitted", "the photometric likelihood's independent observations per held-out "
                                               "block (its pixels are correlated: between one and the block's "
                                               "pixel count): the best mean log score with the temperature "
                                               "(fit_light_constants.py)")
