@@ -152,12 +152,17 @@ def main(argv=None) -> int:
     print(f"prior_sky_share = {share:.2f}  (median of {len(shares)} cases)")
     print(f"prior_sky_share_spread = {spread:.2f}  (1.4826 x their median absolute deviation)")
     uniform = -math.log(2 * math.pi)
-    scores = []
-    for w in photo_grid:
-        settings = dataclasses.replace(DEFAULTS, search=dataclasses.replace(DEFAULTS.search, photo_weight=w))
+
+    def posteriors(settings):
         posts = []
         for b in args.benches:
             posts += [p for p in case_posteriors(b, settings) if p[2] is not None]
+        return posts
+
+    scores = []
+    for w in photo_grid:
+        settings = dataclasses.replace(DEFAULTS, search=dataclasses.replace(DEFAULTS.search, photo_weight=w))
+        posts = posteriors(settings)
         for k in prior_grid:
             for T in grid:
                 # (another power than the default's is scored on this search's grid, whose
@@ -179,10 +184,7 @@ def main(argv=None) -> int:
         for triple in args.exact:
             w, T, k = (float(x) for x in triple.split(","))
             search = dataclasses.replace(DEFAULTS.search, photo_weight=w, temperature=T, elevation_prior_power=k)
-            posts = []
-            for b in args.benches:
-                posts += [p for p in case_posteriors(b, dataclasses.replace(DEFAULTS, search=search))
-                          if p[2] is not None]
+            posts = posteriors(dataclasses.replace(DEFAULTS, search=search))
             ls = [p.log_density(t) for _, p, t, _, _ in posts]
             exact.append((statistics.mean(ls), w, T, k))
             print(f"  EXACT PHOTO_WEIGHT {w:g} TEMPERATURE {T:g} PRIOR_POWER {k:g}: mean log score "

@@ -181,7 +181,7 @@ def held_out_blocks(fp: at.FitPixels) -> int:
     return max(1, len(np.unique(ids)))
 
 
-def log_elevation_prior(dirs: np.ndarray, up, power: float = 1.0) -> np.ndarray:
+def log_elevation_prior(dirs: np.ndarray, up, power: float) -> np.ndarray:
     """(K,) log density (per steradian, up to a constant) of the prior over directions,
     ``cos(elevation) ** -power``: ``power`` 1 is uniform in the elevation angle (a
     ninth of the light within 10 deg of the zenith), 0 uniform over the hemisphere

@@ -39,15 +39,22 @@ def quadratic_form(coeffs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarr
     """The order-2 expansion ``basis(w) @ coeffs`` (9, C) as a polynomial of ``w``:
     ``(a (C,), b (3, C), A (3, 3, C))`` with ``basis(w) @ coeffs = a + w @ b + w^T A w``
     for every vector ``w`` (the nine functions are polynomials of degree 2 in x, y, z).
-    Evaluated this way over many directions at once, nothing of size (N, 9) is built."""
+    Evaluated this way over many directions at once, nothing of size (N, 9) is built.
+    The coefficients are read off ``basis`` itself (at 0, the axes and their pairwise
+    sums and differences), so its constants stand in one place."""
     c = np.asarray(coeffs, np.float64).reshape(N_COEFFS, -1)
-    a = 0.282095 * c[0] - 0.315392 * c[6]
-    b = 0.488603 * np.stack([c[3], c[1], c[2]])
+    e = np.eye(3)
+    f = lambda w: basis(w) @ c  # noqa: E731  (rows: the polynomial at each vector)
+    a = f(np.zeros((1, 3)))[0]
+    plus, minus = f(e), f(-e)
+    b = 0.5 * (plus - minus)
     A = np.zeros((3, 3, c.shape[1]))
-    A[0, 0], A[1, 1], A[2, 2] = 0.546274 * c[8], -0.546274 * c[8], 3.0 * 0.315392 * c[6]
-    A[0, 1] = A[1, 0] = 0.5 * 1.092548 * c[4]
-    A[1, 2] = A[2, 1] = 0.5 * 1.092548 * c[5]
-    A[0, 2] = A[2, 0] = 0.5 * 1.092548 * c[7]
+    for i in range(3):
+        A[i, i] = 0.5 * (plus[i] + minus[i]) - a
+        for j in range(i + 1, 3):
+            # f(e_i + e_j) - f(e_i - e_j) = 2 b_j + 4 A_ij
+            d = f((e[i] + e[j])[None])[0] - f((e[i] - e[j])[None])[0]
+            A[i, j] = A[j, i] = 0.25 * (d - 2.0 * b[j])
     return a, b, A
 
 
