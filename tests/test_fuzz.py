@@ -361,13 +361,23 @@ def test_kill_9_at_random_moments_then_resume(tmp_path):
                 else:
                     finished[job_dir.name] = state
 
+    def reports() -> int:
+        return sum(1 for _ in out.glob("job*/report.json"))
+
     done_under_kills = 0
     for attempt in range(40):
         if attempt == 30:
             done_under_kills = len(finished)
         p = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
         if attempt < 30:
-            time.sleep(rng.uniform(0.2, 3.0))
+            # the kill's moment from what this run shows, not a fixed delay (a busy
+            # machine starts and renders slower): once it has finished a job, a random
+            # share of the time that took, so the kill lands inside a later job, in its
+            # writing, or between two
+            n0, t0 = reports(), time.monotonic()
+            while p.poll() is None and reports() == n0 and time.monotonic() - t0 < 600:
+                time.sleep(0.01)
+            time.sleep(rng.uniform(0.0, 1.0) * (time.monotonic() - t0))
         try:
             rc = p.wait(timeout=0.01 if attempt < 30 else 300)
         except subprocess.TimeoutExpired:
