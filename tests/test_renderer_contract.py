@@ -58,6 +58,9 @@ def _zerocomp_settings(tmp_path_factory):
 CONTRACT = {
     "physical": (lambda f: {"n_light_candidates": 32}, True),
     "naive": (lambda f: {}, True),
+    # Blender's path tracer, a few samples: the background it reproduces is the known
+    # shading itself (it path traces only the unknown pixels)
+    "cycles": (lambda f: {"samples": 4, "denoise": False}, True),
     "zerocomp": (_zerocomp_settings, False),
 }
 
@@ -76,7 +79,11 @@ def test_every_renderer_is_covered():
 
 
 # The tiny diffusion model takes seconds per call on a CPU: its rows are slow tests.
-@pytest.fixture(scope="module", params=[pytest.param(n, marks=pytest.mark.slow) if n == "zerocomp" else n
+# Cycles runs Blender (the ``blender`` mark).
+_MARKS = {"zerocomp": pytest.mark.slow, "cycles": pytest.mark.blender}
+
+
+@pytest.fixture(scope="module", params=[pytest.param(n, marks=_MARKS[n]) if n in _MARKS else n
                                         for n in sorted(RENDERERS)])
 def renderer_case(request, tmp_path_factory):
     name = request.param

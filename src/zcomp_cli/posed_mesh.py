@@ -12,10 +12,16 @@ import numpy as np
 
 @dataclass
 class PosedMesh:
-    """Triangles of the object in the camera frame: vertices (N, 3), faces (M, 3)."""
+    """Triangles of the object in the camera frame: vertices (N, 3), faces (M, 3);
+    ``source`` the mesh file they came from (None: made from maps) and
+    ``source_to_camera`` (4, 4) the matrix placing the file's coordinates in the camera
+    frame, the depth alignment included as one scale about the camera at the mesh's
+    centre (a renderer that reads the file's materials imports it with it)."""
 
     vertices: np.ndarray
     faces: np.ndarray
+    source: str | None = None
+    source_to_camera: np.ndarray | None = None
 
 
 def load_posed_mesh(meta: dict, alignment: dict | None = None) -> PosedMesh | None:
@@ -41,12 +47,15 @@ def load_posed_mesh(meta: dict, alignment: dict | None = None) -> PosedMesh | No
         return None
     M = np.asarray(M, np.float64)
     V = np.concatenate(vs) @ M[:3, :3].T + M[:3, 3]
+    to_camera = M.copy()
     if alignment:
         a, b = float(alignment.get("a", 1.0)), float(alignment.get("b", 0.0))
         z = -V[:, 2]
         scale = np.where(z > 1e-9, (a * z + b) / np.maximum(z, 1e-9), 1.0)
+        zc = float(np.mean(z))
+        to_camera = np.diag([*([(a * zc + b) / zc if zc > 1e-9 else 1.0] * 3), 1.0]) @ M
         V = V * scale[:, None]
-    return PosedMesh(V, np.concatenate(fs))
+    return PosedMesh(V, np.concatenate(fs), str(path), to_camera)
 
 
 __all__ = ["PosedMesh", "load_posed_mesh"]

@@ -87,6 +87,13 @@ BUILTIN_RENDERERS: dict[str, RendererEntry] = {
                            "(the official setting)", "DTYPE"),
         ),
         speed_settings=("batch_size", "channels_last", "compile"), contract_exact=False),
+    "cycles": RendererEntry(
+        "zcomp_cli.renderers.cycles", "CyclesRenderer",
+        "Blender's path tracer on a mesh of the photograph's depth, lit by the given or estimated light (bpy)",
+        options=(
+            RendererOption("samples", "samples", int, "Cycles path samples per pixel (default 32)", "N"),
+        ),
+        speed_settings=("threads",), contract_settings={"samples": 4, "denoise": False}),
     "naive": RendererEntry(
         "zcomp_cli.renderers.naive", "NaiveRenderer",
         "baseline paste: albedo x mean scene shading, no shadow (benchmark rows)"),

@@ -1,0 +1,278 @@
+"""The ``cycles`` renderer: Blender's path tracer as the transport (issue 35).
+
+Per request (numbered as the pipeline's steps):
+
+1. **The light**: the physical renderer's ``LightModel`` -- the manifest's lights with
+   their strengths fitted to the photograph, or the whole light estimated -- in zcomp's
+   shading units (``scene``: Blender's are the same, so no exposure of its own). A given
+   probe is the world itself (its rotation and convention, ``docs/lights.md``); an
+   estimated sky is drawn into a small world map; suns and lamps are Blender's.
+2. **The geometry**: the request's depth map as a mesh (``physical.depthmesh``:
+   discontinuities cut, occluders extruded backwards, the walls beyond the frame), its
+   albedo as each vertex's diffuse colour so bounce light has the photograph's colours;
+   on the composite request, the pixels the object covers are left out of that mesh and
+   the object is its own file at its pose with its own materials (``PosedMesh.source``),
+   or, for an object given as maps, its extruded surface with its mean material.
+3. **The window**: only the re-shaded pixels (the unknown ones, grown along a given
+   light's shadow as the physical renderer does) and a margin are path traced (Blender's
+   render border); every known pixel is ``albedo x shading``, the photograph, exactly
+   (the renderer contract), so the compositor's guarantees hold as they are.
+4. **Blender**: one process per renderer (``blender.runner.BlenderSession``, the
+   script ``blender/scripts/render_cycles.py``), kept for every job of a worker; the
+   scene mesh is rebuilt only when its content changes; a crash fails that job alone
+   and the next job starts a fresh process.
+
+Both passes use the job's seed, so their noise agrees wherever the object changes
+nothing and the compositor's ratio is 1 there.
+"""
+
+from __future__ import annotations
+
+import atexit
+import hashlib
+import os
+import shutil
+import tempfile
+import time
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from zcomp_cli.conventions import DEFAULT_SEED, REC601, luminance
+from zcomp_cli.errors import InputError, RenderError, UsageError
+from zcomp_cli.renderers.base import Renderer, RenderOutput, RenderRequest
+from zcomp_cli.renderers.cycles import scene as sc
+from zcomp_cli.renderers.cycles.settings import CyclesSettings
+
+SCRIPT = "render_cycles.py"
+WORK_PREFIX = "zcomp-cycles-"
+
+
+class CyclesRenderer(Renderer):
+    """Blender Cycles on a mesh of the photograph's depth (module docstring). Settings:
+    ``CyclesSettings``; ``light``: settings of the physical renderer whose light fit it
+    uses (a mapping)."""
+
+    name = "cycles"
+
+    def __init__(self, light: dict | None = None, **settings):
+        from zcomp_cli.renderers.physical import PhysicalRenderer
+
+        self._settings = CyclesSettings.from_kwargs(**settings)
+        if light is not None and not isinstance(light, dict):
+            raise UsageError(f"cycles renderer setting light: a mapping of physical renderer settings, got {light!r}")
+        self._physical = PhysicalRenderer(**(light or {}))
+        self._session = None
+        self._work: Path | None = None
+        self._meshes: dict = {}
+
+    def settings(self) -> dict:
+        return {"name": self.name, **self._settings.as_dict(), "light": self._physical.settings()}
+
+    def check(self) -> None:
+        import importlib.util
+
+        if importlib.util.find_spec("bpy") is None:
+            raise UsageError("renderer cycles needs Blender's Python module: pip install bpy (DESIGN.md section 7 "
+                             "has the version that resolves with zcomp's pins)")
+
+    # -- Blender -------------------------------------------------------------------
+    def _blender(self):
+        from zcomp_cli.blender.runner import BlenderSession
+
+        if self._session is None:
+            self._work = Path(tempfile.mkdtemp(prefix=f"{WORK_PREFIX}{os.getpid()}-"))
+            self._session = BlenderSession(SCRIPT, item_timeout_s=self._settings.item_timeout_s)
+            atexit.register(self.close)
+        return self._session
+
+    def close(self) -> None:
+        """End the Blender process and remove the work folder."""
+        if self._session is not None:
+            self._session.close()
+            self._session = None
+        if self._work is not None:
+            shutil.rmtree(self._work, ignore_errors=True)
+            self._work = None
+
+    def __del__(self):  # noqa: D105 - a dropped renderer ends its Blender
+        try:
+            self.close()
+        except Exception:  # noqa: BLE001 - interpreter shutdown
+            pass
+
+    # -- the passes ----------------------------------------------------------------
+    def render(self, requests: Sequence[RenderRequest], *, seed: int = DEFAULT_SEED) -> RenderOutput:
+        if not requests:
+            raise UsageError("cycles renderer needs at least one request")
+        from zcomp_cli.renderers.physical.lightmodel import ShadowKind
+
+        timings = {"estimate": 0.0, "build": 0.0, "blender": 0.0}
+        t0 = time.perf_counter()
+        model = self._physical.light(requests[0], seed)
+        timings["estimate"] = time.perf_counter() - t0
+        grown = None
+        reach = None
+        if model.source == "manifest" and model.shadows is ShadowKind.CAST:
+            # where a given light's shadow falls beyond the mask (the physical renderer's rule)
+            reach = np.zeros(np.shape(requests[0].known), bool)
+            for req in requests:
+                reach |= self._physical._shadow_reach(req, model)
+            unknown = np.zeros_like(reach)
+            for req in requests:
+                unknown |= ~np.asarray(req.known, bool)
+            if (reach & ~unknown).any():
+                grown = unknown | reach
+            else:
+                reach = None
+        images, passes = [], []
+        for req in requests:
+            im, info = self._render_one(req, model, seed, reach, timings)
+            images.append(im)
+            passes.append(info)
+        light = model.to_info()
+        info = {"light": light, "fallback": light["fallback"], "shadow": str(model.shadows),
+                "settings": self.settings(), "passes": passes}
+        return RenderOutput(images=images, info=info, timings=timings, shading_mask=grown)
+
+    def _render_one(self, req: RenderRequest, model, seed: int, reach, timings: dict):
+        from zcomp_cli.blender.intrinsics import blender_camera_from_K
+        from zcomp_cli.blender.passes import get_pass, read_multilayer_exr
+
+        H, W = req.camera.height, req.camera.width
+        albedo = np.clip(np.nan_to_num(np.asarray(req.maps.albedo, np.float64)), 0.0, 1.0)
+        shading = np.clip(np.nan_to_num(np.asarray(req.shading, np.float64), nan=0.0, posinf=0.0), 0.0, 1e6)
+        if albedo.shape != (H, W, 3) or shading.shape != (H, W, 3) or np.shape(req.known) != (H, W):
+            raise InputError(f"cycles renderer: maps of shape {albedo.shape}, shading {shading.shape}, "
+                             f"known {np.shape(req.known)}; expected {(H, W)}")
+        out = (albedo * shading).astype(np.float32)
+        todo = ~np.asarray(req.known, bool)
+        if reach is not None:
+            todo |= reach
+        if req.roi is not None:
+            x0, y0, x1, y1 = req.roi
+            inside = np.zeros((H, W), bool)
+            inside[y0:y1, x0:x1] = True
+            if reach is not None:
+                inside |= reach
+            todo &= inside
+        if not todo.any():
+            return out, {"rendered_pixels": 0}
+        ys, xs = np.nonzero(todo)
+        m = self._settings.margin_px
+        box = (max(0, int(xs.min()) - m), max(0, int(ys.min()) - m), min(W, int(xs.max()) + 1 + m),
+               min(H, int(ys.max()) + 1 + m))
+
+        t = time.perf_counter()
+        self._blender()
+        item, arrays = self._describe(req, model, seed, box)
+        arrays_path = self._work / f"{item['id']}.npz"
+        world_path = self._work / f"{item['id']}_world.exr"
+        from zcomp_cli.imageio import write_exr
+
+        write_exr(world_path, arrays.pop("world"))
+        item["world"]["image"] = str(world_path)
+        np.savez(arrays_path, **arrays)
+        item.update(arrays=str(arrays_path), out=str(self._work / f"{item['id']}.exr"),
+                    width=W, height=H, camera=blender_camera_from_K(req.camera.K, W, H))
+        timings["build"] += time.perf_counter() - t
+        t = time.perf_counter()
+        res = self._session.run([item])
+        timings["blender"] += time.perf_counter() - t
+        ev = res.results.get(item["id"], {})
+        try:
+            if ev.get("event") != "done":
+                raise RenderError(f"Cycles failed: {ev.get('error', 'no answer from Blender')}")
+            ch = read_multilayer_exr(item["out"])
+            rgb = np.nan_to_num(get_pass(ch, "Combined", "RGB"), nan=0.0, posinf=0.0, neginf=0.0)
+        finally:
+            for p in (arrays_path, world_path, Path(item["out"])):
+                p.unlink(missing_ok=True)
+        x0, y0, x1, y1 = box
+        if rgb.shape[:2] != (y1 - y0, x1 - x0):
+            raise RenderError(f"Cycles rendered a {rgb.shape[1]}x{rgb.shape[0]} window, expected "
+                              f"{x1 - x0}x{y1 - y0}")
+        rgb = np.maximum(rgb, 0.0)
+        scale = 1.0
+        win_known = ~todo[y0:y1, x0:x1] & (np.asarray(req.maps.depth)[y0:y1, x0:x1] > 0)
+        ref = luminance(out[y0:y1, x0:x1], REC601)[win_known]
+        got = luminance(rgb, REC601)[win_known]
+        ok = (got > 1e-6) & (ref > 1e-6)
+        ratio = float(np.median(ref[ok] / got[ok])) if ok.sum() >= 16 else float("nan")
+        if self._settings.exposure == "render" and np.isfinite(ratio):
+            scale = ratio
+        win = out[y0:y1, x0:x1]
+        sel = todo[y0:y1, x0:x1]
+        win[sel] = (scale * rgb[sel]).astype(np.float32)
+        first = res.startup_s[0] if res.startup_s else None
+        return out, {"rendered_pixels": int(sel.sum()), "window": list(box), "scale": scale,
+                     "photo_over_render": ratio, "blender_startup_s": first,
+                     "render_s": float(ev.get("render_s", float("nan"))),
+                     "object": item["object"] and ("file" if "mesh" in item["object"] else "maps")}
+
+    def _describe(self, req: RenderRequest, model, seed: int, box) -> tuple[dict, dict]:
+        """The Blender item and its arrays for one request (``scene``)."""
+        from zcomp_cli.lightparams import LightParams
+        from zcomp_cli.renderers.physical.depthmesh import build_depth_mesh
+        from zcomp_cli.renderers.physical.lightmodel import ShadowKind
+
+        s = self._settings
+        d = np.nan_to_num(np.asarray(req.maps.depth, np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+        n = np.nan_to_num(np.asarray(req.maps.normals, np.float64))
+        albedo = np.clip(np.nan_to_num(np.asarray(req.maps.albedo, np.float64)), 0.0, 1.0)
+        cover = None if req.coverage is None else np.asarray(req.coverage, np.float64) > 0
+        valid = (d > 0) & (np.abs(np.linalg.norm(n, axis=-1) - 1) < 0.2)
+        if cover is not None:
+            valid &= ~cover
+            d, n, albedo, valid = sc.fill_behind(d, n, albedo, valid, cover, req.camera, model.up)
+        # the scene mesh, cached by its content (a scene's background request is the same
+        # for every job)
+        h = hashlib.sha256()
+        for a in (d, n, albedo, valid, np.asarray(model.up, np.float64), np.float64(model.albedo_offset)):
+            h.update(np.ascontiguousarray(a).tobytes())
+        h.update(repr([w.to_info() for w in model.walls]).encode())
+        key = h.hexdigest()[:24]
+        arrays = self._meshes.get(key)
+        if arrays is None:
+            mesh = build_depth_mesh(d, n, req.camera, model.up, valid=valid, walls=model.walls)
+            diffuse = np.clip(albedo + float(model.albedo_offset), 0.0, 1.0)
+            arrays = sc.scene_mesh_arrays(mesh, diffuse, n_walls=len(model.walls))
+            self._meshes = {key: arrays}  # one scene at a time: memory flat in the scenes
+        arrays = dict(arrays)
+        params = getattr(req, "light", None) or LightParams.estimate()
+        probe = params.probe if model.probe is not None else None
+        if probe is not None:
+            exposure = float(model.fit.exposure) if np.isfinite(model.fit.exposure) else 1.0
+            world, rows = sc.probe_image(probe, model.up, exposure * float(probe.strength), s.probe_width)
+        else:
+            world, rows = sc.sky_image(model.sky, s.sky_width)
+        arrays["world"] = world
+        lamps = sc.lamps_of(model, skip_probe_sources=probe is not None)
+        for lp in lamps:
+            lp["shadow"] = model.shadows is ShadowKind.CAST
+        obj = None
+        occ = req.occluder
+        if occ is not None and getattr(occ, "source", None) and getattr(occ, "source_to_camera", None) is not None:
+            from zcomp_cli.blender.meshes import mesh_format
+
+            obj = {"mesh": str(occ.source), "format": mesh_format(occ.source),
+                   "matrix": np.asarray(occ.source_to_camera, np.float64).tolist()}
+        elif occ is not None and cover is not None and cover.any():
+            def mean_of(a, default):
+                a = None if a is None else np.asarray(a, np.float64)
+                return default if a is None or a.shape[:2] != cover.shape else np.nan_to_num(a[cover]).mean(0)
+
+            obj = {"arrays": True, "color": np.clip(albedo[cover].mean(0), 0, 1).tolist(),
+                   "roughness": float(np.clip(mean_of(getattr(req.maps, "roughness", None), 0.5), 0, 1)),
+                   "metallic": float(np.clip(mean_of(getattr(req.maps, "metallic", None), 0.0), 0, 1))}
+            arrays["object_vertices"] = np.asarray(occ.vertices, np.float32)
+            arrays["object_faces"] = np.asarray(occ.faces, np.int32)
+        item = {"id": hashlib.sha256(f"{key}-{seed}-{time.monotonic_ns()}".encode()).hexdigest()[:16],
+                "mesh_key": key, "border": list(box), "samples": s.samples, "seed": int(seed) % (2 ** 31),
+                "denoise": s.denoise, "max_bounces": s.max_bounces, "threads": s.threads,
+                "world": {"rows": np.asarray(rows, np.float64).tolist()}, "lamps": lamps, "object": obj}
+        return item, arrays
+
+
+__all__ = ["CyclesRenderer"]

@@ -1,0 +1,186 @@
+"""What the ``cycles`` renderer hands Blender: pure functions from a request and its light
+to meshes, a world and lamps, all in the camera frame (Blender's world frame: the camera
+sits at the origin with identity rotation, ``_bpy_common.add_camera``).
+
+Units: the light model (``physical.lightmodel``) is in zcomp's shading units, the
+photograph's exposure folded in (a uniform sky of radiance L shades a white surface
+with L). Blender's are the same for a world; a sun of strength E (W/m^2) gives ``E / pi``
+and a point lamp of power P (W) ``P / (4 pi^2 r^2)`` (``physical.lightfit``, checked
+against Cycles in its tests), so a light model converts to Cycles with no exposure of
+its own: the background it renders is the photograph where the model explains it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from zcomp_cli import equirect
+from zcomp_cli.worldframe import ground_frame
+
+# Blender's units in zcomp's shading (physical: ``physical.lightfit``, inverted).
+SUN_WATTS_PER_SHADING = math.pi            # a sun's strength (W/m^2) per unit of shading
+LAMP_WATTS_PER_SHADING = 4.0 * math.pi ** 2  # a point lamp's power (W) per shading at 1 m
+
+
+def world_rows(frame, convention: str = equirect.DEFAULT_CONVENTION, rotation_deg: float = 0.0) -> np.ndarray:
+    """(3, 3) rows R such that Blender's equirectangular lookup of ``R @ d`` (Cycles':
+    ``u = 0.5 - atan2(y, x) / 2 pi``, ``v = 0.5 + asin(z) / pi`` from the bottom row) reads
+    the pixel that ``equirect.direction_to_uv(d, frame, convention, rotation_deg)`` names
+    (rows from the top), for every camera-frame direction d.
+
+    Derivation: a probe's column looks at longitude ``lon`` (from forward toward right);
+    Blender's column at azimuth ``phi`` (from +x toward +y); ``phi = rot - lon`` (``rot``
+    the convention's yaw, ``equirect.longitude``), or ``lon - rot`` for a mirrored probe.
+    """
+    equirect._check(convention)
+    right, up, fwd = (np.asarray(r, np.float64) for r in np.asarray(frame, np.float64))
+    rot = math.radians(float(rotation_deg))
+    if convention == "blender":
+        rot += math.pi / 2
+    c, s = math.cos(rot), math.sin(rot)
+    first = c * fwd + s * right
+    second = (c * right - s * fwd) if convention == "mirrored" else (s * fwd - c * right)
+    return np.stack([first, second, up])
+
+
+def blender_uv(directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(u, v) Cycles' equirectangular lookup gives world directions (..., 3), v from the
+    top row (as zcomp's maps) -- for tests of ``world_rows``."""
+    d = np.asarray(directions, np.float64)
+    d = d / np.linalg.norm(d, axis=-1, keepdims=True)
+    u = (0.5 - np.arctan2(d[..., 1], d[..., 0]) / (2 * math.pi)) % 1.0
+    v_bottom = 0.5 + np.arcsin(np.clip(d[..., 2], -1, 1)) / math.pi
+    return u, 1.0 - v_bottom
+
+
+def sky_image(sky, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """The fitted sky as a world: (width/2, width, 3) float32 radiance in zcomp's
+    convention (rotation 0) and its ``world_rows``. Above the horizon the sky's SH
+    radiance (clamped at 0: order 2 rings behind a bright region), below it the
+    support's radiance (``Sky.ground``): what an object sees past the mesh's edge."""
+    from zcomp_cli.renderers.physical import sh
+
+    frame = ground_frame(sky.up)
+    h, w = max(1, int(width) // 2), int(width)
+    dirs = equirect.pixel_directions(h, w, frame)
+    L = np.maximum(sh.evaluate(np.asarray(sky.radiance_sh, np.float64), dirs.reshape(-1, 3)), 0.0)
+    below = (dirs.reshape(-1, 3) @ np.asarray(sky.up, np.float64)) < 0
+    L[below] = np.asarray(sky.ground, np.float64)[None]
+    return L.reshape(h, w, 3).astype(np.float32), world_rows(frame)
+
+
+def probe_image(probe_params, up, scale: float, max_width: int) -> tuple[np.ndarray, np.ndarray]:
+    """The manifest's probe as a world: its radiance (read as the physical renderer reads
+    it: non-finite and negative values 0, at most ``max_width`` wide) times ``scale``
+    (its strength times the fitted exposure), and the ``world_rows`` of its convention
+    and yaw."""
+    from zcomp_cli.renderers.physical.probe import read_probe
+    from zcomp_cli.renderers.physical.settings import ProbeConfig
+
+    img = read_probe(probe_params.hdr, ProbeConfig(max_width=int(max_width)))
+    frame = ground_frame(up)
+    return ((img * float(scale)).astype(np.float32),
+            world_rows(frame, probe_params.convention, probe_params.rotation_deg))
+
+
+def _colour(rgb) -> tuple[float, list[float]]:
+    """(strength, colour with max 1) of an RGB quantity."""
+    rgb = np.maximum(np.nan_to_num(np.asarray(rgb, np.float64)), 0.0)
+    top = float(rgb.max())
+    return top, ((rgb / top).tolist() if top > 0 else [1.0, 1.0, 1.0])
+
+
+def lamps_of(model, *, skip_probe_sources: bool) -> list[dict]:
+    """Blender lamps of a ``LightModel``'s suns and lamps (``scene`` module docstring's
+    units). ``skip_probe_sources``: leave out the suns measured on the probe (the probe,
+    given as the world, holds them)."""
+    from zcomp_cli.lightparams import Origin
+
+    out = []
+    for s in model.suns:
+        if skip_probe_sources and s.direction_from is Origin.PROBE:
+            continue
+        e, col = _colour(s.irradiance)
+        if e <= 0:
+            continue
+        out.append({"kind": "SUN", "direction": (-np.asarray(s.direction)).tolist(),
+                    "energy": SUN_WATTS_PER_SHADING * e, "color": col,
+                    "angle_rad": 2.0 * math.radians(float(s.radius_deg))})
+    for lp in model.lamps:
+        e, col = _colour(lp.intensity)
+        if e <= 0:
+            continue
+        d = {"position": np.asarray(lp.position).tolist(), "energy": LAMP_WATTS_PER_SHADING * e, "color": col}
+        if lp.facing is None:
+            d.update(kind="POINT", direction=[0.0, -1.0, 0.0], radius=float(lp.radius_m))
+        else:  # a one-sided panel of the same power (``Lamp``): Blender's area lamp
+            d.update(kind="AREA", direction=np.asarray(lp.facing).tolist(), size=2.0 * float(lp.radius_m))
+        out.append(d)
+    return out
+
+
+def fill_behind(depth, normals, albedo, valid, hidden, camera, up):
+    """The background behind the inserted object, which the composite request's maps do
+    not hold: each ``hidden`` pixel (H, W) bool gets the support plane where its ray meets
+    it (normal ``up``) and the albedo of the nearest ``valid`` pixel. Without it the
+    floor's mesh has a hole there, and a silhouette pixel the object only partly covers
+    sees the world below the horizon through it (a dark rim). A ray that does not meet the
+    plane in front of the camera stays a hole.
+
+    Returns (depth, normals, albedo, valid) with the hidden pixels filled.
+    """
+    from scipy import ndimage
+
+    from zcomp_cli.renderers.physical.depthmesh import support_mask
+
+    d = np.array(depth, np.float64)
+    n = np.array(normals, np.float64)
+    a = np.array(albedo, np.float64)
+    ok = np.array(valid, bool)
+    hidden = np.asarray(hidden, bool) & ~ok
+    if not hidden.any() or not ok.any():
+        return d, n, a, ok
+    up = np.asarray(up, np.float64)
+    P = camera.unproject(d.astype(np.float32)).astype(np.float64)
+    _, h0 = support_mask(P, n, ok, up)
+    if not math.isfinite(h0):
+        return d, n, a, ok
+    ys, xs = np.nonzero(hidden)
+    rays = camera.ray(xs + 0.5, ys + 0.5).astype(np.float64)  # z = -1: t is the z-depth
+    denom = rays @ up
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(np.abs(denom) > 1e-9, h0 / denom, -1.0)
+    hit = t > 0
+    _, (iy, ix) = ndimage.distance_transform_edt(~ok, return_indices=True)
+    d[ys[hit], xs[hit]] = t[hit]
+    n[ys[hit], xs[hit]] = up
+    a[ys[hit], xs[hit]] = a[iy[ys[hit], xs[hit]], ix[ys[hit], xs[hit]]]
+    ok[ys[hit], xs[hit]] = True
+    return d, n, a, ok
+
+
+def scene_mesh_arrays(mesh, albedo: np.ndarray, n_walls: int = 0) -> dict[str, np.ndarray]:
+    """The depth mesh (``physical.depthmesh.DepthMesh``) as Blender gets it: the vertices
+    its faces use, the faces renumbered, a diffuse colour per vertex -- its pixel's
+    ``albedo`` (H, W, 3) (an extruded back vertex its front pixel's), the walls beyond
+    the frame (``n_walls`` quads, last) the mean albedo."""
+    h, w = mesh.shape
+    n_px = h * w
+    A = np.clip(np.nan_to_num(np.asarray(albedo, np.float64)), 0.0, 1.0).reshape(-1, 3)
+    V = np.asarray(mesh.vertices, np.float64)
+    idx = np.arange(len(V))
+    mean = A[mesh.valid.ravel()].mean(0) if mesh.valid.any() else np.full(3, 0.5)
+    per_pixel = idx < len(V) - 4 * int(n_walls)
+    colors = np.where(per_pixel[:, None], A[idx % n_px], mean[None])
+    F = np.asarray(mesh.faces, np.int64)
+    used = np.unique(F) if len(F) else np.zeros(0, np.int64)
+    remap = np.full(len(V), -1, np.int64)
+    remap[used] = np.arange(len(used))
+    return {"vertices": V[used].astype(np.float32), "faces": remap[F].astype(np.int32),
+            "colors": colors[used].astype(np.float32)}
+
+
+__all__ = ["world_rows", "fill_behind", "blender_uv", "sky_image", "probe_image", "lamps_of", "scene_mesh_arrays",
+           "SUN_WATTS_PER_SHADING", "LAMP_WATTS_PER_SHADING"]
