@@ -58,6 +58,9 @@ class BenchmarkSettings:
         frame_fraction: range of the object's height as a fraction of the image height.
         exposure_key: the background's 90th-percentile luminance is exposed to this.
         threads: Cycles threads (0 = all cores).
+        lights: ``mixed`` (an HDR map, with probability 0.6 a sun or 0.25 an area lamp,
+            ``scenes.sample_scene``) or ``probe`` (the same scenes lit by their HDR map
+            alone: the lamps drawn and dropped, so every other draw is the same).
     """
 
     n: int = 10
@@ -71,6 +74,7 @@ class BenchmarkSettings:
     frame_fraction: tuple[float, float] = (0.15, 0.35)
     exposure_key: float = 0.5
     threads: int = 0
+    lights: str = "mixed"
 
     def __post_init__(self):
         if int(self.n) < 1:
@@ -80,6 +84,8 @@ class BenchmarkSettings:
             raise UsageError(f"--resolution must be within 16..8192 pixels, got {w} x {h}")
         if int(self.samples) < 1:
             raise UsageError(f"--samples must be at least 1, got {self.samples}")
+        if self.lights not in ("mixed", "probe"):
+            raise UsageError(f"--lights must be mixed or probe, got {self.lights!r}")
         if not self.shapes and not self.object_paths:
             raise UsageError("no objects: give --objects or keep the procedural shapes")
         lo, hi = self.frame_fraction
@@ -193,6 +199,10 @@ def plan_benchmark(settings: BenchmarkSettings, out_dir) -> list[CasePlan]:
         rng = np.random.default_rng(case_seed)
         cid = f"case_{i:04d}"
         scene = sample_scene(rng, W, H)
+        if settings.lights == "probe":
+            import dataclasses
+
+            scene = dataclasses.replace(scene, lamps=())
         k = int(rng.integers(n_choices))
         if k < len(settings.shapes):
             recipe = sample_recipe(rng, shapes=(settings.shapes[k],))
@@ -325,7 +335,8 @@ def generate_benchmark(out_dir, settings: BenchmarkSettings, *, overwrite: bool 
         "version": BENCHMARK_VERSION, "generator": "zcomp make-benchmark",
         "settings": {"n": settings.n, "seed": settings.seed, "resolution": list(settings.resolution),
                      "samples": settings.samples, "denoise": settings.denoise,
-                     "max_bounces": settings.max_bounces, "object_paths": list(settings.object_paths)},
+                     "max_bounces": settings.max_bounces, "object_paths": list(settings.object_paths),
+                     "lights": settings.lights},
         "cases": cases})
     return BenchmarkResult(out_dir=out_dir, jobs_yaml=jobs_yaml, benchmark_json=bench_json, cases=cases)
 

@@ -25,10 +25,14 @@ import click
 @click.option("--objects", "objects", multiple=True, type=click.Path(exists=True, dir_okay=False),
               help="A mesh (GLB/glTF/OBJ/PLY/STL, metres, Y-up) added to the procedural shapes; repeatable.")
 @click.option("--no-procedural", is_flag=True, help="Use only the meshes given with --objects.")
+@click.option("--lights", type=click.Choice(["mixed", "probe"]), default="mixed", show_default=True,
+              help="mixed: an HDR map with a sun or an area lamp or neither; probe: the same scenes lit by "
+                   "their HDR map alone.")
 @click.option("--threads", type=int, default=0, show_default=True, help="Cycles CPU threads (0 = all).")
 @click.option("--overwrite", is_flag=True, help="Replace a benchmark already in OUT.")
 @click.pass_context
-def make_benchmark(ctx, out, n, seed, resolution, samples, denoise, objects, no_procedural, threads, overwrite):
+def make_benchmark(ctx, out, n, seed, resolution, samples, denoise, objects, no_procedural, lights, threads,
+                   overwrite):
     """Build a benchmark in OUT with physically rendered ground truth."""
     from zcomp_cli.benchsuite.generate import BenchmarkSettings, generate_benchmark
     from zcomp_cli.benchsuite.objects import SHAPES
@@ -36,7 +40,7 @@ def make_benchmark(ctx, out, n, seed, resolution, samples, denoise, objects, no_
 
     settings = BenchmarkSettings(n=n, seed=seed, resolution=tuple(resolution), samples=samples,
                                  denoise=denoise, object_paths=tuple(objects),
-                                 shapes=() if no_procedural else SHAPES, threads=threads)
+                                 shapes=() if no_procedural else SHAPES, threads=threads, lights=lights)
     quiet = bool((ctx.obj or {}).get("quiet"))
     with StageProgress(disable=quiet) as prog:
         result = generate_benchmark(out, settings, overwrite=overwrite,
