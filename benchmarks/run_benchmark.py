@@ -60,7 +60,10 @@ the error of the part added between them:
   power (suns with their irradiance and size), and the camera's pitch; only the
   exposure is fitted. This row is the transport's own limit.
 
-``--true-direction`` is ``--oracle direction``.
+``--true-direction`` is ``--oracle direction``. ``--oracle-renderers physical,cycles``
+adds each level's row for each renderer (``cycles-oracle-full``: the path tracer on the
+depth map's mesh under the full oracle; beside ``physical-oracle-full``, their gap is the
+hand-written transport's error, and what ``cycles`` still misses the 2.5-D geometry's).
 Besides the paper's metrics each row has PSNR near the object and on the object's own
 pixels (``psnr_object``: what a viewer looks at first).
 """
@@ -432,6 +435,8 @@ def main(argv=None) -> int:
     ap.add_argument("--true-direction", action="store_true", help="the same as --oracle direction")
     ap.add_argument("--oracle", default="", metavar="LEVELS",
                     help="comma-separated oracle levels to add as rows: direction, size, full (module docstring)")
+    ap.add_argument("--oracle-renderers", default="physical", metavar="NAMES",
+                    help="the renderers the oracle rows run (comma-separated; default physical)")
     args = ap.parse_args(argv)
 
     out = Path(args.out)
@@ -455,7 +460,8 @@ def main(argv=None) -> int:
     for lv in levels:
         if lv not in ORACLE_LEVELS:
             ap.error(f"unknown oracle level {lv!r} (known: {', '.join(ORACLE_LEVELS)})")
-        runs.append((f"physical-oracle-{lv}", "physical", None))
+        for rname in [x.strip() for x in args.oracle_renderers.split(",") if x.strip()]:
+            runs.append((f"{rname}-oracle-{lv}", rname, None))
     rows, case_rows, scored = [], [], []
     truths = case_truths(out)
     for name, method, src in runs:
@@ -465,8 +471,7 @@ def main(argv=None) -> int:
 
             # a fresh folder: a failed job must not leave an older run's composite to score
             shutil.rmtree(res_dir, ignore_errors=True)
-            jf = (write_oracle_jobs(out, name[len("physical-oracle-"):]) if name.startswith("physical-oracle-")
-                  else jobs)
+            jf = (write_oracle_jobs(out, name.split("-oracle-", 1)[1]) if "-oracle-" in name else jobs)
             r = zcomp("composite", str(jf), "--out", str(res_dir), "--renderer", method, "--overwrite", src=src)
             if r.returncode not in (0, 1):
                 print(r.stdout, r.stderr, file=sys.stderr)
@@ -556,7 +561,55 @@ def main(argv=None) -> int:
         w = csv.DictWriter(f, fieldnames=keys, extrasaction="ignore")
         w.writeheader()
         w.writerows(case_rows)
+    groups = group_table(out, scored, case_rows)
+    print("\nBy the scene's lights (PSNR near the object / on the object, shadow IoU, darkness error):\n" + groups)
+    (out / "groups.md").write_text(groups + "\n")
     return 0
+
+
+def scene_group(case: dict) -> str:
+    """A case's group by the lights its scene holds besides the HDR map: ``sun``,
+    ``area lamp`` or ``probe only``."""
+    kinds = {str(lp.get("kind", "")).upper() for lp in case["scene"].get("lamps", [])}
+    return "sun" if "SUN" in kinds else "area lamp" if "AREA" in kinds else "probe only"
+
+
+def group_table(out: Path, scored: list, case_rows: list[dict]) -> str:
+    """A markdown table: per method and group (``scene_group``) the means of PSNR near the
+    object, PSNR on the object, shadow IoU and darkness error over the group's cases."""
+    import math
+
+    bench = json.loads((out / "benchmark.json").read_text())
+    group = {c["id"]: scene_group(c) for c in bench["cases"]}
+    names = sorted(set(group.values()), key=["sun", "area lamp", "probe only"].index)
+    by_case = {(r["method"], r["case"]): r for r in case_rows}
+
+    def mean(xs):
+        xs = [float(x) for x in xs if x is not None and math.isfinite(float(x))]
+        return statistics.mean(xs) if xs else math.nan
+
+    lines = ["| method | " + " | ".join(f"{g} ({sum(v == g for v in group.values())})" for g in names) + " |",
+             "|---|" + "---|" * len(names)]
+    for name, res_dir in scored:
+        try:
+            images = json.loads((res_dir / "eval.json").read_text()).get("images", [])
+        except (OSError, ValueError):
+            images = []
+        per = {}
+        for im in images:
+            cid = next((c for c in group if c in str(im.get("name", ""))), None)
+            if cid is not None:
+                per[cid] = im
+        cells = []
+        for g in names:
+            cs = [c for c in group if group[c] == g]
+            near = mean(by_case.get((name, c), {}).get("psnr_near") for c in cs)
+            obj = mean(by_case.get((name, c), {}).get("psnr_object") for c in cs)
+            iou = mean(per.get(c, {}).get("shadow-iou") for c in cs)
+            dark = mean(per.get(c, {}).get("shadow-darkness") for c in cs)
+            cells.append(f"{near:.2f} / {obj:.2f} / {iou:.3f} / {dark:.3f}")
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

@@ -507,3 +507,12 @@ def test_cli_usage_errors(tmp_path):
         main(["make-benchmark", str(tmp_path / "b"), "--n", "1"])
     assert e.value.code == 2
     assert (tmp_path / "b" / "jobs.yaml").read_text() == "version: 1\n"
+
+
+def test_lights_setting_is_checked():
+    from zcomp_cli.benchsuite.generate import BenchmarkSettings
+    from zcomp_cli.errors import UsageError
+
+    assert BenchmarkSettings(lights="probe").lights == "probe"
+    with pytest.raises(UsageError, match="--lights must be mixed or probe"):
+        BenchmarkSettings(lights="suns")

@@ -235,3 +235,52 @@ def test_a_dead_blender_fails_no_later_job_and_bad_input_fails_its_own():
         np.testing.assert_array_equal(ok[1], first[1])
     finally:
         r.close()
+
+
+@pytest.mark.blender
+def test_aovs_bring_cycles_light_passes_that_add_up_to_its_render():
+    """With --aovs each pass's Cycles light passes come back as layers; without the
+    denoiser they recombine into the render: (diffuse direct + indirect) x diffuse colour
+    + (glossy direct + indirect) x glossy colour + emission + environment."""
+    import dataclasses
+
+    from zcomp_cli.renderers import get_renderer
+
+    reqs, sel = _job(None)
+    reqs = [dataclasses.replace(r, aovs=True) for r in reqs]
+    r = get_renderer("cycles", samples=4, denoise=False)
+    try:
+        out = r.render(reqs, seed=4)
+    finally:
+        r.close()
+    L = out.aov_layers
+    for tag in ("bg", "comp"):
+        assert {f"cycles_{tag}_{p}" for p in ("diffuse_direct", "diffuse_indirect", "diffuse_color",
+                                              "glossy_direct", "glossy_indirect", "glossy_color")} <= set(L)
+
+    def g(name):
+        return L.get(f"cycles_comp_{name}", np.zeros((H, W, 3), np.float32)).astype(np.float64)
+
+    total = ((g("diffuse_direct") + g("diffuse_indirect")) * g("diffuse_color")
+             + (g("glossy_direct") + g("glossy_indirect")) * g("glossy_color") + g("emission") + g("environment"))
+    rendered = ~np.asarray(reqs[1].known)
+    np.testing.assert_allclose(total[rendered], out.images[1][rendered], rtol=2e-3, atol=2e-4)
+    # without --aovs: none
+    r2 = get_renderer("cycles", samples=2, denoise=False)
+    try:
+        assert r2.render(_job(None)[0], seed=4).aov_layers == {}
+    finally:
+        r2.close()
+
+
+def test_a_renderers_aov_layers_are_checked():
+    from zcomp_cli.errors import RenderError
+    from zcomp_cli.pipeline.job import check_aov_layers
+
+    ok = check_aov_layers({"cycles_x": np.ones((4, 5)), "y3": np.zeros((4, 5, 3))}, (4, 5), "r", {"composite"})
+    assert ok["cycles_x"].shape == (4, 5, 1) and ok["y3"].dtype == np.float32
+    for bad, words in [({"composite": np.ones((4, 5))}, "named 'composite'"), ({"A b": np.ones((4, 5))}, "named"),
+                       ({"x": np.ones((4, 6))}, "of shape"), ({"x": np.ones((4, 5, 2))}, "of shape"),
+                       ({"x": np.full((4, 5), np.nan)}, "non-finite")]:
+        with pytest.raises(RenderError, match=words):
+            check_aov_layers(bad, (4, 5), "r", {"composite"})

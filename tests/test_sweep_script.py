@@ -306,3 +306,13 @@ def test_values_override_the_table(sweep):
     for bad in (["bogus=1"], ["march_steps"], ["march_steps=a"], ["march_steps="]):
         with pytest.raises(ValueError):
             sweep.parse_values(bad)
+
+
+def test_cycles_sweep_plans_samples_with_and_without_the_denoiser():
+    from zcomp_cli.benchsuite.sweep import plan_configs
+
+    configs = plan_configs((64, 48), quick=True, knobs=("cycles",))
+    assert [c.renderer for c in configs] == ["cycles"] * 4
+    assert {(c.settings["samples"], c.settings["denoise"]) for c in configs} == {(8, True), (32, True), (8, False),
+                                                                                 (32, False)}
+    assert [c.key for c in configs if c.default] == ["cycles_samples_denoised32"]

@@ -29,7 +29,13 @@ Knobs:
   ``march_steps``, ``n_light_candidates``, ``max_resolution`` (of the light estimation);
 * zerocomp: DDIM ``steps`` at full frame and with ``crop``, only when ZCOMP_CONTROLNET
   and ZCOMP_SD_BASE name existing folders (otherwise the skip and its reason are printed);
+* cycles: path ``samples`` with Open Image Denoise (``samples_denoised``) and without
+  (``samples_raw``);
 * naive paste: one reference point.
+
+``--jobs-file jobs_oracle_full.yaml`` sweeps the benchmark under another manifest of the
+same folder (the full oracle's light, ``benchmarks/run_benchmark.py --oracle full``
+writes it).
 
 Outputs: ``OUT/sweep.csv`` (renderer, knob, value, psnr, flip, median_s_per_job, n_jobs,
 n_failed, then default, per-image medians of PSNR and FLIP, renderer timing sums, the
@@ -76,7 +82,10 @@ PHYSICAL_KNOBS_QUICK = {
 }
 ZEROCOMP_STEPS_FULL = [1, 2, 4, 8, 20]
 ZEROCOMP_STEPS_QUICK = [1, 4]
-ALL_KNOBS = (*PHYSICAL_KNOBS_FULL, "zerocomp", "naive")
+# Cycles' path samples, with Open Image Denoise (its default) and without.
+CYCLES_SAMPLES_FULL = [4, 16, 32, 128]
+CYCLES_SAMPLES_QUICK = [8, 32]
+ALL_KNOBS = (*PHYSICAL_KNOBS_FULL, "zerocomp", "naive", "cycles")
 
 
 # ----------------------------------------------------------------------------- configurations
@@ -204,6 +213,12 @@ def plan_configs(native: tuple[int, int], *, quick: bool = False, knobs=ALL_KNOB
                 configs.append(Config(f"zerocomp_{knob}{steps}", "zerocomp",
                                       settings={**zerocomp, "steps": steps, "crop": crop},
                                       series=[(knob, str(steps))], default=(steps == 20 and not crop)))
+    if "cycles" in knobs:
+        for denoise in (True, False):
+            knob = "samples_denoised" if denoise else "samples_raw"
+            for n in (CYCLES_SAMPLES_QUICK if quick else CYCLES_SAMPLES_FULL):
+                configs.append(Config(f"cycles_{knob}{n}", "cycles", settings={"samples": n, "denoise": denoise},
+                                      series=[(knob, str(n))], default=(denoise and n == 32)))
     return configs
 
 
@@ -573,9 +588,12 @@ def main(argv=None) -> int:
                     help="reuse configurations already in OUT/rows/ (same settings, jobs and code)")
     ap.add_argument("--live-source", action="store_true",
                     help="run the working tree's zcomp_cli instead of a snapshot in OUT/code (see snapshot_source)")
+    ap.add_argument("--jobs-file", default="jobs.yaml",
+                    help="the manifest in BENCH_DIR to sweep (default jobs.yaml; jobs_oracle_full.yaml: the full "
+                         "oracle's light)")
     args = ap.parse_args(argv)
 
-    bench_jobs = args.bench_dir / "jobs.yaml"
+    bench_jobs = args.bench_dir / args.jobs_file
     if not bench_jobs.is_file():
         print(f"error: {bench_jobs} not found (make one with `zcomp make-benchmark`)", file=sys.stderr)
         return 2
@@ -628,7 +646,8 @@ def main(argv=None) -> int:
               f"(composite {result['composite_wall_s']:.1f} s wall, "
               f"{result.get('composite_cpu_s', float('nan')):.1f} s CPU)", flush=True)
         rows.extend(rows_of(result))
-    order = {k: i for i, k in enumerate(["baseline", *PHYSICAL_KNOBS_FULL, "steps_full", "steps_crop"])}
+    order = {k: i for i, k in enumerate(["baseline", *PHYSICAL_KNOBS_FULL, "steps_full", "steps_crop",
+                                         "samples_denoised", "samples_raw"])}
     rows.sort(key=lambda r: (r["renderer"] != "naive", r["renderer"], order.get(r["knob"], 99),
                              _value_number(r["value"])))
     write_csv(rows, out / "sweep.csv")

@@ -12,6 +12,9 @@ One multi-layer EXR per job (``--aovs``: ``OUT/<job>/aovs.exr``), channels named
 | ``render_bg`` | R G B | f(i_bg), the renderer's background pass |
 | ``render_comp`` | R G B | f(i_comp), the renderer's composite pass |
 
+A renderer may add passes of its own after these (``RenderOutput.aov_layers``; the
+``cycles`` renderer's ``cycles_*`` layers: Cycles' light passes of the composite pass).
+
 They recombine into the composite (equation 5, DESIGN.md section 2):
 
     composite = (1 - object.A) * shadow.Y * background + object.RGB
@@ -41,9 +44,10 @@ def aov_layers(x_bg, f_bg, f_comp, ratio_blurred, obj_mask, balance, composite) 
 
 
 def channel_names(layers: dict) -> tuple[np.ndarray, list[str]]:
-    """The layers as one (H, W, C) array and its ``<layer>.<channel>`` names."""
+    """The layers as one (H, W, C) array and its ``<layer>.<channel>`` names: the table's
+    layers, then a renderer's own (``RenderOutput.aov_layers``) in their order."""
     names, planes = [], []
-    for name in LAYERS:
+    for name in [*LAYERS, *(k for k in layers if k not in LAYERS)]:
         a = layers[name]
         chans = {1: ("Y",), 3: ("R", "G", "B"), 4: ("R", "G", "B", "A")}[a.shape[-1]]
         names += [f"{name}.{c}" for c in chans]

@@ -132,7 +132,7 @@ def prepare_chunk(ctx: BatchContext, chunk: list[JobWork]):
             t_load = time.perf_counter() - t0
             bundle = load_object_bundle(ctx, w, scene)
             prep = prepare_job(scene, bundle, shading_radius=w.job.shading_radius, seed=w.job.seed,
-                               debug=ctx.debug)
+                               debug=ctx.debug, aovs=ctx.aovs)
             prep.timings = {"scene_load_s": t_load, **prep.timings}
             prepared.append((w, scene, prep))
         except Exception as exc:  # noqa: BLE001 - reported per job

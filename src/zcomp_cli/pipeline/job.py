@@ -89,6 +89,7 @@ def prepare_job(
     shading_radius: float = 1.0,
     seed: int = DEFAULT_SEED,
     debug: bool = False,
+    aovs: bool = False,
 ) -> PreparedJob:
     """Steps 1-4 of one job. Raises ZcompError subclasses for per-job failures."""
     timings: dict[str, float] = {}
@@ -137,7 +138,7 @@ def prepare_job(
     timings["shading_s"] = time.perf_counter() - t
 
     common = dict(shading=shading, known=known, camera=cam, roi=roi, image=scene.image, scene_key=scene.key,
-                  light=getattr(scene, "light", None), debug=debug)
+                  light=getattr(scene, "light", None), debug=debug, aovs=aovs)
     # the object's occluder (its shadow, the sky it hides, its self-shadowing): the posed
     # mesh when the bundle references one; else, for a bundle of maps, its visible
     # surface extruded backwards to its footprint's far edge (``maps_occluder``); 2D image
@@ -234,7 +235,32 @@ def finish_job(prep: PreparedJob, out: RenderOutput, renderer_name: str, rendere
 
         layers = aov_layers(prep.scene.image, f_bg, f_comp, res.ratio_blurred, prep.object_mask, res.balance,
                             res.image)
+        layers.update(check_aov_layers(out.aov_layers, (H, W), renderer_name, set(layers)))
     return JobOutput(res.image, report, dbg, layers, rdbg)
+
+
+def check_aov_layers(layers, shape: tuple[int, int], renderer_name: str, taken: set) -> dict[str, np.ndarray]:
+    """A renderer's own render passes (``RenderOutput.aov_layers``) checked for
+    ``aovs.exr``: each name lower-case letters, digits and ``_`` and none of ``taken``
+    (the pipeline's layers), each (H, W) or (H, W, C) with C 1, 3 or 4 at ``shape``, finite.
+    Returns them as float32 (H, W, C). Raises ``RenderError`` naming the layer."""
+    import re
+
+    out = {}
+    for name, a in (layers or {}).items():
+        if not isinstance(name, str) or not re.fullmatch(r"[a-z0-9_]{1,64}", name) or name in taken:
+            raise RenderError(f"renderer {renderer_name} returned an AOV layer named {name!r}: a layer is lower-case "
+                              f"letters, digits and '_', none of {', '.join(sorted(taken))}")
+        arr = np.asarray(a, np.float32)
+        if arr.ndim == 2:
+            arr = arr[..., None]
+        if arr.ndim != 3 or arr.shape[:2] != tuple(shape) or arr.shape[2] not in (1, 3, 4):
+            raise RenderError(f"renderer {renderer_name} returned AOV layer {name!r} of shape {np.shape(a)}, "
+                              f"expected {tuple(shape)} with 1, 3 or 4 channels")
+        if not np.all(np.isfinite(arr)):
+            raise RenderError(f"renderer {renderer_name} returned non-finite values in AOV layer {name!r}")
+        out[name] = np.ascontiguousarray(arr)
+    return out
 
 
 def check_debug_maps(maps, shape: tuple[int, int], renderer_name: str) -> dict[str, np.ndarray]:
@@ -285,7 +311,7 @@ def run_job(
 ) -> JobOutput:
     """Composite one object bundle into one scene (steps 1-6). Raises ZcompError
     subclasses for per-job failures (the batch records them and goes on)."""
-    prep = prepare_job(scene, bundle, shading_radius=shading_radius, seed=seed, debug=debug)
+    prep = prepare_job(scene, bundle, shading_radius=shading_radius, seed=seed, debug=debug, aovs=aovs)
     # 5. Renderer: background and composite in one call, same mask, same seed.
     t = time.perf_counter()
     out = renderer.render(prep.requests, seed=seed)

@@ -45,6 +45,8 @@ class RenderRequest:
             (roughness, metallic) applies.
         debug: the job runs with ``--debug``: the renderer may return debug maps
             (``RenderOutput.debug_maps``); without it, it need not make any.
+        aovs: the job runs with ``--aovs``: the renderer may return its own render passes
+            (``RenderOutput.aov_layers``); without it, it need not make any.
     """
 
     maps: SceneMaps
@@ -58,6 +60,7 @@ class RenderRequest:
     occluder: object | None = None
     coverage: np.ndarray | None = None
     debug: bool = False
+    aovs: bool = False
 
 
 @dataclass
@@ -86,6 +89,7 @@ class RenderOutput:
     timings: dict = field(default_factory=dict)
     shading_mask: np.ndarray | None = None
     debug_maps: dict[str, np.ndarray] = field(default_factory=dict)
+    aov_layers: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 class Renderer(ABC):

@@ -11,7 +11,8 @@ Item::
      "mesh_key": str (the scene mesh's content key: a process keeps the last one built),
      "width", "height", "camera": {lens_mm, sensor_width_mm, shift_x, shift_y},
      "border": [x0, y0, x1, y1] (pixels, rows from the top, half-open) -- the window rendered,
-     "samples", "seed", "denoise", "max_bounces", "threads",
+     "samples", "seed", "denoise", "max_bounces", "threads", "light_passes": bool (also
+     Cycles' diffuse, glossy, emission and environment passes),
      "world": {"image": path of an EXR, "rows": 3x3} -- the env map, looked up at
               ``rows @ d`` for a camera-frame direction d in Blender's equirectangular layout,
      "lamps": [{"kind": "SUN"|"POINT"|"AREA", "direction" (3,) the way it shines,
@@ -44,6 +45,10 @@ from zcomp_cli.blender.runner import serve_job_file  # noqa: E402
 from _bpy_common import add_camera, import_mesh  # noqa: E402  (beside this script)
 
 SCENE_MESH = "zcomp_scene_mesh"
+# Cycles' light passes written with ``light_passes`` (the job's --aovs)
+LIGHT_PASSES = ("use_pass_diffuse_direct", "use_pass_diffuse_indirect", "use_pass_diffuse_color",
+                "use_pass_glossy_direct", "use_pass_glossy_indirect", "use_pass_glossy_color",
+                "use_pass_emit", "use_pass_environment")
 _state = {"mesh_key": None}
 
 
@@ -227,6 +232,9 @@ def setup_render(item: dict) -> None:
     add_camera(scene, item["camera"], clip_end=1e4)
     vl = scene.view_layers[0]
     vl.use_pass_combined = True
+    light_passes = bool(item.get("light_passes"))
+    for p in LIGHT_PASSES:
+        setattr(vl, p, light_passes)
     im = r.image_settings
     if hasattr(im, "media_type"):
         im.media_type = "MULTI_LAYER_IMAGE"

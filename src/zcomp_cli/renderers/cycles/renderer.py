@@ -126,15 +126,17 @@ class CyclesRenderer(Renderer):
                 grown = unknown | reach
             else:
                 reach = None
-        images, passes = [], []
-        for req in requests:
-            im, info = self._render_one(req, model, seed, reach, timings)
+        images, passes, layers = [], [], {}
+        for k, req in enumerate(requests):
+            im, info, aov = self._render_one(req, model, seed, reach, timings)
             images.append(im)
             passes.append(info)
+            tag = "bg" if k == 0 else "comp" if k == 1 else f"pass{k}"
+            layers.update({f"cycles_{tag}_{name}": a for name, a in aov.items()})
         light = model.to_info()
         info = {"light": light, "fallback": light["fallback"], "shadow": str(model.shadows),
                 "settings": self.settings(), "passes": passes}
-        return RenderOutput(images=images, info=info, timings=timings, shading_mask=grown)
+        return RenderOutput(images=images, info=info, timings=timings, shading_mask=grown, aov_layers=layers)
 
     def _render_one(self, req: RenderRequest, model, seed: int, reach, timings: dict):
         from zcomp_cli.blender.intrinsics import blender_camera_from_K
@@ -158,7 +160,7 @@ class CyclesRenderer(Renderer):
                 inside |= reach
             todo &= inside
         if not todo.any():
-            return out, {"rendered_pixels": 0}
+            return out, {"rendered_pixels": 0}, {}
         ys, xs = np.nonzero(todo)
         m = self._settings.margin_px
         box = (max(0, int(xs.min()) - m), max(0, int(ys.min()) - m), min(W, int(xs.max()) + 1 + m),
@@ -186,6 +188,7 @@ class CyclesRenderer(Renderer):
                 raise RenderError(f"Cycles failed: {ev.get('error', 'no answer from Blender')}")
             ch = read_multilayer_exr(item["out"])
             rgb = np.nan_to_num(get_pass(ch, "Combined", "RGB"), nan=0.0, posinf=0.0, neginf=0.0)
+            aov = _light_passes(ch, box, (H, W)) if req.aovs else {}
         finally:
             for p in (arrays_path, world_path, Path(item["out"])):
                 p.unlink(missing_ok=True)
@@ -206,10 +209,11 @@ class CyclesRenderer(Renderer):
         sel = todo[y0:y1, x0:x1]
         win[sel] = (scale * rgb[sel]).astype(np.float32)
         first = res.startup_s[0] if res.startup_s else None
+        aov = {k: v * np.float32(scale) if not k.endswith("_color") else v for k, v in aov.items()}
         return out, {"rendered_pixels": int(sel.sum()), "window": list(box), "scale": scale,
                      "photo_over_render": ratio, "blender_startup_s": first,
                      "render_s": float(ev.get("render_s", float("nan"))),
-                     "object": item["object"] and ("file" if "mesh" in item["object"] else "maps")}
+                     "object": item["object"] and ("file" if "mesh" in item["object"] else "maps")}, aov
 
     def _describe(self, req: RenderRequest, model, seed: int, box) -> tuple[dict, dict]:
         """The Blender item and its arrays for one request (``scene``)."""
@@ -271,8 +275,28 @@ class CyclesRenderer(Renderer):
         item = {"id": hashlib.sha256(f"{key}-{seed}-{time.monotonic_ns()}".encode()).hexdigest()[:16],
                 "mesh_key": key, "border": list(box), "samples": s.samples, "seed": int(seed) % (2 ** 31),
                 "denoise": s.denoise, "max_bounces": s.max_bounces, "threads": s.threads,
+                "light_passes": bool(req.aovs),
                 "world": {"rows": np.asarray(rows, np.float64).tolist()}, "lamps": lamps, "object": obj}
         return item, arrays
+
+
+def _light_passes(channels: dict, box, shape) -> dict[str, np.ndarray]:
+    """Cycles' light passes of a rendered window (every ``<pass>.R/G/B`` but Combined) as
+    full-frame (H, W, 3) float32 layers, 0 outside the window; names lower-case with
+    ``_`` (``Diffuse Direct`` -> ``diffuse_direct``)."""
+    import re
+
+    x0, y0, x1, y1 = box
+    out = {}
+    for name in sorted({k.rsplit(".", 1)[0] for k in channels if k.endswith(".R")}):
+        if name == "Combined" or f"{name}.G" not in channels or f"{name}.B" not in channels:
+            continue
+        key = re.sub(r"[^a-z0-9]+", "_", name.lower()).strip("_")[:40]
+        full = np.zeros((*shape, 3), np.float32)
+        win = np.stack([channels[f"{name}.{c}"] for c in "RGB"], -1)
+        full[y0:y1, x0:x1] = np.nan_to_num(win, nan=0.0, posinf=0.0, neginf=0.0)
+        out[key] = full
+    return out
 
 
 __all__ = ["CyclesRenderer"]
