@@ -33,9 +33,9 @@ Knobs:
   (``samples_raw``);
 * naive paste: one reference point.
 
-``--jobs-file jobs_oracle_full.yaml`` sweeps the benchmark under another manifest of the
-same folder (the full oracle's light, ``benchmarks/run_benchmark.py --oracle full``
-writes it).
+``--jobs-file jobs.yaml --jobs-file jobs_oracle_full.yaml`` sweeps the benchmark under
+each manifest of the folder (the full oracle's light: ``benchmarks/run_benchmark.py
+--oracle full`` writes it), the later manifests' series named after them, in one figure.
 
 Outputs: ``OUT/sweep.csv`` (renderer, knob, value, psnr, flip, median_s_per_job, n_jobs,
 n_failed, then default, per-image medians of PSNR and FLIP, renderer timing sums, the
@@ -588,15 +588,18 @@ def main(argv=None) -> int:
                     help="reuse configurations already in OUT/rows/ (same settings, jobs and code)")
     ap.add_argument("--live-source", action="store_true",
                     help="run the working tree's zcomp_cli instead of a snapshot in OUT/code (see snapshot_source)")
-    ap.add_argument("--jobs-file", default="jobs.yaml",
-                    help="the manifest in BENCH_DIR to sweep (default jobs.yaml; jobs_oracle_full.yaml: the full "
-                         "oracle's light)")
+    ap.add_argument("--jobs-file", action="append", default=[], metavar="NAME",
+                    help="a manifest in BENCH_DIR to sweep (default jobs.yaml); repeatable: the configurations run "
+                         "under each, the later ones' series named after it (jobs_oracle_full.yaml: the full "
+                         "oracle's light), all in one figure")
     args = ap.parse_args(argv)
 
-    bench_jobs = args.bench_dir / args.jobs_file
-    if not bench_jobs.is_file():
-        print(f"error: {bench_jobs} not found (make one with `zcomp make-benchmark`)", file=sys.stderr)
-        return 2
+    job_files = [args.bench_dir / n for n in (args.jobs_file or ["jobs.yaml"])]
+    for bench_jobs in job_files:
+        if not bench_jobs.is_file():
+            print(f"error: {bench_jobs} not found (make one with `zcomp make-benchmark`)", file=sys.stderr)
+            return 2
+    bench_jobs = job_files[0]
     knobs = [k.strip() for k in args.knobs.split(",") if k.strip()]
     if args.max_jobs is not None and args.max_jobs < 1:
         print(f"error: --max-jobs must be >= 1, got {args.max_jobs}", file=sys.stderr)
@@ -614,6 +617,12 @@ def main(argv=None) -> int:
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    plan = [(cfg, bench_jobs) for cfg in configs]
+    for extra in job_files[1:]:
+        tag = extra.stem.replace("jobs_", "")
+        plan += [(Config(f"{c.key}@{tag}", c.renderer, dict(c.settings), c.resolution,
+                         [(f"{k} [{tag}]", v) for k, v in c.series], c.default), extra) for c in configs]
+    configs = [c for c, _ in plan]
     print(f"benchmark {bench_jobs} at {native[0]}x{native[1]}: {len(configs)} configurations", flush=True)
     if args.live_source:
         env, code_hash = None, None
@@ -627,7 +636,7 @@ def main(argv=None) -> int:
     rows: list[dict] = []
     (out / "rows").mkdir(exist_ok=True)
     t_all = time.perf_counter()
-    for i, cfg in enumerate(configs, 1):
+    for i, (cfg, bench_jobs) in enumerate(plan, 1):
         row_file = out / "rows" / f"{cfg.key}.json"
         result = json.loads(row_file.read_text()) if args.resume and row_file.is_file() else None
         n_jobs = len(config_manifest(bench_jobs, cfg, args.max_jobs)["jobs"])
@@ -648,6 +657,8 @@ def main(argv=None) -> int:
         rows.extend(rows_of(result))
     order = {k: i for i, k in enumerate(["baseline", *PHYSICAL_KNOBS_FULL, "steps_full", "steps_crop",
                                          "samples_denoised", "samples_raw"])}
+    order.update({f"{k} [{f.stem.replace('jobs_', '')}]": 100 + 100 * j + v
+                  for j, f in enumerate(job_files[1:]) for k, v in list(order.items())})
     rows.sort(key=lambda r: (r["renderer"] != "naive", r["renderer"], order.get(r["knob"], 99),
                              _value_number(r["value"])))
     write_csv(rows, out / "sweep.csv")

@@ -8,7 +8,7 @@ arrays to an ``.npz``; this script only builds what it is told and renders it.
 Item::
 
     {"id": str, "out": path of the EXR to write, "arrays": path of the .npz,
-     "mesh_key": str (the scene mesh's content key: a process keeps the last one built),
+     "mesh_key": str (the scene mesh's content key: a process keeps the last few built),
      "width", "height", "camera": {lens_mm, sensor_width_mm, shift_x, shift_y},
      "border": [x0, y0, x1, y1] (pixels, rows from the top, half-open) -- the window rendered,
      "samples", "seed", "denoise", "max_bounces", "threads", "light_passes": bool (also
@@ -45,11 +45,14 @@ from zcomp_cli.blender.runner import serve_job_file  # noqa: E402
 from _bpy_common import add_camera, import_mesh  # noqa: E402  (beside this script)
 
 SCENE_MESH = "zcomp_scene_mesh"
+# scene meshes kept between items, by content key (a job's background and composite
+# passes alternate: two per job; more for the scenes a worker's jobs interleave)
+KEEP_MESHES = 4
+_meshes: dict = {}  # content key -> mesh name, oldest first
 # Cycles' light passes written with ``light_passes`` (the job's --aovs)
 LIGHT_PASSES = ("use_pass_diffuse_direct", "use_pass_diffuse_indirect", "use_pass_diffuse_color",
                 "use_pass_glossy_direct", "use_pass_glossy_indirect", "use_pass_glossy_color",
                 "use_pass_emit", "use_pass_environment")
-_state = {"mesh_key": None}
 
 
 def _nodes(owner):
@@ -61,35 +64,53 @@ def _nodes(owner):
     return owner.node_tree
 
 
-def reset_keeping_scene_mesh(key: str) -> None:
-    """Remove every object, light, material and image but the scene mesh when its
-    content key is the one asked for (a scene's jobs reuse it)."""
-    keep = _state["mesh_key"] == key and SCENE_MESH in bpy.data.meshes
+def reset_keeping_scene_meshes() -> None:
+    """Remove every object, light, camera, image, world and collection, and every mesh
+    and material but the scene meshes kept by content key (``KEEP_MESHES``)."""
+    kept = set(_meshes.values())
     for o in list(bpy.data.objects):
         bpy.data.objects.remove(o, do_unlink=True)
     for coll in (bpy.data.lights, bpy.data.cameras, bpy.data.images, bpy.data.worlds):
         for d in list(coll):
             coll.remove(d)
     for m in list(bpy.data.meshes):
-        if not (keep and m.name == SCENE_MESH):
+        if m.name not in kept:
             bpy.data.meshes.remove(m)
     for m in list(bpy.data.materials):
-        if not (keep and m.name == SCENE_MESH + "_mat"):
+        if m.name != SCENE_MESH + "_mat":
             bpy.data.materials.remove(m)
     for c in list(bpy.data.collections):
         bpy.data.collections.remove(c)
-    if not keep:
-        _state["mesh_key"] = None
+
+
+def _scene_material():
+    mat = bpy.data.materials.get(SCENE_MESH + "_mat")
+    if mat is not None:
+        return mat
+    mat = bpy.data.materials.new(SCENE_MESH + "_mat")
+    nt = _nodes(mat)
+    for n in list(nt.nodes):
+        nt.nodes.remove(n)
+    attr = nt.nodes.new("ShaderNodeAttribute")
+    attr.attribute_name = "albedo"
+    diff = nt.nodes.new("ShaderNodeBsdfDiffuse")
+    out = nt.nodes.new("ShaderNodeOutputMaterial")
+    nt.links.new(attr.outputs["Color"], diff.inputs["Color"])
+    nt.links.new(diff.outputs[0], out.inputs["Surface"])
+    return mat
 
 
 def scene_mesh(arrays, key: str):
-    """The background's mesh: per-vertex diffuse colour (``colors``), one material."""
-    if _state["mesh_key"] == key and SCENE_MESH in bpy.data.meshes:
-        mesh = bpy.data.meshes[SCENE_MESH]
+    """The background's mesh: per-vertex diffuse colour (``colors``), one material; built
+    once per content ``key`` while kept."""
+    name = _meshes.get(key)
+    if name is not None and name in bpy.data.meshes:
+        mesh = bpy.data.meshes[name]
+        _meshes[key] = _meshes.pop(key)  # most recently used last
     else:
         V = np.ascontiguousarray(arrays["vertices"], np.float32)
         F = np.ascontiguousarray(arrays["faces"], np.int32)
-        mesh = bpy.data.meshes.new(SCENE_MESH)
+        mesh = bpy.data.meshes.new(f"{SCENE_MESH}_{key[:16]}")
         mesh.vertices.add(len(V))
         mesh.vertices.foreach_set("co", V.ravel())
         mesh.loops.add(3 * len(F))
@@ -103,18 +124,12 @@ def scene_mesh(arrays, key: str):
         C = np.ones((len(mesh.vertices), 4), np.float32)
         C[:, :3] = np.asarray(arrays["colors"], np.float32)[: len(mesh.vertices)]
         col.data.foreach_set("color", C.ravel())
-        mat = bpy.data.materials.new(SCENE_MESH + "_mat")
-        nt = _nodes(mat)
-        for n in list(nt.nodes):
-            nt.nodes.remove(n)
-        attr = nt.nodes.new("ShaderNodeAttribute")
-        attr.attribute_name = "albedo"
-        diff = nt.nodes.new("ShaderNodeBsdfDiffuse")
-        out = nt.nodes.new("ShaderNodeOutputMaterial")
-        nt.links.new(attr.outputs["Color"], diff.inputs["Color"])
-        nt.links.new(diff.outputs[0], out.inputs["Surface"])
-        mesh.materials.append(mat)
-        _state["mesh_key"] = key
+        mesh.materials.append(_scene_material())
+        _meshes[key] = mesh.name
+        while len(_meshes) > KEEP_MESHES:
+            old = _meshes.pop(next(iter(_meshes)))
+            if old in bpy.data.meshes:
+                bpy.data.meshes.remove(bpy.data.meshes[old])
     obj = bpy.data.objects.new(SCENE_MESH, mesh)
     bpy.context.scene.collection.objects.link(obj)
     return obj
@@ -245,7 +260,7 @@ def setup_render(item: dict) -> None:
 
 def process(item: dict, common: dict) -> dict:
     t = time.monotonic()
-    reset_keeping_scene_mesh(str(item["mesh_key"]))
+    reset_keeping_scene_meshes()
     arrays = np.load(item["arrays"])
     setup_render(item)
     scene_mesh(arrays, str(item["mesh_key"]))

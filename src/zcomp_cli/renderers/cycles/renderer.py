@@ -213,6 +213,7 @@ class CyclesRenderer(Renderer):
         return out, {"rendered_pixels": int(sel.sum()), "window": list(box), "scale": scale,
                      "photo_over_render": ratio, "blender_startup_s": first,
                      "render_s": float(ev.get("render_s", float("nan"))),
+                     "blender_build_s": float(ev.get("build_s", float("nan"))),
                      "object": item["object"] and ("file" if "mesh" in item["object"] else "maps")}, aov
 
     def _describe(self, req: RenderRequest, model, seed: int, box) -> tuple[dict, dict]:
@@ -239,13 +240,14 @@ class CyclesRenderer(Renderer):
         key = h.hexdigest()[:24]
         arrays = self._meshes.get(key)
         if arrays is None:
-            mesh = build_depth_mesh(d, n, req.camera, model.up, valid=valid, walls=model.walls)
+            mesh = build_depth_mesh(d, n, req.camera, model.up, valid=valid, walls=sc.walls_behind(model.walls))
             diffuse = np.clip(albedo + float(model.albedo_offset), 0.0, 1.0)
             arrays = sc.scene_mesh_arrays(mesh, diffuse, n_walls=len(model.walls))
-            self._meshes = {key: arrays}  # one scene at a time: memory flat in the scenes
+            # the last few scenes' meshes (a job's two passes): memory flat in the scenes
+            self._meshes = {**dict(list(self._meshes.items())[-3:]), key: arrays}
         arrays = dict(arrays)
         params = getattr(req, "light", None) or LightParams.estimate()
-        probe = params.probe if model.probe is not None else None
+        probe = params.probe if model.probe is not None and s.world == "probe" else None
         if probe is not None:
             exposure = float(model.fit.exposure) if np.isfinite(model.fit.exposure) else 1.0
             world, rows = sc.probe_image(probe, model.up, exposure * float(probe.strength), s.probe_width)

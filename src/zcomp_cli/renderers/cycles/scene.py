@@ -161,6 +161,25 @@ def fill_behind(depth, normals, albedo, valid, hidden, camera, up):
     return d, n, a, ok
 
 
+# A wall beyond the frame (``planes.Wall``) is drawn this far behind its plane, relative to
+# its distance: the fitted plane is the visible wall's own, and a quad on it would
+# z-fight with the depth mesh's wall and shadow it (every shadow ray from the wall hits
+# the coplanar quad: a dark, streaked wall). Behind it, the quad is hidden wherever the
+# mesh is and stands in only beyond the frame. 2 %: inside the tolerance a plane is
+# fitted with (the support's height, ``MeshConfig.support_height_rel``, is 3 %), far beyond
+# float32 vertices and Cycles' ray offsets (a heuristic, checked on the dev seeds).
+WALL_BEHIND_REL = 0.02
+
+
+def walls_behind(walls) -> tuple:
+    """The walls moved ``WALL_BEHIND_REL`` of their distance away from the camera (a
+    ``Wall``'s normal faces the camera's side: ``normal . 0 = 0 > offset``)."""
+    import dataclasses
+
+    return tuple(dataclasses.replace(w, offset=float(w.offset) - WALL_BEHIND_REL * abs(float(w.offset)))
+                 for w in walls)
+
+
 def scene_mesh_arrays(mesh, albedo: np.ndarray, n_walls: int = 0) -> dict[str, np.ndarray]:
     """The depth mesh (``physical.depthmesh.DepthMesh``) as Blender gets it: the vertices
     its faces use, the faces renumbered, a diffuse colour per vertex -- its pixel's
@@ -182,5 +201,5 @@ def scene_mesh_arrays(mesh, albedo: np.ndarray, n_walls: int = 0) -> dict[str, n
             "colors": colors[used].astype(np.float32)}
 
 
-__all__ = ["world_rows", "fill_behind", "blender_uv", "sky_image", "probe_image", "lamps_of", "scene_mesh_arrays",
+__all__ = ["world_rows", "fill_behind", "walls_behind", "WALL_BEHIND_REL", "blender_uv", "sky_image", "probe_image", "lamps_of", "scene_mesh_arrays",
            "SUN_WATTS_PER_SHADING", "LAMP_WATTS_PER_SHADING"]

@@ -25,6 +25,9 @@ class CyclesSettings:
     threads: int = knob(0, "setting", "Cycles' CPU threads (0: all cores)")
     exposure: str = knob("light", "setting", "light (the light fit's units) or render (each pass rescaled to the "
                                              "photograph over its known pixels)")
+    world: str = knob("probe", "setting", "probe: a given probe is the world itself; model: the light model's "
+                                          "order-2 SH sky and the probe's sources as suns, what the physical "
+                                          "renderer draws (an ablation: docs/physical.md)")
     sky_width: int = knob(128, "sampling", "width of the world map an estimated (order-2 SH) sky is drawn into: "
                                            "smooth, so 1.4 deg texels hold all of it")
     probe_width: int = knob(1024, "sampling", "a given probe becomes the world at most this wide (the bundled maps' "
@@ -63,6 +66,8 @@ class CyclesSettings:
         for k, lo in lows.items():
             if getattr(s, k) < lo:
                 raise UsageError(f"cycles renderer setting {k}: at least {lo}, got {getattr(s, k)}")
+        if s.world not in ("probe", "model"):
+            raise UsageError(f"cycles renderer setting world: probe or model, got {s.world!r}")
         if s.exposure not in ("light", "render"):
             raise UsageError(f"cycles renderer setting exposure: light or render, got {s.exposure!r}")
         if not s.item_timeout_s > 0:
