@@ -220,6 +220,8 @@ def test_a_dead_blender_fails_no_later_job_and_bad_input_fails_its_own():
     r = get_renderer("cycles", samples=2, denoise=False)
     try:
         first = r.render(reqs, seed=1).images
+        assert r.render(reqs, seed=1).images[1].shape == (H, W, 3)
+        assert r._session.starts == 1  # one Blender for every job of the renderer (a worker)
         r._session.proc.kill()
         r._session.proc.wait()
         again = r.render(reqs, seed=1).images

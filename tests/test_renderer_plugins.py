@@ -33,7 +33,7 @@ def test_plugins_join_the_table_and_broken_ones_are_left_out():
     r = subprocess.run([sys.executable, "-c", code], env=_env(), capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
     names, physical, left_out = r.stdout.splitlines()
-    assert names == str(sorted(["physical", "zerocomp", "naive", "demo-flat", "demo-noisy"]))
+    assert names == str(sorted(["physical", "zerocomp", "naive", "cycles", "demo-flat", "demo-noisy"]))
     assert physical == "zcomp"  # a plugin cannot take a built-in's name
     assert left_out == str(["demo-broken", "physical"])
 

@@ -242,7 +242,7 @@ class CyclesRenderer(Renderer):
         if arrays is None:
             mesh = build_depth_mesh(d, n, req.camera, model.up, valid=valid, walls=sc.walls_behind(model.walls))
             diffuse = np.clip(albedo + float(model.albedo_offset), 0.0, 1.0)
-            arrays = sc.scene_mesh_arrays(mesh, diffuse, n_walls=len(model.walls))
+            arrays = sc.with_ground(sc.scene_mesh_arrays(mesh, diffuse, n_walls=len(model.walls)), mesh, diffuse)
             # the last few scenes' meshes (a job's two passes): memory flat in the scenes
             self._meshes = {**dict(list(self._meshes.items())[-3:]), key: arrays}
         arrays = dict(arrays)

@@ -180,6 +180,39 @@ def walls_behind(walls) -> tuple:
                  for w in walls)
 
 
+# The support's plane beyond the frame: a square this many metres from the camera's foot
+# either way (physical: the light model's support is infinite, ``Sky.ground``; from an
+# object 2 m above it, the plane beyond 100 m is under 1.2 deg of its horizon).
+GROUND_HALF_M = 100.0
+
+
+def with_ground(arrays: dict, mesh, diffuse: np.ndarray) -> dict:
+    """``arrays`` (``scene_mesh_arrays``) plus the support's plane beyond the frame: a
+    square of ``GROUND_HALF_M`` about the camera's foot, ``WALL_BEHIND_REL`` of the camera's
+    height below the support (the visible floor hides it wherever the mesh is), coloured
+    the support pixels' mean ``diffuse``. Without it, whatever stands on the floor sees the
+    world below the horizon where the floor leaves the frame, not the lit floor the
+    photograph's scene has there (objects 5-25 % too dark on dev scenes). Unchanged when
+    the mesh found no support."""
+    h0 = float(mesh.support_height)
+    if not math.isfinite(h0) or not mesh.support.any():
+        return arrays
+    up = np.asarray(mesh.up, np.float64)
+    right, _, fwd = ground_frame(up)
+    base = up * (h0 - WALL_BEHIND_REL * abs(h0))
+    L = GROUND_HALF_M
+    V = np.stack([base + a * L * right + b * L * fwd for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
+    F = np.array([[0, 1, 2], [0, 2, 3]], np.int64)
+    # faces wound so that the normal is up (Blender shades both sides alike anyway)
+    if np.cross(V[1] - V[0], V[2] - V[0]) @ up < 0:
+        F = F[:, ::-1]
+    col = np.clip(np.asarray(diffuse, np.float64).reshape(-1, 3)[mesh.support.ravel()].mean(0), 0.0, 1.0)
+    n = len(arrays["vertices"])
+    return {**arrays, "vertices": np.concatenate([arrays["vertices"], V.astype(np.float32)]),
+            "faces": np.concatenate([arrays["faces"], (F + n).astype(np.int32)]),
+            "colors": np.concatenate([arrays["colors"], np.repeat(col[None], 4, 0).astype(np.float32)])}
+
+
 def scene_mesh_arrays(mesh, albedo: np.ndarray, n_walls: int = 0) -> dict[str, np.ndarray]:
     """The depth mesh (``physical.depthmesh.DepthMesh``) as Blender gets it: the vertices
     its faces use, the faces renumbered, a diffuse colour per vertex -- its pixel's
@@ -201,5 +234,5 @@ def scene_mesh_arrays(mesh, albedo: np.ndarray, n_walls: int = 0) -> dict[str, n
             "colors": colors[used].astype(np.float32)}
 
 
-__all__ = ["world_rows", "fill_behind", "walls_behind", "WALL_BEHIND_REL", "blender_uv", "sky_image", "probe_image", "lamps_of", "scene_mesh_arrays",
+__all__ = ["world_rows", "fill_behind", "walls_behind", "with_ground", "WALL_BEHIND_REL", "GROUND_HALF_M", "blender_uv", "sky_image", "probe_image", "lamps_of", "scene_mesh_arrays",
            "SUN_WATTS_PER_SHADING", "LAMP_WATTS_PER_SHADING"]
