@@ -286,3 +286,24 @@ def test_a_renderers_aov_layers_are_checked():
                        ({"x": np.full((4, 5), np.nan)}, "non-finite")]:
         with pytest.raises(RenderError, match=words):
             check_aov_layers(bad, (4, 5), "r", {"composite"})
+
+
+def test_the_support_continues_beyond_the_frame_just_below_the_floor():
+    from zcomp_cli.renderers.physical.depthmesh import build_depth_mesh
+    from zcomp_cli.testing import floor_scene
+
+    s = floor_scene(32, 24)
+    mesh = build_depth_mesh(s.depth, s.normals, s.camera, s.up_cam)
+    arr = sc.scene_mesh_arrays(mesh, s.albedo)
+    out = sc.with_ground(arr, mesh, s.albedo)
+    V = out["vertices"][-4:].astype(np.float64)
+    assert len(out["vertices"]) == len(arr["vertices"]) + 4 and len(out["faces"]) == len(arr["faces"]) + 2
+    heights = V @ s.up_cam
+    floor = float(np.median(mesh.points[mesh.support] @ s.up_cam))
+    assert np.allclose(heights, heights[0]) and floor - 0.1 < heights[0] < floor  # just below the floor
+    assert np.abs(V - V.mean(0)).max() >= sc.GROUND_HALF_M * 0.99
+    assert np.allclose(out["colors"][-4:], s.albedo[mesh.support].mean(0), atol=1e-6)
+    # a mesh without a support gets no plane
+    sky = build_depth_mesh(np.zeros((8, 8)), np.zeros((8, 8, 3)), floor_scene(8, 8).camera, s.up_cam)
+    assert sc.with_ground({"vertices": np.zeros((0, 3)), "faces": np.zeros((0, 3)), "colors": np.zeros((0, 3))},
+                          sky, np.zeros((8, 8, 3)))["vertices"].shape == (0, 3)
