@@ -69,3 +69,15 @@ def add_camera(scene, bcam: dict, *, clip_end: float = 1e6):
     scene.collection.objects.link(cam)
     scene.camera = cam
     return cam
+
+
+def multilayer_exr_output(render, codec: str = "ZIP") -> None:
+    """Write renders as 32-bit float multilayer OpenEXR -- the raw passes zcomp converts
+    with numpy (bpy 5 has no compositor node tree to do it here). ``codec``: ``NONE`` for
+    scratch files the parent reads once (compression costs more time than it saves)."""
+    im = render.image_settings
+    if hasattr(im, "media_type"):
+        im.media_type = "MULTI_LAYER_IMAGE"
+    im.file_format = "OPEN_EXR_MULTILAYER"
+    im.color_depth = "32"
+    im.exr_codec = codec

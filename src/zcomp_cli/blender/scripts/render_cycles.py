@@ -42,7 +42,7 @@ import numpy as np  # noqa: E402
 from mathutils import Matrix, Vector  # noqa: E402
 
 from zcomp_cli.blender.runner import serve_job_file  # noqa: E402
-from _bpy_common import add_camera, import_mesh  # noqa: E402  (beside this script)
+from _bpy_common import add_camera, import_mesh, multilayer_exr_output  # noqa: E402  (beside this script)
 
 SCENE_MESH = "zcomp_scene_mesh"
 # scene meshes kept between items, by content key (a job's background and composite
@@ -250,12 +250,7 @@ def setup_render(item: dict) -> None:
     light_passes = bool(item.get("light_passes"))
     for p in LIGHT_PASSES:
         setattr(vl, p, light_passes)
-    im = r.image_settings
-    if hasattr(im, "media_type"):
-        im.media_type = "MULTI_LAYER_IMAGE"
-    im.file_format = "OPEN_EXR_MULTILAYER"
-    im.color_depth = "32"
-    im.exr_codec = "ZIP"
+    multilayer_exr_output(r, codec="NONE")  # a scratch file, read once
 
 
 def process(item: dict, common: dict) -> dict:

@@ -47,7 +47,7 @@ import bpy  # noqa: E402
 from mathutils import Matrix, Vector  # noqa: E402
 
 from zcomp_cli.blender.runner import serve_job_file  # noqa: E402
-from _bpy_common import add_camera, import_mesh  # noqa: E402  (beside this script)
+from _bpy_common import add_camera, import_mesh, multilayer_exr_output  # noqa: E402  (beside this script)
 
 
 
@@ -220,12 +220,7 @@ def setup_render(item: dict, common: dict) -> None:
     aov.name = "albedo"
     aov.type = "COLOR"
 
-    im = r.image_settings
-    if hasattr(im, "media_type"):
-        im.media_type = "MULTI_LAYER_IMAGE"
-    im.file_format = "OPEN_EXR_MULTILAYER"
-    im.color_depth = "32"
-    im.exr_codec = "ZIP"
+    multilayer_exr_output(r)
 
 
 def render_to(path: str, *, samples: int, filter_width: float, denoise: bool, max_bounces: int) -> None:

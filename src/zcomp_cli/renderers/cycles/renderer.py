@@ -47,6 +47,9 @@ from zcomp_cli.renderers.cycles.settings import CyclesSettings
 
 SCRIPT = "render_cycles.py"
 WORK_PREFIX = "zcomp-cycles-"
+# world maps kept in the work folder (a few scenes' jobs interleave in a worker's batch;
+# each map is a few MB, so the folder stays small whatever the manifest's size)
+KEEP_WORLDS = 4
 
 
 class CyclesRenderer(Renderer):
@@ -66,6 +69,7 @@ class CyclesRenderer(Renderer):
         self._session = None
         self._work: Path | None = None
         self._meshes: dict = {}
+        self._worlds: dict = {}  # content key -> world EXR, oldest first
 
     def settings(self) -> dict:
         return {"name": self.name, **self._settings.as_dict(), "light": self._physical.settings()}
@@ -95,6 +99,7 @@ class CyclesRenderer(Renderer):
         if self._work is not None:
             shutil.rmtree(self._work, ignore_errors=True)
             self._work = None
+            self._worlds = {}
 
     def __del__(self):  # noqa: D105 - a dropped renderer ends its Blender
         try:
@@ -170,11 +175,7 @@ class CyclesRenderer(Renderer):
         self._blender()
         item, arrays = self._describe(req, model, seed, box)
         arrays_path = self._work / f"{item['id']}.npz"
-        world_path = self._work / f"{item['id']}_world.exr"
-        from zcomp_cli.imageio import write_exr
-
-        write_exr(world_path, arrays.pop("world"))
-        item["world"]["image"] = str(world_path)
+        item["world"]["image"] = str(self._world_file(arrays.pop("world")))
         np.savez(arrays_path, **arrays)
         item.update(arrays=str(arrays_path), out=str(self._work / f"{item['id']}.exr"),
                     width=W, height=H, camera=blender_camera_from_K(req.camera.K, W, H))
@@ -190,7 +191,7 @@ class CyclesRenderer(Renderer):
             rgb = np.nan_to_num(get_pass(ch, "Combined", "RGB"), nan=0.0, posinf=0.0, neginf=0.0)
             aov = _light_passes(ch, box, (H, W)) if req.aovs else {}
         finally:
-            for p in (arrays_path, world_path, Path(item["out"])):
+            for p in (arrays_path, Path(item["out"])):
                 p.unlink(missing_ok=True)
         x0, y0, x1, y1 = box
         if rgb.shape[:2] != (y1 - y0, x1 - x0):
@@ -202,8 +203,9 @@ class CyclesRenderer(Renderer):
         ref = luminance(out[y0:y1, x0:x1], REC601)[win_known]
         got = luminance(rgb, REC601)[win_known]
         ok = (got > 1e-6) & (ref > 1e-6)
-        ratio = float(np.median(ref[ok] / got[ok])) if ok.sum() >= 16 else float("nan")
-        if self._settings.exposure == "render" and np.isfinite(ratio):
+        # (None: too few known pixels in the window to tell)
+        ratio = float(np.median(ref[ok] / got[ok])) if ok.sum() >= 16 else None
+        if self._settings.exposure == "render" and ratio is not None and np.isfinite(ratio):
             scale = ratio
         win = out[y0:y1, x0:x1]
         sel = todo[y0:y1, x0:x1]
@@ -215,6 +217,21 @@ class CyclesRenderer(Renderer):
                      "render_s": float(ev.get("render_s", float("nan"))),
                      "blender_build_s": float(ev.get("build_s", float("nan"))),
                      "object": item["object"] and ("file" if "mesh" in item["object"] else "maps")}, aov
+
+    def _world_file(self, world: np.ndarray) -> Path:
+        """The world map as an EXR in the work folder, written once per content (a
+        scene's every pass looks it up); the last few kept."""
+        from zcomp_cli.imageio import write_exr
+
+        key = hashlib.sha256(np.ascontiguousarray(world, np.float32).tobytes()).hexdigest()[:24]
+        path = self._work / f"world_{key}.exr"
+        if key not in self._worlds or not path.is_file():
+            write_exr(path, world)
+        self._worlds[key] = self._worlds.pop(key, path)
+        while len(self._worlds) > KEEP_WORLDS:
+            old = self._worlds.pop(next(iter(self._worlds)))
+            old.unlink(missing_ok=True)
+        return path
 
     def _describe(self, req: RenderRequest, model, seed: int, box) -> tuple[dict, dict]:
         """The Blender item and its arrays for one request (``scene``)."""
