@@ -521,6 +521,7 @@ def plot(rows: list[dict], path: Path, title: str = "") -> None:
         series.setdefault((r["renderer"], r["knob"]), []).append(r)
     markers = "os^DvP<>hX*"
     for ax, metric, better in zip(axes, METRICS, ("higher is better", "lower is better")):
+        placed: dict = {}
         for i, ((renderer, knob), pts) in enumerate(series.items()):
             pts = [p for p in pts if math.isfinite(p[metric]) and math.isfinite(p["median_s_per_job"])]
             if not pts:
@@ -528,12 +529,16 @@ def plot(rows: list[dict], path: Path, title: str = "") -> None:
             pts.sort(key=lambda p: p["median_s_per_job"])
             x = [max(p["median_s_per_job"], 1e-4) for p in pts]
             y = [p[metric] for p in pts]
-            label = "naive paste" if renderer == "naive" else f"{renderer}: {knob}"
+            tag = knob[knob.index(" ["):] if " [" in knob else ""
+            label = f"naive paste{tag}" if renderer == "naive" else f"{renderer}: {knob}"
             (line,) = ax.plot(x, y, marker=markers[i % len(markers)], linestyle="-" if len(pts) > 1 else "none",
                     label=label, alpha=0.85)
             for p, xi, yi in zip(pts, x, y):
-                # the shared default point carries one label per series: stack them
-                dy = 4 + 8 * i if p["default"] else 4
+                # a point several series share (the default) carries one label per
+                # series: stack them
+                k = placed.setdefault((round(xi, 6), round(yi, 6)), 0)
+                placed[(round(xi, 6), round(yi, 6))] += 1
+                dy = 4 + 8 * k
                 ax.annotate(p["value"] + ("*" if p["default"] else ""), (xi, yi), textcoords="offset points",
                             xytext=(4, dy), fontsize=7, color=line.get_color())
         ax.set_xscale("log")
