@@ -81,3 +81,26 @@ def multilayer_exr_output(render, codec: str = "ZIP") -> None:
     im.file_format = "OPEN_EXR_MULTILAYER"
     im.color_depth = "32"
     im.exr_codec = codec
+
+
+def node_tree(owner):
+    """The node tree of a world or material, its nodes switched on (older Blender has
+    ``use_nodes``; in newer ones the tree is always on and the flag may refuse a write)."""
+    if hasattr(owner, "use_nodes"):
+        try:
+            owner.use_nodes = True
+        except Exception:  # always-on node trees in newer Blender
+            pass
+    return owner.node_tree
+
+
+def principled_bsdf(mat):
+    """The material's Principled BSDF node, made and wired to its output when it has none."""
+    nt = node_tree(mat)
+    bsdf = next((n for n in nt.nodes if n.type == "BSDF_PRINCIPLED"), None)
+    if bsdf is None:
+        bsdf = nt.nodes.new("ShaderNodeBsdfPrincipled")
+        out = next((n for n in nt.nodes if n.type == "OUTPUT_MATERIAL"), None) \
+            or nt.nodes.new("ShaderNodeOutputMaterial")
+        nt.links.new(bsdf.outputs[0], out.inputs["Surface"])
+    return bsdf

@@ -42,7 +42,8 @@ import numpy as np  # noqa: E402
 from mathutils import Matrix, Vector  # noqa: E402
 
 from zcomp_cli.blender.runner import serve_job_file  # noqa: E402
-from _bpy_common import add_camera, import_mesh, multilayer_exr_output  # noqa: E402  (beside this script)
+from _bpy_common import (add_camera, import_mesh, multilayer_exr_output, node_tree,  # noqa: E402
+                         principled_bsdf)  # (beside this script)
 
 SCENE_MESH = "zcomp_scene_mesh"
 # scene meshes kept between items, by content key (a job's background and composite
@@ -53,15 +54,6 @@ _meshes: dict = {}  # content key -> mesh name, oldest first
 LIGHT_PASSES = ("use_pass_diffuse_direct", "use_pass_diffuse_indirect", "use_pass_diffuse_color",
                 "use_pass_glossy_direct", "use_pass_glossy_indirect", "use_pass_glossy_color",
                 "use_pass_emit", "use_pass_environment")
-
-
-def _nodes(owner):
-    if hasattr(owner, "use_nodes"):
-        try:
-            owner.use_nodes = True
-        except Exception:  # always-on node trees in newer Blender
-            pass
-    return owner.node_tree
 
 
 def reset_keeping_scene_meshes() -> None:
@@ -88,7 +80,7 @@ def _scene_material():
     if mat is not None:
         return mat
     mat = bpy.data.materials.new(SCENE_MESH + "_mat")
-    nt = _nodes(mat)
+    nt = node_tree(mat)
     for n in list(nt.nodes):
         nt.nodes.remove(n)
     attr = nt.nodes.new("ShaderNodeAttribute")
@@ -141,7 +133,7 @@ def world(desc: dict) -> None:
     rows = desc["rows"]
     im = bpy.data.images.load(desc["image"], check_existing=False)
     wd = bpy.data.worlds.new("zcomp_world")
-    nt = _nodes(wd)
+    nt = node_tree(wd)
     for n in list(nt.nodes):
         nt.nodes.remove(n)
     coord = nt.nodes.new("ShaderNodeTexCoord")
@@ -196,13 +188,7 @@ def add_object(desc: dict, arrays) -> None:
         mesh.from_pydata(V.tolist(), [], F.tolist())
         mesh.update()
         mat = bpy.data.materials.new("zcomp_object_mat")
-        nt = _nodes(mat)
-        bsdf = next((n for n in nt.nodes if n.type == "BSDF_PRINCIPLED"), None)
-        if bsdf is None:
-            bsdf = nt.nodes.new("ShaderNodeBsdfPrincipled")
-            out = next((n for n in nt.nodes if n.type == "OUTPUT_MATERIAL"), None) \
-                or nt.nodes.new("ShaderNodeOutputMaterial")
-            nt.links.new(bsdf.outputs[0], out.inputs["Surface"])
+        bsdf = principled_bsdf(mat)
         bsdf.inputs["Base Color"].default_value = (*desc["color"], 1.0)
         bsdf.inputs["Roughness"].default_value = float(desc["roughness"])
         bsdf.inputs["Metallic"].default_value = float(desc["metallic"])

@@ -47,7 +47,8 @@ import bpy  # noqa: E402
 from mathutils import Matrix, Vector  # noqa: E402
 
 from zcomp_cli.blender.runner import serve_job_file  # noqa: E402
-from _bpy_common import add_camera, import_mesh, multilayer_exr_output  # noqa: E402  (beside this script)
+from _bpy_common import (add_camera, import_mesh, multilayer_exr_output, node_tree,  # noqa: E402
+                         principled_bsdf)  # (beside this script)
 
 
 
@@ -69,12 +70,7 @@ def hdr_path(name: str) -> str:
 
 def setup_world(scene_desc: dict) -> None:
     world = bpy.data.worlds.new("zcomp_world")
-    if hasattr(world, "use_nodes"):
-        try:
-            world.use_nodes = True
-        except Exception:  # always-on node trees in newer Blender
-            pass
-    nt = world.node_tree
+    nt = node_tree(world)
     for n in list(nt.nodes):
         nt.nodes.remove(n)
     coord = nt.nodes.new("ShaderNodeTexCoord")
@@ -97,17 +93,8 @@ def setup_world(scene_desc: dict) -> None:
 
 def make_material(name: str, desc: dict):
     mat = bpy.data.materials.new(name)
-    if hasattr(mat, "use_nodes"):
-        try:
-            mat.use_nodes = True
-        except Exception:
-            pass
+    bsdf = principled_bsdf(mat)
     nt = mat.node_tree
-    bsdf = next((n for n in nt.nodes if n.type == "BSDF_PRINCIPLED"), None)
-    if bsdf is None:
-        bsdf = nt.nodes.new("ShaderNodeBsdfPrincipled")
-        out = next((n for n in nt.nodes if n.type == "OUTPUT_MATERIAL"), None) or nt.nodes.new("ShaderNodeOutputMaterial")
-        nt.links.new(bsdf.outputs[0], out.inputs["Surface"])
     bsdf.inputs["Base Color"].default_value = (*desc["color"], 1.0)
     bsdf.inputs["Roughness"].default_value = float(desc["roughness"])
     bsdf.inputs["Metallic"].default_value = 0.0

@@ -69,7 +69,7 @@ class CyclesRenderer(Renderer):
         self._session = None
         self._work: Path | None = None
         self._meshes: dict = {}
-        self._worlds: dict = {}  # content key -> world EXR, oldest first
+        self._worlds: dict = {}  # inputs' key -> the world's rows (its EXR in the work folder), oldest first
 
     def settings(self) -> dict:
         return {"name": self.name, **self._settings.as_dict(), "light": self._physical.settings()}
@@ -117,20 +117,10 @@ class CyclesRenderer(Renderer):
         t0 = time.perf_counter()
         model = self._physical.light(requests[0], seed)
         timings["estimate"] = time.perf_counter() - t0
-        grown = None
-        reach = None
+        grown = reach = None
         if model.source == "manifest" and model.shadows is ShadowKind.CAST:
             # where a given light's shadow falls beyond the mask (the physical renderer's rule)
-            reach = np.zeros(np.shape(requests[0].known), bool)
-            for req in requests:
-                reach |= self._physical._shadow_reach(req, model)
-            unknown = np.zeros_like(reach)
-            for req in requests:
-                unknown |= ~np.asarray(req.known, bool)
-            if (reach & ~unknown).any():
-                grown = unknown | reach
-            else:
-                reach = None
+            grown, reach = self._physical.shadow_reach(requests, model)
         images, passes, layers = [], [], {}
         for k, req in enumerate(requests):
             im, info, aov = self._render_one(req, model, seed, reach, timings)
@@ -175,7 +165,6 @@ class CyclesRenderer(Renderer):
         self._blender()
         item, arrays = self._describe(req, model, seed, box)
         arrays_path = self._work / f"{item['id']}.npz"
-        item["world"]["image"] = str(self._world_file(arrays.pop("world")))
         np.savez(arrays_path, **arrays)
         item.update(arrays=str(arrays_path), out=str(self._work / f"{item['id']}.exr"),
                     width=W, height=H, camera=blender_camera_from_K(req.camera.K, W, H))
@@ -218,25 +207,28 @@ class CyclesRenderer(Renderer):
                      "blender_build_s": float(ev.get("build_s", float("nan"))),
                      "object": item["object"] and ("file" if "mesh" in item["object"] else "maps")}, aov
 
-    def _world_file(self, world: np.ndarray) -> Path:
-        """The world map as an EXR in the work folder, written once per content (a
-        scene's every pass looks it up); the last few kept."""
+    def _world_file(self, key: str, make) -> tuple[Path, np.ndarray]:
+        """The world map (``make() -> (image, rows)``) as an EXR in the work folder, made
+        and written once per ``key`` (the inputs it is made from: a scene's every pass
+        looks it up); the last few kept. Returns (its path, its rows)."""
         from zcomp_cli.imageio import write_exr
 
-        key = hashlib.sha256(np.ascontiguousarray(world, np.float32).tobytes()).hexdigest()[:24]
         path = self._work / f"world_{key}.exr"
         if key not in self._worlds or not path.is_file():
-            write_exr(path, world)
-        self._worlds[key] = self._worlds.pop(key, path)
+            image, rows = make()
+            write_exr(path, image)
+            self._worlds[key] = np.asarray(rows, np.float64)
+        self._worlds[key] = self._worlds.pop(key)  # most recently used last
         while len(self._worlds) > KEEP_WORLDS:
-            old = self._worlds.pop(next(iter(self._worlds)))
-            old.unlink(missing_ok=True)
-        return path
+            old = next(iter(self._worlds))
+            del self._worlds[old]
+            (self._work / f"world_{old}.exr").unlink(missing_ok=True)
+        return path, self._worlds[key]
 
     def _describe(self, req: RenderRequest, model, seed: int, box) -> tuple[dict, dict]:
         """The Blender item and its arrays for one request (``scene``)."""
         from zcomp_cli.lightparams import LightParams
-        from zcomp_cli.renderers.physical.depthmesh import build_depth_mesh
+        from zcomp_cli.renderers.physical.depthmesh import build_depth_mesh, has_geometry
         from zcomp_cli.renderers.physical.lightmodel import ShadowKind
 
         s = self._settings
@@ -244,7 +236,7 @@ class CyclesRenderer(Renderer):
         n = np.nan_to_num(np.asarray(req.maps.normals, np.float64))
         albedo = np.clip(np.nan_to_num(np.asarray(req.maps.albedo, np.float64)), 0.0, 1.0)
         cover = None if req.coverage is None else np.asarray(req.coverage, np.float64) > 0
-        valid = (d > 0) & (np.abs(np.linalg.norm(n, axis=-1) - 1) < 0.2)
+        valid = has_geometry(d, n)
         if cover is not None:
             valid &= ~cover
             d, n, albedo, valid = sc.fill_behind(d, n, albedo, valid, cover, req.camera, model.up)
@@ -265,12 +257,16 @@ class CyclesRenderer(Renderer):
         arrays = dict(arrays)
         params = getattr(req, "light", None) or LightParams.estimate()
         probe = params.probe if model.probe is not None and s.world == "probe" else None
+        up = np.asarray(model.up, np.float64)
         if probe is not None:
             exposure = float(model.fit.exposure) if np.isfinite(model.fit.exposure) else 1.0
-            world, rows = sc.probe_image(probe, model.up, exposure * float(probe.strength), s.probe_width)
+            scale = exposure * float(probe.strength)
+            wkey = repr(("probe", probe.to_dict(), scale, up.tolist(), s.probe_width))
+            make = lambda: sc.probe_image(probe, up, scale, s.probe_width)  # noqa: E731
         else:
-            world, rows = sc.sky_image(model.sky, s.sky_width)
-        arrays["world"] = world
+            wkey = repr(("sky", model.sky.radiance_sh.tolist(), model.sky.ground.tolist(), up.tolist(), s.sky_width))
+            make = lambda: sc.sky_image(model.sky, s.sky_width)  # noqa: E731
+        world_path, rows = self._world_file(hashlib.sha256(wkey.encode()).hexdigest()[:24], make)
         lamps = sc.lamps_of(model, skip_probe_sources=probe is not None)
         for lp in lamps:
             lp["shadow"] = model.shadows is ShadowKind.CAST
@@ -295,7 +291,7 @@ class CyclesRenderer(Renderer):
                 "mesh_key": key, "border": list(box), "samples": s.samples, "seed": int(seed) % (2 ** 31),
                 "denoise": s.denoise, "max_bounces": s.max_bounces, "threads": s.threads,
                 "light_passes": bool(req.aovs),
-                "world": {"rows": np.asarray(rows, np.float64).tolist()}, "lamps": lamps, "object": obj}
+                "world": {"rows": rows.tolist(), "image": str(world_path)}, "lamps": lamps, "object": obj}
         return item, arrays
 
 

@@ -29,6 +29,7 @@ import numpy as np
 from zcomp_cli.conventions import DEFAULT_SEED
 from zcomp_cli.errors import InputError, NumericalError, UsageError
 from zcomp_cli.renderers.base import Renderer, RenderOutput, RenderRequest
+from zcomp_cli.renderers.physical.depthmesh import has_geometry
 from zcomp_cli.renderers.physical.evidence_maps import LightEvidence
 from zcomp_cli.renderers.physical.lightmodel import LightModel, ShadowKind
 from zcomp_cli.renderers.physical.settings import PhysicalSettings, TransportConfig
@@ -100,7 +101,7 @@ class PhysicalRenderer(Renderer):
             known = (d > 0) & np.all(np.isfinite(req.shading), axis=-1)
         from zcomp_cli.renderers.physical.scene_frame import scene_up
 
-        valid = known & (d > 0) & (np.abs(np.linalg.norm(n, axis=-1) - 1) < 0.2)
+        valid = known & has_geometry(d, n)
         up, up_from = scene_up(params.tilt, n, valid, self._settings.frame)
         diagnostics: dict = {}
         from zcomp_cli.renderers.physical import lightfit
@@ -141,18 +142,10 @@ class PhysicalRenderer(Renderer):
         timings["estimate"] = time.perf_counter() - t0
         grown = None
         if model.source == "manifest" and model.shadows is ShadowKind.CAST:
-            # step 2: where the object's shadow falls for this light, beyond the mask.
-            # Only for a known light: a wrong estimated shadow drawn at full length
-            # costs more than a cut one.
+            # step 2: where the object's shadow falls for this light, beyond the mask
             t1 = time.perf_counter()
-            reach = np.zeros(np.shape(requests[0].known), bool)
-            for req in requests:
-                reach |= self._shadow_reach(req, model)
-            unknown = np.zeros_like(reach)
-            for req in requests:
-                unknown |= ~np.asarray(req.known, bool)
-            if (reach & ~unknown).any():
-                grown = unknown | reach
+            grown, reach = self.shadow_reach(requests, model)
+            if grown is not None:
                 requests = [_grown_request(req, reach) for req in requests]
             timings["shadow_reach"] = time.perf_counter() - t1
         t1 = time.perf_counter()
@@ -166,6 +159,22 @@ class PhysicalRenderer(Renderer):
             # the light's evidence at the job's resolution (``evidence_maps``)
             debug_maps = evidence.maps(np.shape(requests[0].known))
         return RenderOutput(images=images, info=info, timings=timings, shading_mask=grown, debug_maps=debug_maps)
+
+    def shadow_reach(self, requests: Sequence[RenderRequest], model: LightModel):
+        """(grown, reach): the shading mask grown along a given light's shadow -- the
+        requests' unknown pixels with ``reach``, the known pixels the object's shadow
+        falls on (``_shadow_reach``) -- or (None, None) when it falls inside the mask. Only
+        for a known light (the caller's rule): a wrong estimated shadow drawn at full
+        length costs more than a cut one. Every renderer that draws this light's shadow
+        re-shades the same pixels (``RenderOutput.shading_mask``)."""
+        reach = np.zeros(np.shape(requests[0].known), bool)
+        unknown = np.zeros_like(reach)
+        for req in requests:
+            reach |= self._shadow_reach(req, model)
+            unknown |= ~np.asarray(req.known, bool)
+        if not (reach & ~unknown).any():
+            return None, None
+        return unknown | reach, reach
 
     def _shadow_reach(self, req: RenderRequest, model: LightModel) -> np.ndarray:
         """(H, W) bool: known pixels in the shadow of what the request's shading mask
@@ -182,7 +191,7 @@ class PhysicalRenderer(Renderer):
         if not occ.any():
             return out
         st = 2 if H * W > cfg.full_res_pixels else 1
-        geo = (d > 0) & (np.abs(np.linalg.norm(n, axis=-1) - 1) < 0.2)
+        geo = has_geometry(d, n)
         gy, gx, Pg, Ng, ok = _grid_points(d, n, geo, req.camera, (0, 0, H, W), st)
         for light in _direct_lights(model):
             L, dist, _ = light.toward(Pg.reshape(-1, 3))
@@ -317,7 +326,7 @@ class PhysicalRenderer(Renderer):
         facing shading (M, 3), visibility (M,)))."""
         H, W = d.shape
         ys, xs = np.nonzero(todo)
-        geo_all = (d > 0) & (np.abs(np.linalg.norm(n, axis=-1) - 1) < 0.2)
+        geo_all = has_geometry(d, n)
         vis_sky, scene_only = self._sky_visibility(d, n, todo, camera, occluder, geo_all, albedo_mean,
                                                    model.sky.radiance_sh, model.walls)
         nv = n[ys, xs].astype(np.float64)
