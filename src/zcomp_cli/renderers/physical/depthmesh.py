@@ -43,15 +43,10 @@ from zcomp_cli.renderers.physical.settings import MeshConfig
 DEFAULT = MeshConfig()
 
 
-# A normal this far from unit length is not one (a map's invalid pixels hold zeros or
-# garbage; a stored unit normal, even in half floats, is within 1e-3 of 1).
-UNIT_NORMAL_TOL = 0.2
-
-
-def has_geometry(depth: np.ndarray, normals: np.ndarray) -> np.ndarray:
+def has_geometry(depth: np.ndarray, normals: np.ndarray, cfg: MeshConfig = DEFAULT) -> np.ndarray:
     """(h, w) bool: the pixels with geometry, a positive depth and a unit normal (within
-    ``UNIT_NORMAL_TOL``). ``depth`` (h, w) and ``normals`` (h, w, 3) finite."""
-    return (np.asarray(depth) > 0) & (np.abs(np.linalg.norm(normals, axis=-1) - 1) < UNIT_NORMAL_TOL)
+    ``cfg.unit_normal_tol``). ``depth`` (h, w) and ``normals`` (h, w, 3) finite."""
+    return (np.asarray(depth) > 0) & (np.abs(np.linalg.norm(normals, axis=-1) - 1) < cfg.unit_normal_tol)
 
 
 @dataclass(frozen=True)
@@ -164,7 +159,7 @@ def build_depth_mesh(depth: np.ndarray, normals: np.ndarray, camera: Camera, up,
     n = np.nan_to_num(np.asarray(normals, np.float64))
     h, w = d.shape
     nn = np.linalg.norm(n, axis=-1)
-    ok = has_geometry(d, n) if valid is None else (np.asarray(valid, bool) & (d > 0))
+    ok = has_geometry(d, n, cfg) if valid is None else (np.asarray(valid, bool) & (d > 0))
     n = n / np.maximum(nn, 1e-12)[..., None]
     up = np.asarray(up, np.float64)
     up = up / max(float(np.linalg.norm(up)), 1e-12)
@@ -299,4 +294,4 @@ def _wall_quads(walls, up, half_length: float):
     return np.asarray(V, np.float64), np.asarray(F, np.int64)
 
 
-__all__ = ["DepthMesh", "build_depth_mesh", "support_mask", "has_geometry", "UNIT_NORMAL_TOL"]
+__all__ = ["DepthMesh", "build_depth_mesh", "support_mask", "has_geometry"]

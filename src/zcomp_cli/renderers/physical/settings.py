@@ -58,6 +58,9 @@ def _sub(cls, why: str):
 class MeshConfig:
     """The depth mesh (``depthmesh``)."""
 
+    unit_normal_tol: float = knob(0.2, "heuristic", "a normal this far from unit length is not one (a map's invalid "
+                                                    "pixels hold zeros or garbage; a stored unit normal, even in half "
+                                                    "floats, is within 1e-3 of 1)")
     step_share: float = knob(0.5, "heuristic", "a neighbour continues a pixel's plane within this share of the "
                                               "step the plane predicts: normals a few degrees off keep a grazing "
                                               "floor whole")
