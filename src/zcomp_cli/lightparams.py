@@ -152,8 +152,20 @@ class ProbeParams:
     rotation_deg: float = 0.0
     convention: str = "zcomp"
     strength: float = 1.0
+    # a mirror-ball photograph instead of an equirectangular file (``chromeball``): the
+    # ball's centre (x, y) and radius in pixels of ``hdr``, and its reflectance
+    ball_center: tuple | None = None
+    ball_radius: float | None = None
+    reflectance: float | None = None
+
+    @property
+    def is_ball(self) -> bool:
+        return self.ball_center is not None
 
     def to_dict(self) -> dict:
+        if self.is_ball:
+            return {"type": "chrome_ball", "image": self.hdr, "center": list(self.ball_center),
+                    "radius": self.ball_radius, "reflectance": self.reflectance, "strength": self.strength}
         return {"type": "probe", "hdr": self.hdr, "rotation_deg": self.rotation_deg, "convention": self.convention,
                 "strength": self.strength}
 

@@ -18,6 +18,11 @@
             strength: auto               # auto: fitted to the photo; a number: direct over sky
                                          # irradiance on a surface facing it (no probe then)
             # irradiance: 3.0            # or W/m^2 (Blender's Sun strength), beside a probe or lamps
+          # - type: chrome_ball          # or a mirror ball photographed from the camera (instead
+          #   image: ball.exr            # of a probe): its centre and radius in pixels of the
+          #   center: [812, 604]         # image, its reflectance (default polished chromium's
+          #   radius: 140                # 0.6); an LDR photo is allowed, with a warning
+          #   reflectance: 0.6
           - type: lamp                   # a light at a place
             position: [0.5, 1.2, -2.0]   # camera frame, metres (x right, y up, z to the viewer)
             radius_m: 0.03               # its radius (a sphere; default 0.03, a bulb)
@@ -47,7 +52,13 @@ SUN_KEYS = {"type", "direction", "azimuth_deg", "elevation_deg", "angular_radius
             "irradiance", "color"}
 PROBE_KEYS = {"type", "hdr", "rotation_deg", "convention", "strength"}
 LAMP_KEYS = {"type", "position", "radius_m", "power", "facing", "color"}
+BALL_KEYS = {"type", "image", "center", "radius", "reflectance", "strength"}
 PROBE_EXTS = {".exr", ".hdr"}
+# a mirror-ball photograph: HDR, or 8/16-bit with a warning (its sun is clipped)
+BALL_EXTS = {".exr", ".hdr", ".png", ".jpg", ".jpeg", ".tif", ".tiff"}
+# a ball's horizontal and vertical radii may differ by this share (a hand-placed ellipse
+# on a photograph): more means the photograph is not head-on or its pixels not square
+BALL_ROUND_TOL = 0.05
 MAX_LIGHTS = 3
 MAX_ANGULAR_RADIUS_DEG = 45.0
 
@@ -182,6 +193,65 @@ def _parse_probe(value, where, add, resolve) -> dict | None:
     return out if ok else None
 
 
+def _parse_ball(value, where, add, resolve) -> dict | None:
+    """A mirror-ball photograph (``chromeball``): the image, the ball's centre and radius
+    in its pixels (checked against the image's size), its reflectance, a strength."""
+    from zcomp_cli.chromeball import CHROME_REFLECTANCE, check_ball
+
+    ok = _unknown_keys(value, BALL_KEYS, where, add, "chrome_ball")
+    out = {"type": "probe", "hdr": None, "rotation_deg": 0.0, "convention": "zcomp", "strength": 1.0,
+           "ball_center": None, "ball_radius": None, "reflectance": CHROME_REFLECTANCE}
+    c = value.get("center")
+    vals = [_num(x) for x in c] if isinstance(c, (list, tuple)) else []
+    if "center" not in value or len(vals) != 2 or any(x is None for x in vals):
+        add(value, "center" if "center" in value else None, f"{where}.center",
+            f"a chrome_ball needs 'center': [x, y], the ball's centre in pixels of its image, got {c!r}")
+        ok = False
+    else:
+        out["ball_center"] = (vals[0], vals[1])
+    r = value.get("radius")
+    radii = [_num(x) for x in r] if isinstance(r, (list, tuple)) else [_num(r)]
+    if "radius" not in value or len(radii) not in (1, 2) or any(x is None or x <= 0 for x in radii):
+        add(value, "radius" if "radius" in value else None, f"{where}.radius",
+            f"a chrome_ball needs 'radius': its radius in pixels (or [rx, ry]), got {r!r}")
+        ok = False
+    elif len(radii) == 2 and abs(radii[0] - radii[1]) > BALL_ROUND_TOL * max(radii):
+        add(value, "radius", f"{where}.radius",
+            f"the ball is not round in the photograph (radii {radii[0]:g} x {radii[1]:g} px): shoot it head-on "
+            "with square pixels, or crop the photograph so that it is")
+        ok = False
+    else:
+        out["ball_radius"] = float(sum(radii) / len(radii))
+    try:
+        f = _number(value, "reflectance", where, add, 1e-3, 1.0)
+        if f is not None:
+            out["reflectance"] = f
+        s = _number(value, "strength", where, add, 0.0, 1e9)
+        out["strength"] = 1.0 if s is None else s
+    except _Bad:
+        ok = False
+    if "image" not in value:
+        add(value, None, where, "a chrome_ball needs 'image' (the mirror ball's photograph)")
+        return None
+    p = resolve(value, "image", f"{where}.image", BALL_EXTS) if resolve is not None else value["image"]
+    if p is None:
+        return None
+    out["hdr"] = str(p)
+    if ok and resolve is not None:
+        from zcomp_cli.imageio import image_header
+
+        try:
+            w, h, _ = image_header(p)
+        except ValueError as exc:
+            add(value, "image", f"{where}.image", f"cannot read the ball's photograph: {exc}")
+            return None
+        why = check_ball(w, h, out["ball_center"], out["ball_radius"])
+        if why:
+            add(value, "center", f"{where}.center", why)
+            ok = False
+    return out if ok else None
+
+
 def _parse_lamp(value, where, add) -> dict | None:
     ok = _unknown_keys(value, LAMP_KEYS, where, add, "lamp")
     out = {"type": "lamp", "position": None, "radius_m": None, "power": "auto", "facing": None, "color": None}
@@ -215,7 +285,10 @@ def _parse_one(value, where, add, resolve) -> dict | None:
         return _parse_probe(value, where, add, resolve)
     if kind == "lamp":
         return _parse_lamp(value, where, add)
-    add(value, "type", f"{where}.type", f"unsupported light type {kind!r} (supported: sun, directional, lamp, probe)")
+    if kind == "chrome_ball":
+        return _parse_ball(value, where, add, resolve)
+    add(value, "type", f"{where}.type",
+        f"unsupported light type {kind!r} (supported: sun, directional, lamp, probe, chrome_ball)")
     return None
 
 
@@ -251,7 +324,7 @@ def parse_light(value, where: str, add, resolve=None) -> dict | None:
     probes = [x for x in out if x["type"] == "probe"]
     direct = [x for x in out if x["type"] != "probe"]
     if len(probes) > 1:
-        add(None, None, where, f"at most one probe, got {len(probes)}")
+        add(None, None, where, f"at most one probe or chrome_ball, got {len(probes)}")
         return None
     if len(direct) > MAX_LIGHTS:
         add(None, None, where, f"at most {MAX_LIGHTS} suns and lamps (besides a probe), got {len(direct)}")
@@ -276,8 +349,12 @@ def to_params(lights: list, tilt: dict | None = None):
     for x in lights:
         color = WHITE if x.get("color") is None else tuple(float(v) for v in x["color"])
         if x["type"] == "probe":
+            ball = x.get("ball_center")
             probe = ProbeParams(hdr=x["hdr"], rotation_deg=float(x["rotation_deg"]), convention=x["convention"],
-                                strength=float(x["strength"]))
+                                strength=float(x["strength"]),
+                                ball_center=None if ball is None else tuple(float(v) for v in ball),
+                                ball_radius=None if ball is None else float(x["ball_radius"]),
+                                reflectance=None if ball is None else float(x["reflectance"]))
         elif x["type"] == "sun":
             r = x["angular_radius_deg"]
             strength = x["strength"]

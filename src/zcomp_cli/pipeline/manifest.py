@@ -516,8 +516,8 @@ def _parse_scene_light(s, where, probs, root, files: list, check_files: bool = T
     def add(container, key, w, msg):  # problems without a container sit on 'light'
         probs.add(s if container is None else container, "light" if container is None else key, w, msg)
 
-    def resolve(container, key, w):  # a light probe file, relative to the manifest
-        p = _file(root, container[key], container, key, w, probs, PROBE_EXTS)
+    def resolve(container, key, w, exts=PROBE_EXTS):  # a light probe file, relative to the manifest
+        p = _file(root, container[key], container, key, w, probs, exts)
         if p is not None and check_files:
             dark = _no_light(p)
             if dark:

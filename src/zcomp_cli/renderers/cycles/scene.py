@@ -76,13 +76,12 @@ def probe_image(probe_params, up, scale: float, max_width: int) -> tuple[np.ndar
     it: non-finite and negative values 0, at most ``max_width`` wide) times ``scale``
     (its strength times the fitted exposure), and the ``world_rows`` of its convention
     and yaw."""
-    from zcomp_cli.renderers.physical.probe import read_probe
+    from zcomp_cli.renderers.physical.probe import probe_radiance
     from zcomp_cli.renderers.physical.settings import ProbeConfig
 
-    img = read_probe(probe_params.hdr, ProbeConfig(max_width=int(max_width)))
     frame = ground_frame(up)
-    return ((img * float(scale)).astype(np.float32),
-            world_rows(frame, probe_params.convention, probe_params.rotation_deg))
+    img, convention, rotation = probe_radiance(probe_params, frame, ProbeConfig(max_width=int(max_width)))
+    return (img * float(scale)).astype(np.float32), world_rows(frame, convention, rotation)
 
 
 def _colour(rgb) -> tuple[float, list[float]]:

@@ -131,11 +131,10 @@ def fit_light(params: LightParams | None, depth, normals, shading, known, albedo
     lights: list[_Light] = []
     probe = None
     if params.probe is not None:
-        from zcomp_cli.renderers.physical.probe import load_probe
+        from zcomp_cli.renderers.physical.probe import load_given_probe
 
         pr = params.probe
-        probe = load_probe(pr.hdr, pp.frame, convention=pr.convention, rotation_deg=pr.rotation_deg,
-                           cfg=settings.probe)
+        probe = load_given_probe(pr, pp.frame, cfg=settings.probe)
         k = float(pr.strength)
         fixed += k * at.sky_atom_values(fp, probe.sky_radiance_sh, pp.sky_vis)
         n_fixed += 1

@@ -22,6 +22,7 @@ faint is under the contrast the eye sees on a uniform surface, Weber's 2 %), up 
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -256,5 +257,36 @@ def load_probe(path, frame, *, convention: str = equirect.DEFAULT_CONVENTION,
                        name=Path(path).name, cfg=cfg)
 
 
+_WARNED: set = set()
+
+
+def probe_radiance(params, frame, cfg: ProbeConfig = DEFAULT) -> tuple[np.ndarray, str, float]:
+    """A given probe's radiance (``lightparams.ProbeParams``): (image (H, W, 3) float64,
+    its convention, its rotation). A probe file is read (``read_probe``); a mirror-ball
+    photograph is unwrapped in ``frame`` (``chromeball``: zcomp's convention, rotation 0)."""
+    if not params.is_ball:
+        return read_probe(params.hdr, cfg), params.convention, float(params.rotation_deg)
+    from zcomp_cli import chromeball
+    from zcomp_cli.errors import InputError
+
+    img, info = chromeball.ball_probe(params.hdr, params.ball_center, params.ball_radius, frame,
+                                      reflectance=float(params.reflectance or chromeball.CHROME_REFLECTANCE),
+                                      max_width=cfg.max_width)
+    if params.hdr not in _WARNED:  # once per ball photograph and process, not per job
+        _WARNED.add(params.hdr)
+        for w in info.warnings():
+            logging.getLogger(__name__).warning("%s: %s", Path(params.hdr).name, w)
+    if not float(img.max()) > 0:
+        raise InputError(f"{params.hdr}: the chrome ball holds no light (every pixel is 0, negative or not finite)")
+    return img, equirect.DEFAULT_CONVENTION, 0.0
+
+
+def load_given_probe(params, frame, cfg: ProbeConfig = DEFAULT) -> ProbeLights:
+    """``split_probe`` of a given probe (``probe_radiance``)."""
+    img, convention, rotation = probe_radiance(params, frame, cfg)
+    return split_probe(img, frame, convention=convention, rotation_deg=rotation, name=Path(params.hdr).name,
+                       cfg=cfg)
+
+
 __all__ = ["ProbeSource", "ProbeLights", "PrefilteredProbe", "read_probe", "split_probe", "prefilter",
-           "load_probe"]
+           "load_probe", "probe_radiance", "load_given_probe"]
