@@ -88,11 +88,15 @@ _COMMANDS: dict[str, tuple[str, str, str]] = {
         "estimate",
         "Estimate missing background intrinsics of a manifest's scenes.",
     ),
+    "preview-light": ("zcomp_cli.cli.preview_light", "preview_light",
+                      "Render each scene's light on three balls (grey, silver, mirror) before a batch."),
     "train": ("zcomp_cli.cli.train", "train", "Train the ZeroComp ControlNet."),
     "status": ("zcomp_cli.cli.status", "status",
                "Merge an output folder's runs and shards: done, failed, missing jobs."),
     "import": ("zcomp_cli.cli.import_group", "import_group",
                "Import the ZeroComp or SpotLight evaluation set as a manifest."),
+    "report": ("zcomp_cli.cli.report", "report",
+               "Write one HTML page for an output folder: thumbnails, status, light, metrics."),
 }
 
 

@@ -8,7 +8,8 @@ arrays to an ``.npz``; this script only builds what it is told and renders it.
 Item::
 
     {"id": str, "out": path of the EXR to write, "arrays": path of the .npz,
-     "mesh_key": str (the scene mesh's content key: a process keeps the last few built),
+     "mesh_key": str (the scene mesh's content key: a process keeps the last few built;
+                 null: no scene mesh, the object alone), "transparent"?: bool (film),
      "width", "height", "camera": {lens_mm, sensor_width_mm, shift_x, shift_y},
      "border": [x0, y0, x1, y1] (pixels, rows from the top, half-open) -- the window rendered,
      "samples", "seed", "denoise", "max_bounces", "threads", "light_passes": bool (also
@@ -208,7 +209,7 @@ def setup_render(item: dict) -> None:
     r.resolution_x, r.resolution_y = W, H
     r.resolution_percentage = 100
     r.pixel_aspect_x = r.pixel_aspect_y = 1.0
-    r.film_transparent = False
+    r.film_transparent = bool(item.get("transparent"))
     threads = int(item.get("threads", 0))
     r.threads_mode = "FIXED" if threads > 0 else "AUTO"
     if threads > 0:
@@ -244,7 +245,8 @@ def process(item: dict, common: dict) -> dict:
     reset_keeping_scene_meshes()
     arrays = np.load(item["arrays"])
     setup_render(item)
-    scene_mesh(arrays, str(item["mesh_key"]))
+    if item.get("mesh_key"):
+        scene_mesh(arrays, str(item["mesh_key"]))
     world(item["world"])
     for i, lp in enumerate(item.get("lamps", [])):
         add_lamp(i, lp)

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import atexit
 import hashlib
+import math
 import os
 import shutil
 import tempfile
@@ -225,8 +226,62 @@ class CyclesRenderer(Renderer):
             (self._work / f"world_{old}.exr").unlink(missing_ok=True)
         return path, self._worlds[key]
 
-    def _describe(self, req: RenderRequest, model, seed: int, box) -> tuple[dict, dict]:
-        """The Blender item and its arrays for one request (``scene``)."""
+    def light(self, req: RenderRequest, seed: int = DEFAULT_SEED):
+        """The scene's light model (the physical renderer's fit, cached per scene)."""
+        return self._physical.light(req, seed)
+
+    def render_alone(self, req: RenderRequest, seed: int = DEFAULT_SEED, *, box, zoom: float = 1.0,
+                     samples: int | None = None) -> np.ndarray:
+        """The request's object under the scene's light with nothing of the scene around
+        it (no depth mesh: no floor, no shadow, no bounce from the photograph), on
+        transparent film: a look at the light itself, as a look-development turntable
+        shows it. Seen by the request's camera ``zoom`` times finer, in the window
+        ``box`` (x0, y0, x1, y1) of the request's pixels.
+
+        Returns (h, w, 4) float32 linear RGB and alpha of the window (``zoom`` x box).
+        """
+        from zcomp_cli.blender.intrinsics import blender_camera_from_K
+
+        if req.occluder is None or getattr(req.occluder, "source", None) is None:
+            raise UsageError("render_alone needs a request whose occluder is a mesh file (PosedMesh.source)")
+        H, W = req.camera.height, req.camera.width
+        z = float(zoom)
+        if not (math.isfinite(z) and 1.0 <= z <= 16.0):
+            raise UsageError(f"render_alone: zoom must be in [1, 16], got {zoom!r}")
+        Wz, Hz = max(1, round(W * z)), max(1, round(H * z))
+        x0, y0, x1, y1 = (int(v) for v in box)
+        bz = (max(0, math.floor(x0 * z)), max(0, math.floor(y0 * z)), min(Wz, math.ceil(x1 * z)),
+              min(Hz, math.ceil(y1 * z)))
+        if bz[2] <= bz[0] or bz[3] <= bz[1]:
+            raise UsageError(f"render_alone: empty window {list(box)}")
+        model = self._physical.light(req, seed)
+        self._blender()
+        item, arrays = self._describe(req, model, seed, bz, with_scene=False)
+        K = np.asarray(req.camera.K, np.float64).copy()
+        K[:2] *= z
+        arrays_path = self._work / f"{item['id']}.npz"
+        np.savez(arrays_path, **arrays)
+        item.update(arrays=str(arrays_path), out=str(self._work / f"{item['id']}.exr"), width=Wz, height=Hz,
+                    transparent=True, camera=blender_camera_from_K(K, Wz, Hz))
+        if samples is not None:
+            item["samples"] = int(samples)
+        res = self._session.run([item])
+        ev = res.results.get(item["id"], {})
+        from zcomp_cli.blender.passes import read_multilayer_exr
+
+        try:
+            if ev.get("event") != "done":
+                raise RenderError(f"Cycles failed: {ev.get('error', 'no answer from Blender')}")
+            ch = read_multilayer_exr(item["out"])
+        finally:
+            for p in (arrays_path, Path(item["out"])):
+                p.unlink(missing_ok=True)
+        rgba = np.stack([ch[f"Combined.{c}"] for c in "RGBA"], -1)
+        return np.clip(np.nan_to_num(rgba, nan=0.0, posinf=0.0, neginf=0.0), 0.0, None).astype(np.float32)
+
+    def _describe(self, req: RenderRequest, model, seed: int, box, *, with_scene: bool = True) -> tuple[dict, dict]:
+        """The Blender item and its arrays for one request (``scene``); without the
+        scene's mesh when not ``with_scene`` (``render_alone``)."""
         from zcomp_cli.lightparams import LightParams
         from zcomp_cli.renderers.physical.depthmesh import build_depth_mesh, has_geometry
         from zcomp_cli.renderers.physical.lightmodel import ShadowKind
@@ -237,7 +292,9 @@ class CyclesRenderer(Renderer):
         albedo = np.clip(np.nan_to_num(np.asarray(req.maps.albedo, np.float64)), 0.0, 1.0)
         cover = None if req.coverage is None else np.asarray(req.coverage, np.float64) > 0
         valid = has_geometry(d, n)
-        if cover is not None:
+        if not with_scene:
+            valid[:] = False
+        if cover is not None and with_scene:
             valid &= ~cover
             d, n, albedo, valid = sc.fill_behind(d, n, albedo, valid, cover, req.camera, model.up)
         # the scene mesh, cached by its content (a scene's background request is the same
@@ -246,8 +303,8 @@ class CyclesRenderer(Renderer):
         for a in (d, n, albedo, valid, np.asarray(model.up, np.float64), np.float64(model.albedo_offset)):
             h.update(np.ascontiguousarray(a).tobytes())
         h.update(repr([w.to_info() for w in model.walls]).encode())
-        key = h.hexdigest()[:24]
-        arrays = self._meshes.get(key)
+        key = h.hexdigest()[:24] if with_scene else None
+        arrays = self._meshes.get(key) if with_scene else {}
         if arrays is None:
             mesh = build_depth_mesh(d, n, req.camera, model.up, valid=valid, walls=sc.walls_behind(model.walls))
             diffuse = np.clip(albedo + float(model.albedo_offset), 0.0, 1.0)

@@ -1,0 +1,1 @@
+"""``zcomp preview-light``: the light zcomp will use, rendered on three balls (``run``)."""

@@ -1,0 +1,222 @@
+"""``zcomp preview-light``: the light zcomp will use, seen on three balls, before a batch.
+
+Per scene (numbered as the pipeline's steps):
+
+1. **Where**: the balls stand on the surface seen at a pixel -- the user's, else the
+   scene's first job's placement (a pose's position, projected), else the frame's centre
+   two thirds down -- in a row along the ground's right direction, the row spanning
+   ``ROW_SHARE`` of the frame's width at that depth (or ``diameter`` metres each).
+2. **The balls as an object**: their intrinsic maps drawn analytically
+   (``balls.ball_bundle``), their mesh and materials a glTF (``balls.write_balls_glb``).
+3. **The light**: the scene's light as the batch will use it -- given (a probe, a chrome
+   ball, suns, lamps) or estimated -- fitted once per scene (the physical renderer's fit,
+   the same seed as the scene's first job).
+4. **Blender**: Cycles renders the balls into the photograph through the pipeline's own
+   steps (background and composite passes, then the shadow-opacity compositor: their
+   shadows included), then the balls alone with the same light on transparent film,
+   zoomed. One Blender process for every scene.
+5. **The sheet**: both pictures and the light's numbers (``summary``), written atomically
+   as ``OUT/preview/<scene>.png``, the numbers also as ``<scene>.json``.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from zcomp_cli.errors import UsageError, ZcompError
+
+# the row of three balls spans this share of the frame's width at their depth (a
+# judgement: large enough to read the light on, small enough to leave the floor around
+# them and their shadows in the frame)
+ROW_SHARE = 0.25
+# where the balls stand when the scene has no job: the frame's centre column, two thirds
+# down (on most photographs' floor)
+DEFAULT_PIXEL_SHARE = (0.5, 2.0 / 3.0)
+# the balls alone are rendered this many pixels tall at least (zoomed from the frame, at
+# most ``MAX_ZOOM`` times): enough to see a sun's highlight on the silver ball
+ALONE_MIN_PX = 192
+MAX_ZOOM = 8.0
+# Cycles samples per pixel of a preview (denoised): the error-against-time sweep's knee
+# is 16-32 (docs/error_vs_time_cycles.png); 16 keeps a scene within seconds
+DEFAULT_SAMPLES = 16
+SUBDIR = "preview"
+
+
+@dataclass
+class PreviewResult:
+    """One scene's preview: its sheet and numbers (paths), or why it failed."""
+
+    scene: str
+    sheet: Path | None = None
+    numbers: Path | None = None
+    seconds: float = 0.0
+    error: str | None = None
+    info: dict = field(default_factory=dict)
+
+
+def sheet_paths(out_dir, scene: str) -> tuple[Path, Path]:
+    # (a scene's name is a safe file name: the manifest checks it as a job folder's)
+    base = Path(out_dir) / SUBDIR / scene
+    return base.with_suffix(".png"), base.with_suffix(".json")
+
+
+def choose_pixel(manifest, scene_name: str, camera, pixel_native=None) -> tuple[tuple[float, float], str]:
+    """(x, y) in working pixels where the balls stand, and where it came from."""
+    spec = manifest.scenes[scene_name]
+    sx, sy = camera.width / float(spec.width), camera.height / float(spec.height)
+    if pixel_native is not None:
+        x, y = (float(v) for v in pixel_native)
+        if not (0 <= x < spec.width and 0 <= y < spec.height):
+            raise UsageError(f"--pixel {x:g} {y:g} is outside scene {scene_name!r}'s {spec.width}x{spec.height} "
+                             "photograph")
+        return (x * sx, y * sy), "--pixel"
+    for job in manifest.jobs:
+        if job.scene != scene_name:
+            continue
+        if job.placement is not None:
+            return tuple(job.placement.pixel), f"job {job.name}'s placement"
+        if job.pose is not None:
+            px, z = camera.project(np.asarray(job.pose.position, np.float64)[None])
+            if z[0] > 0 and np.all(np.isfinite(px[0])):
+                x, y = float(px[0][0]), float(px[0][1])
+                if 0 <= x < camera.width and 0 <= y < camera.height:
+                    return (x, y), f"job {job.name}'s pose"
+    return ((DEFAULT_PIXEL_SHARE[0] * camera.width, DEFAULT_PIXEL_SHARE[1] * camera.height),
+            "the frame's centre, two thirds down")
+
+
+def ball_pose(scene, pixel, diameter: float | None) -> tuple[np.ndarray, float]:
+    """(4, 4) object-to-camera matrix of the balls' row standing at ``pixel`` (its x axis
+    the camera's right on the surface, y the surface's normal), and the ball diameter."""
+    from zcomp_cli.pipeline.manifest import Placement
+    from zcomp_cli.pipeline.placement import pose_from_placement
+
+    cam = scene.camera
+    pose = pose_from_placement(Placement(pixel=tuple(pixel)), scene.maps.depth, scene.maps.normals, cam)
+    P = np.asarray(pose.position, np.float64)
+    up = np.asarray(pose.rotation, np.float64)[:, 1]
+    x = np.array([1.0, 0.0, 0.0]) - up[0] * up
+    if np.linalg.norm(x) < 1e-6:  # a surface facing sideways: its own horizontal
+        x = np.cross(up, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    z = np.cross(x, up)
+    M = np.eye(4)
+    M[:3, 0], M[:3, 1], M[:3, 2], M[:3, 3] = x, up, z, P
+    if diameter is None:
+        from zcomp_cli.preview.balls import BALLS, SPACING
+
+        depth = -P[2]
+        frame_w = depth * cam.width / float(cam.K[0, 0])
+        row = SPACING * (len(BALLS) - 1) + 1.0  # the row's width in diameters
+        diameter = ROW_SHARE * frame_w / row
+    return M, float(diameter)
+
+
+def preview_scene(manifest, scene_name: str, renderer, *, out_dir, work: Path, pixel_native=None,
+                  diameter: float | None = None, cache_dir=None) -> PreviewResult:
+    """Steps 1-5 for one scene (module docstring); raises ZcompError on failure."""
+    from zcomp_cli.cache import cache_dir as cache_folder
+    from zcomp_cli.imageio import write_json_atomic, write_png
+    from zcomp_cli.pipeline.job import finish_job, prepare_job, roi_around
+    from zcomp_cli.pipeline.scene import load_scene
+    from zcomp_cli.preview.balls import ball_bundle, write_balls_glb
+    from zcomp_cli.preview.sheet import make_sheet
+    from zcomp_cli.preview.summary import light_lines
+
+    t0 = time.perf_counter()
+    spec = manifest.scenes[scene_name]
+    scene = load_scene(spec, manifest.defaults.resolution, cache_dir=cache_folder("estimates", cache_dir))
+    # 1. where
+    pixel, pixel_from = choose_pixel(manifest, scene_name, scene.camera, pixel_native)
+    M, d = ball_pose(scene, pixel, diameter)
+    # 2. the balls as an object
+    glb = work / f"balls_{d:.6g}.glb"
+    if not glb.is_file():
+        write_balls_glb(glb, d)
+    bundle = ball_bundle(scene.camera, M, d, mesh_path=glb)
+    seed = next((j.seed for j in manifest.jobs if j.scene == scene_name), manifest.defaults.seed)
+    prep = prepare_job(scene, bundle, shading_radius=manifest.defaults.shading_radius, seed=seed)
+    # 3.-4. the light, Blender
+    t = time.perf_counter()
+    out = renderer.render(prep.requests, seed=seed)
+    res = finish_job(prep, out, renderer.name, renderer.settings())
+    model = renderer.light(prep.requests[0], seed)
+    cover = bundle.mask > 0
+    box = roi_around(cover, max(4, int(0.1 * cover.any(0).sum())))
+    bh = max(1, box[3] - box[1])
+    zoom = float(np.clip(ALONE_MIN_PX / bh, 1.0, MAX_ZOOM))
+    alone = renderer.render_alone(prep.requests[1], seed, box=box, zoom=zoom)
+    render_s = time.perf_counter() - t
+    # 5. the sheet
+    lines = light_lines(model, getattr(scene.light, "probe", None) if scene.light is not None else None)
+    lines.append(f"balls: {d:.3g} m across at pixel [{pixel[0]:.0f}, {pixel[1]:.0f}] ({pixel_from}); grey 18%, "
+                 f"satin silver, chrome mirror; rendered by Cycles, {renderer.settings().get('samples')} samples")
+    sheet = make_sheet(res.image, alone, lines, f"zcomp preview-light: scene {scene_name}")
+    png, js = sheet_paths(out_dir, scene_name)
+    write_png(png, sheet.astype(np.float32) / 255.0, srgb_encode=False)
+    seconds = time.perf_counter() - t0
+    info = {"scene": scene_name, "pixel": list(pixel), "pixel_from": pixel_from, "ball_diameter_m": d,
+            "object_to_camera": M.tolist(),
+            "seed": seed, "light": model.to_info(), "lines": lines, "seconds": seconds, "render_s": render_s,
+            "renderer": renderer.settings(), "notes": res.report.get("notes", [])}
+    write_json_atomic(js, info)
+    return PreviewResult(scene_name, png, js, seconds, None, info)
+
+
+def preview_light(manifest, out_dir, *, scenes=None, pixel_native=None, diameter: float | None = None,
+                  samples: int = DEFAULT_SAMPLES, overwrite: bool = False, cache_dir=None,
+                  progress=None) -> list[PreviewResult]:
+    """Preview sheets for ``scenes`` (default: every scene of the manifest, in order).
+    Refuses (``UsageError``, before anything is written) an unknown scene, a bad
+    ``diameter`` or sheets that exist without ``overwrite``. A scene that fails is
+    reported in its result and the rest go on. ``progress(stage, done, total, label)``."""
+    from zcomp_cli.renderers.cycles import CyclesRenderer
+
+    names = list(manifest.scenes) if not scenes else list(scenes)
+    unknown = [n for n in names if n not in manifest.scenes]
+    if unknown:
+        raise UsageError(f"--scene: no scene {', '.join(map(repr, unknown))} in {manifest.path.name} "
+                         f"(scenes: {', '.join(manifest.scenes)})")
+    if diameter is not None and not (math.isfinite(diameter) and 0 < diameter <= 1e3):
+        raise UsageError(f"--diameter: expected metres in (0, 1000], got {diameter!r}")
+    if pixel_native is not None:
+        x, y = (float(v) for v in pixel_native)
+        for n in names:
+            sp = manifest.scenes[n]
+            if not (0 <= x < sp.width and 0 <= y < sp.height):
+                raise UsageError(f"--pixel {x:g} {y:g} is outside scene {n!r}'s {sp.width}x{sp.height} photograph")
+    if not overwrite:
+        there = [str(p) for n in names for p in sheet_paths(out_dir, n) if p.exists()]
+        if there:
+            raise UsageError(f"{there[0]} exists (and {len(there) - 1} more); give --overwrite to replace them")
+    renderer = CyclesRenderer(samples=int(samples))
+    renderer.check()
+    work = Path(tempfile.mkdtemp(prefix="zcomp-preview-"))
+    results = []
+    try:
+        for k, name in enumerate(names):
+            if progress:
+                progress("scenes", k, len(names), name)
+            t = time.perf_counter()
+            try:
+                results.append(preview_scene(manifest, name, renderer, out_dir=out_dir, work=work,
+                                             pixel_native=pixel_native, diameter=diameter, cache_dir=cache_dir))
+            except ZcompError as exc:
+                results.append(PreviewResult(name, seconds=time.perf_counter() - t, error=str(exc)))
+        if progress:
+            progress("scenes", len(names), len(names), "")
+    finally:
+        renderer.close()
+        shutil.rmtree(work, ignore_errors=True)
+    return results
+
+
+__all__ = ["PreviewResult", "preview_light", "preview_scene", "choose_pixel", "ball_pose", "sheet_paths",
+           "ROW_SHARE", "DEFAULT_SAMPLES"]
