@@ -50,7 +50,7 @@ MAX_SEED = 2**32 - 1  # numpy and torch generators both take [0, 2**32)
 # (summary.json and every shard's summary.shard-I-of-N.json: summary*.json).
 # what zcomp writes at the top of an output folder (eval's tables, `zcomp report`'s page,
 # `zcomp preview-light`'s sheets): no job folder may take these names
-RESERVED_OUTPUT_NAMES = {"summary.json", "eval.csv", "eval.json", "report.html", "preview"}
+RESERVED_OUTPUT_NAMES = {"summary.json", "eval.csv", "eval.json", "report.html", "report_thumbs", "preview"}
 RESERVED_OUTPUT_RE = re.compile(r"summary.*\.json", re.I)
 # Blender renders no image smaller than this on a side (mesh objects are rendered at
 # the scene's working size).

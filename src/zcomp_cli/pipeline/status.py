@@ -132,8 +132,9 @@ def folder_status(out, expected: list[str] | None = None, *, fingerprints: dict[
             st.shards[f"{i}/{n}"] = "finished" if (i, n) in seen_shards else "no summary"
     names = list(dict.fromkeys(expected if expected is not None else listed))
     if expected is None:  # job folders nobody listed (a run killed before its summary)
-        names += [d.name for d in sorted(out.iterdir()) if d.is_dir() and (d / "report.json").exists()
-                  and d.name not in names]
+        known = set(names)  # (a set: a list's membership test made this quadratic in the jobs)
+        names += [d.name for d in sorted(out.iterdir()) if d.is_dir() and d.name not in known
+                  and (d / "report.json").exists()]
     for name in names:
         js = job_state(out / name, verify=verify)
         if js.note:

@@ -47,6 +47,10 @@ MAX_ZOOM = 8.0
 # is 16-32 (docs/error_vs_time_cycles.png); 16 keeps a scene within seconds
 DEFAULT_SAMPLES = 16
 SUBDIR = "preview"
+# the world's importance map a preview builds on every pass (``CyclesSettings``): 256
+# instead of a 1024-wide probe's own width saves 0.7 s a pass (a preview's three renders
+# are otherwise mostly this map; benchmarks/preview_light_timing.py)
+WORLD_MAP_RESOLUTION = 256
 
 
 @dataclass
@@ -152,8 +156,12 @@ def preview_scene(manifest, scene_name: str, renderer, *, out_dir, work: Path, p
     box = roi_around(cover, max(4, int(0.1 * cover.any(0).sum())))
     bh = max(1, box[3] - box[1])
     zoom = float(np.clip(ALONE_MIN_PX / bh, 1.0, MAX_ZOOM))
+    ta = time.perf_counter()
     alone = renderer.render_alone(prep.requests[1], seed, box=box, zoom=zoom)
+    alone_s = time.perf_counter() - ta
     render_s = time.perf_counter() - t
+    startup = next((p.get("blender_startup_s") for p in out.info.get("passes", []) if p.get("blender_startup_s")),
+                   None)
     # 5. the sheet
     lines = light_lines(model, getattr(scene.light, "probe", None) if scene.light is not None else None)
     lines.append(f"balls: {d:.3g} m across at pixel [{pixel[0]:.0f}, {pixel[1]:.0f}] ({pixel_from}); grey 18%, "
@@ -165,6 +173,8 @@ def preview_scene(manifest, scene_name: str, renderer, *, out_dir, work: Path, p
     info = {"scene": scene_name, "pixel": list(pixel), "pixel_from": pixel_from, "ball_diameter_m": d,
             "object_to_camera": M.tolist(),
             "seed": seed, "light": model.to_info(), "lines": lines, "seconds": seconds, "render_s": render_s,
+            "blender_startup_s": startup, "timings": {**{k: float(v) for k, v in out.timings.items()},
+                                                      "alone_s": float(alone_s)},
             "renderer": renderer.settings(), "notes": res.report.get("notes", [])}
     write_json_atomic(js, info)
     return PreviewResult(scene_name, png, js, seconds, None, info)
@@ -196,7 +206,7 @@ def preview_light(manifest, out_dir, *, scenes=None, pixel_native=None, diameter
         there = [str(p) for n in names for p in sheet_paths(out_dir, n) if p.exists()]
         if there:
             raise UsageError(f"{there[0]} exists (and {len(there) - 1} more); give --overwrite to replace them")
-    renderer = CyclesRenderer(samples=int(samples))
+    renderer = CyclesRenderer(samples=int(samples), world_map_resolution=WORLD_MAP_RESOLUTION)
     renderer.check()
     work = Path(tempfile.mkdtemp(prefix="zcomp-preview-"))
     results = []

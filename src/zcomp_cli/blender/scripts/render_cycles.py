@@ -14,7 +14,8 @@ Item::
      "border": [x0, y0, x1, y1] (pixels, rows from the top, half-open) -- the window rendered,
      "samples", "seed", "denoise", "max_bounces", "threads", "light_passes": bool (also
      Cycles' diffuse, glossy, emission and environment passes),
-     "world": {"image": path of an EXR, "rows": 3x3} -- the env map, looked up at
+     "world": {"image": path of an EXR, "rows": 3x3, "map_resolution"?: int (0: Cycles'
+              automatic importance map)} -- the env map, looked up at
               ``rows @ d`` for a camera-frame direction d in Blender's equirectangular layout,
      "lamps": [{"kind": "SUN"|"POINT"|"AREA", "direction" (3,) the way it shines,
                 "position"?, "energy", "color", "angle_rad"?, "radius"?, "size"?}],
@@ -155,6 +156,10 @@ def world(desc: dict) -> None:
     nt.links.new(comb.outputs["Vector"], env.inputs["Vector"])
     nt.links.new(env.outputs["Color"], bg.inputs["Color"])
     nt.links.new(bg.outputs["Background"], out.inputs["Surface"])
+    res = int(desc.get("map_resolution") or 0)
+    if res > 0:  # the importance map's resolution (else Cycles' automatic: the image's)
+        wd.cycles.sampling_method = "MANUAL"
+        wd.cycles.sample_map_resolution = res
     bpy.context.scene.world = wd
 
 

@@ -348,7 +348,8 @@ class CyclesRenderer(Renderer):
                 "mesh_key": key, "border": list(box), "samples": s.samples, "seed": int(seed) % (2 ** 31),
                 "denoise": s.denoise, "max_bounces": s.max_bounces, "threads": s.threads,
                 "light_passes": bool(req.aovs),
-                "world": {"rows": rows.tolist(), "image": str(world_path)}, "lamps": lamps, "object": obj}
+                "world": {"rows": rows.tolist(), "image": str(world_path), "map_resolution": s.world_map_resolution},
+                "lamps": lamps, "object": obj}
         return item, arrays
 
 
