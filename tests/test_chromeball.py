@@ -271,3 +271,62 @@ def test_a_ball_rendered_by_blender_under_a_probe_gives_back_the_probes_sun(tmp_
         # away from the sun and the blind spot, the sky's radiance comes back
         assert np.median(unwrapped) == pytest.approx(0.05, rel=0.1)
         json.dumps(info.to_dict())
+
+
+def test_a_chrome_ball_lights_a_composite_as_its_probe_does(tmp_path, examples_dir):
+    """The shipped example's room lit by a probe holding a 2 deg sun, given once as the
+    equirectangular file and once as a mirror ball photographed (by the reflection law)
+    from the camera under it: both composites' light models put the probe's sun in the
+    same direction (within 3 deg; the manifest's scene frame, pitch included, carries the
+    ball to the world), and the report names the ball."""
+    import yaml
+    from click.testing import CliRunner
+
+    from zcomp_cli.cli import cli
+    from zcomp_cli.imageio import write_exr
+    from zcomp_cli.worldframe import direction_from_angles, up_from_pitch_roll
+
+    m = yaml.safe_load((examples_dir / "jobs.yaml").read_text())
+    room = m["scenes"]["room_lit"]
+    up = up_from_pitch_roll(room["pitch_deg"], 0.0)
+    frame = ground_frame(up)
+    sun = direction_from_angles(150.0, 40.0, up)  # left and behind the balls, well lit
+    h = 256
+    dirs = equirect.pixel_directions(h, 2 * h, frame)
+    probe = np.full((h, 2 * h, 3), 0.3, np.float32)
+    probe[dirs @ sun > math.cos(math.radians(2.0))] = 800.0
+    write_exr(tmp_path / "probe.exr", probe)
+    # the ball, photographed from the camera (camera frame: its view ray is -z)
+    size, c, r = 401, 200.5, 180.0
+    ys, xs = np.mgrid[0:size, 0:size] + 0.5
+    nx, ny = (xs - c) / r, -(ys - c) / r
+    inside = nx ** 2 + ny ** 2 < 1
+    n = np.stack([nx, ny, np.sqrt(np.clip(1 - nx ** 2 - ny ** 2, 0, 1))], -1)
+    i = np.array([0.0, 0.0, -1.0])
+    d = i - 2 * (n @ i)[..., None] * n
+    u, v = equirect.direction_to_uv(d.reshape(-1, 3), frame)
+    photo = probe[np.clip((v * h).astype(int), 0, h - 1), np.clip((u * 2 * h).astype(int), 0, 2 * h - 1)]
+    photo = np.where(inside[..., None], 0.6 * photo.reshape(size, size, 3), 0.0).astype(np.float32)
+    write_exr(tmp_path / "ball.exr", photo)
+    runs = {}
+    for kind in ("probe", "chrome_ball"):
+        sc = {k: str(examples_dir / room[k]) for k in ("image", "depth", "normals", "albedo")}
+        sc.update(fov_deg=room["fov_deg"], pitch_deg=room["pitch_deg"])
+        sc["light"] = {"type": "probe", "hdr": str(tmp_path / "probe.exr")} if kind == "probe" else \
+            {"type": "chrome_ball", "image": str(tmp_path / "ball.exr"), "center": [c, c], "radius": r}
+        job = {k: v for k, v in m["jobs"][4].items() if k != "reference"}
+        mm = {"version": 1, "defaults": {**m["defaults"], "resolution": [256, 192]}, "scenes": {"room_lit": sc},
+              "objects": {k: {"mesh": str(examples_dir / o["mesh"])} for k, o in m["objects"].items()},
+              "jobs": [job]}
+        p = tmp_path / f"{kind}.yaml"
+        p.write_text(yaml.safe_dump(mm))
+        out = tmp_path / f"out_{kind}"
+        res = CliRunner().invoke(cli, ["composite", str(p), "--out", str(out)])
+        assert res.exit_code == 0, res.output
+        rep = json.loads(next(out.glob("*/report.json")).read_text())
+        runs[kind] = rep["renderer"]["info"]["light"]
+    suns = {k: [x for x in v["lights"] if x["kind"] == "sun"] for k, v in runs.items()}
+    assert suns["probe"] and suns["chrome_ball"], runs
+    assert _angle(suns["probe"][0]["direction_camera"], sun) < 2.0
+    assert _angle(suns["chrome_ball"][0]["direction_camera"], suns["probe"][0]["direction_camera"]) < 3.0
+    assert "ball.exr" in runs["chrome_ball"]["probe"]
