@@ -232,9 +232,10 @@ def load_pipeline(info: PipelineInfo, device: str, dtype: str):
             warnings.simplefilter("ignore", FutureWarning)
             pipe = cls.from_pretrained(str(info.folder.path), local_files_only=True,
                                        torch_dtype=_torch_dtype(dtype), variant=info.folder.variant,
-                                       low_cpu_mem_usage=False)
-    except (OSError, ValueError, KeyError, TypeError, RuntimeError) as exc:
-        raise WeightsError(f"cannot load the {info.runner} in {info.folder.path}: {exc}") from exc
+                                       low_cpu_mem_usage=False, trust_remote_code=False)
+    except Exception as exc:  # noqa: BLE001 - a damaged folder fails its scene's jobs, not the batch
+        raise WeightsError(f"cannot load the {info.runner} in {info.folder.path}: {type(exc).__name__}: "
+                           f"{str(exc)[:500]}") from exc
     finally:
         dlog.set_verbosity(verbosity)
         if bars:

@@ -51,6 +51,10 @@ def check_model_dir(model_dir) -> Path:
         missing.append(" or ".join(WEIGHT_FILES))
     if not any((d / f).is_file() for f in PROCESSOR_FILES):
         missing.append("preprocessor_config.json")
+    if not missing:
+        from zcomp_cli.estimators.weights import check_folder_safety
+
+        check_folder_safety(d, "depth model")
     if missing:
         raise WeightsError(
             f"depth model directory {str(d)!r} lacks {', '.join(missing)}. Save a transformers "
@@ -67,10 +71,12 @@ def load_depth_model(model_dir):
     try:
         from transformers import AutoImageProcessor, AutoModelForDepthEstimation
 
-        processor = AutoImageProcessor.from_pretrained(str(d), local_files_only=True)
-        model = AutoModelForDepthEstimation.from_pretrained(str(d), local_files_only=True)
-    except (OSError, ValueError, KeyError) as exc:
-        raise WeightsError(f"cannot load the depth model in {str(d)!r}: {exc}") from exc
+        # trust_remote_code=False: never the folder's own code, and never a question on stdin
+        processor = AutoImageProcessor.from_pretrained(str(d), local_files_only=True, trust_remote_code=False)
+        model = AutoModelForDepthEstimation.from_pretrained(str(d), local_files_only=True, trust_remote_code=False)
+    except Exception as exc:  # noqa: BLE001 - a damaged folder fails its scene's jobs, not the batch
+        raise WeightsError(f"cannot load the depth model in {str(d)!r}: {type(exc).__name__}: "
+                           f"{str(exc)[:500]}") from exc
     model.eval()
     return model, processor
 

@@ -38,6 +38,159 @@ WEIGHT_SUFFIXES = (".safetensors", ".bin")
 KNOWN_VARIANTS = ("fp16", "bf16")
 
 
+# A configuration file larger than this is not a model's configuration (the largest of
+# the Hub's model_index.json and config.json are a few tens of KB; a tokenizer.json is
+# not read here).
+MAX_CONFIG_BYTES = 4 << 20
+# The libraries whose own classes a folder may name: anything else is the folder's code.
+KNOWN_LIBRARIES = ("diffusers", "transformers")
+# Keys by which a configuration asks its library to import the folder's own code.
+CODE_KEYS = ("auto_map", "custom_pipeline")
+# A safetensors header larger than this is refused (the largest real ones, thousands of
+# tensors, are a few MB)
+MAX_SAFETENSORS_HEADER = 100 << 20
+# A weights file whose blocks on disk hold less than this share of its size is sparse
+# (holes read as zeros): not weights anyone saved
+MIN_ALLOCATED_SHARE = 0.5
+SAFETENSORS_DTYPE_BYTES = {"F64": 8, "F32": 4, "F16": 2, "BF16": 2, "I64": 8, "I32": 4, "I16": 2, "I8": 1,
+                           "U8": 1, "BOOL": 1, "F8_E4M3": 1, "F8_E5M2": 1, "U16": 2, "U32": 4, "U64": 8}
+
+
+def read_config(path, what: str) -> dict:
+    """A JSON configuration file as a mapping, bounded: at most ``MAX_CONFIG_BYTES``,
+    any nesting a JSON parser takes without exhausting Python's stack. Raises
+    ``WeightsError`` naming the file otherwise."""
+    path = Path(path)
+    try:
+        size = path.stat().st_size
+        if size > MAX_CONFIG_BYTES:
+            raise WeightsError(f"{what}: {path} is {size} bytes, over the {MAX_CONFIG_BYTES} a configuration "
+                               "file may be")
+        with open(path, "rb") as f:
+            data = json.loads(f.read(MAX_CONFIG_BYTES + 1).decode("utf-8"))
+    except WeightsError:
+        raise
+    except RecursionError:
+        raise WeightsError(f"{what}: {path} is nested too deeply to be a configuration file") from None
+    except (OSError, ValueError, UnicodeDecodeError) as exc:
+        raise WeightsError(f"{what}: cannot read {path}: {exc}") from None
+    if not isinstance(data, dict):
+        raise WeightsError(f"{what}: {path} is not a JSON mapping")
+    return data
+
+
+def custom_code_problem(path, what: str) -> str | None:
+    """Why a model folder would make its library run code it ships (None when it would
+    not): Python files in it, a configuration that names classes to import from it
+    (``auto_map``, ``custom_pipeline``) or a pipeline component from a library other than
+    diffusers and transformers. zcomp never runs a model folder's code (every load passes
+    ``trust_remote_code=False``); such a folder is refused before anything runs."""
+    root = Path(path).expanduser()
+    try:
+        code = sorted(str(p.relative_to(root)) for p in root.rglob("*.py"))
+    except OSError as exc:
+        return f"{what}: cannot list {root}: {exc.strerror or exc}"
+    if code:
+        more = f" and {len(code) - 3} more" if len(code) > 3 else ""
+        return (f"{what}: {root} holds Python code ({', '.join(code[:3])}{more}): zcomp never runs a model "
+                "folder's own code; keep only the configuration and weight files")
+    configs = [root / MODEL_INDEX, root / "config.json"] + sorted(root.glob("*/config.json")) \
+        + sorted(root.glob("*/*_config.json")) + sorted(root.glob("*_config.json"))
+    for cfg in configs:
+        if not cfg.is_file():
+            continue
+        try:
+            data = read_config(cfg, what)
+        except WeightsError as exc:
+            return str(exc)
+        keys = [k for k in CODE_KEYS if k in data]
+        if keys:
+            return (f"{what}: {cfg} names code to import from the folder ({keys[0]}): zcomp never runs a "
+                    "model folder's own code (trust_remote_code is off)")
+        if cfg.name == MODEL_INDEX:
+            for name, v in data.items():
+                if name.startswith("_") or not (isinstance(v, list) and len(v) == 2 and isinstance(v[0], str)):
+                    continue
+                if v[0] not in KNOWN_LIBRARIES:
+                    return (f"{what}: {cfg} takes component {name!r} from {v[0]!r}, not from diffusers or "
+                            "transformers: that is the folder's own code, which zcomp never runs")
+    return None
+
+
+def weights_file_problem(path) -> str | None:
+    """Why a weights file cannot be what it claims (None when it may be), from its size
+    and header alone: empty, sparse (its size far beyond the blocks it holds on disk), a
+    safetensors file whose header is absurd, unreadable or points past the file's end."""
+    path = Path(path)
+    try:
+        st = path.stat()
+    except OSError as exc:
+        return f"{path}: {exc.strerror or exc}"
+    if st.st_size == 0:
+        return f"{path} is empty"
+    allocated = getattr(st, "st_blocks", None)
+    if allocated is not None and st.st_size > (64 << 20) and allocated * 512 < MIN_ALLOCATED_SHARE * st.st_size:
+        return (f"{path} is sparse: {st.st_size / 2**30:.1f} GB long but {allocated * 512 / 2**20:.0f} MB on "
+                "disk (holes read as zeros): not a saved model")
+    if path.suffix != ".safetensors" or path.name.endswith(".index.json"):
+        return None
+    try:
+        with open(path, "rb") as f:
+            head = f.read(8)
+            if len(head) < 8:
+                return f"{path} is truncated: no safetensors header"
+            n = int.from_bytes(head, "little")
+            if n > MAX_SAFETENSORS_HEADER or n > st.st_size - 8:
+                return f"{path}: its safetensors header claims {n} bytes (the file has {st.st_size})"
+            header = json.loads(f.read(n).decode("utf-8"))
+    except RecursionError:
+        return f"{path}: its safetensors header is nested too deeply"
+    except (OSError, ValueError, UnicodeDecodeError) as exc:
+        return f"{path}: unreadable safetensors header ({type(exc).__name__}: {exc})"
+    if not isinstance(header, dict):
+        return f"{path}: its safetensors header is not a mapping"
+    data_len = st.st_size - 8 - n
+    for name, t in header.items():
+        if name == "__metadata__":
+            continue
+        try:
+            lo, hi = (int(v) for v in t["data_offsets"])
+            count = 1
+            for d in t["shape"]:
+                count *= int(d)
+            want = count * SAFETENSORS_DTYPE_BYTES[t["dtype"]]
+        except (TypeError, KeyError, ValueError):
+            return f"{path}: tensor {str(name)[:80]!r} has no valid dtype, shape and data_offsets in its header"
+        if not (0 <= lo <= hi <= data_len) or hi - lo != want:
+            return (f"{path}: tensor {str(name)[:80]!r} claims bytes {lo}-{hi} ({want} for its shape) of "
+                    f"{data_len}: truncated or damaged")
+    return None
+
+
+def weight_files(root) -> list[Path]:
+    """The weight files of a model folder and its components (every suffix and variant)."""
+    root = Path(root)
+    out = []
+    for d in [root] + sorted(p for p in root.iterdir() if p.is_dir()):
+        out += sorted(p for p in d.iterdir() if p.is_file() and p.suffix in WEIGHT_SUFFIXES)
+    return out
+
+
+def check_folder_safety(path, what: str) -> None:
+    """Raise ``WeightsError`` when a model folder would run its own code
+    (``custom_code_problem``) or holds a weights file that cannot be one
+    (``weights_file_problem``): before any library reads it."""
+    bad = custom_code_problem(path, what)
+    if bad is None:
+        for w in weight_files(Path(path).expanduser()):
+            why = weights_file_problem(w)
+            if why:
+                bad = f"{what}: {why}"
+                break
+    if bad:
+        raise WeightsError(bad)
+
+
 @dataclass
 class PipelineFolder:
     """A checked diffusers pipeline folder."""
@@ -130,12 +283,8 @@ def read_pipeline_folder(path, *, what: str, variant: str | None = None) -> Pipe
     if not index_path.is_file():
         raise WeightsError(f"{what}: {root} is not a saved diffusers pipeline; looked for {index_path}. "
                            + HOWTO)
-    try:
-        index = json.loads(index_path.read_text())
-    except (OSError, ValueError) as exc:
-        raise WeightsError(f"{what}: cannot read {index_path}: {exc}") from exc
-    if not isinstance(index, dict):
-        raise WeightsError(f"{what}: {index_path} is not a JSON mapping")
+    check_folder_safety(root, what)
+    index = read_config(index_path, what)
     comps: dict[str, tuple[str, str]] = {}
     config: dict = {}
     for k, v in index.items():
@@ -163,6 +312,11 @@ def folder_problem(path, what: str) -> str | None:
     validation: no library is imported."""
     root = Path(path).expanduser()
     kind = folder_kind(root)
+    if kind is not None:
+        try:
+            check_folder_safety(root, what)
+        except WeightsError as exc:
+            return str(exc)
     if kind is None:
         return (f"{root} holds neither a diffusers pipeline (looked for {root / MODEL_INDEX}) nor a "
                 f"transformers model (looked for {root / 'config.json'})")

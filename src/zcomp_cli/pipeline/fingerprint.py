@@ -12,6 +12,7 @@ a setting or a file added to the manifest later is covered without a hand-kept l
   a light probe's ``hdr`` today), named relative to the manifest, so ``touch`` or
   moving the project changes nothing;
 * a mesh's side files (an OBJ's MTL and textures, a ``.gltf``'s buffers and images);
+* the content of every file in an estimator's ``model`` folder (its weights);
 * the working resolution, the Cycles samples and the renderer's settings (not those
   that only change speed, ``RendererEntry.speed_settings``).
 """
@@ -44,10 +45,16 @@ NOT_PIXELS = {
 class _Canon:
     """Canonical JSON-able form of parsed specs; files become ``{path, sha256}``."""
 
-    def __init__(self, root: Path, digests, files: set[str]):
+    def __init__(self, root: Path, digests, files: set[str], folders: set[str] = frozenset()):
         self.root = root
         self.digests = digests
         self.files = files  # strings known to name files (absolute, as the manifest resolved them)
+        self.folders = folders  # strings known to name model folders (``estimators``' ``model``)
+
+    def folder(self, p: Path) -> dict:
+        """A model folder: every file's name and content hash (remembered by path, size
+        and mtime: a folder's gigabytes are hashed once per change, not per run)."""
+        return {"path": os.path.relpath(p, self.root), "sha256": self.digests.digest(p) if p.is_dir() else None}
 
     def file(self, p: Path) -> dict:
         from zcomp_cli.blender.meshes import MESH_FORMATS, side_files
@@ -66,6 +73,8 @@ class _Canon:
         if isinstance(v, Path):
             return self.file(v)
         if isinstance(v, str):
+            if v in self.folders:
+                return self.folder(Path(v))
             return self.file(Path(v)) if v in self.files else v
         if isinstance(v, bool) or v is None or isinstance(v, int):
             return v
@@ -101,7 +110,11 @@ def job_fingerprint(manifest, job, renderer, samples: int, digests=None) -> str:
     scene = manifest.scenes[job.scene]
     obj = manifest.objects[job.object]
     files = {str(p) for p in getattr(scene, "setting_files", ()) or ()}
-    canon = _Canon(manifest.root, digests, files)
+    # the estimators' model folders: their weights are the job's inputs too (new weights
+    # in the same folder change the job, as they change the estimate cache's key)
+    folders = {str(e["model"]) for e in (getattr(scene, "estimators", None) or {}).values()
+               if isinstance(e, dict) and isinstance(e.get("model"), str)}
+    canon = _Canon(manifest.root, digests, files, folders)
     entry = RENDERERS.get(renderer.name)
     speed_only = set(entry.speed_settings) if entry is not None else set()
     payload = {

@@ -86,6 +86,9 @@ def train(cfg: TrainConfig, *, progress: Callable[[str, int, int, str], None] | 
     out = Path(cfg.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     base = Path(cfg.base)
+    from zcomp_cli.estimators.weights import check_folder_safety
+
+    check_folder_safety(base, "training base")  # no model folder's own code runs
     device = resolve_device(cfg.device)
     kw = dict(local_files_only=True)
     unet = UNet2DConditionModel.from_pretrained(str(base), subfolder="unet", **kw).to(device)

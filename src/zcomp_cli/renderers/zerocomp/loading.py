@@ -96,15 +96,21 @@ def load_models(controlnet, base, *, device: str, dtype, allow_network: bool = F
     from diffusers import AutoencoderKL, ControlNetModel, UNet2DConditionModel
     from transformers import CLIPTextModel
 
+    from zcomp_cli.estimators.weights import check_folder_safety
+
     cdir, bdir = resolve_paths(controlnet, base)
+    # no model folder's own code, no damaged weights file read (issue 39)
+    check_folder_safety(cdir, "zerocomp ControlNet")
+    check_folder_safety(bdir, "zerocomp base")
     kw = dict(local_files_only=not allow_network, torch_dtype=dtype)
     try:
         cn = ControlNetModel.from_pretrained(str(cdir), **kw)
         unet = UNet2DConditionModel.from_pretrained(str(bdir), subfolder="unet", **kw)
         vae = AutoencoderKL.from_pretrained(str(bdir), subfolder="vae", **kw)
         te = CLIPTextModel.from_pretrained(str(bdir), subfolder="text_encoder", **kw)
-    except (OSError, ValueError, RuntimeError) as e:
-        raise WeightsError(f"zerocomp: failed to load weights from {cdir} / {bdir}: {e}") from e
+    except Exception as e:  # noqa: BLE001 - damaged weights fail the job with the reason
+        raise WeightsError(f"zerocomp: failed to load weights from {cdir} / {bdir}: {type(e).__name__}: "
+                           f"{str(e)[:500]}") from e
     ch = int(cn.config.conditioning_channels)
     if ch not in (10, 11, 13):
         raise WeightsError(f"{cdir}/config.json: conditioning_channels={ch}, expected 10, 11 or 13")
