@@ -231,3 +231,42 @@ def test_new_weights_in_the_same_folder_change_the_job(tmp_path, tiny_dpt):
     assert "changed" in r.output
     r = CliRunner().invoke(cli, ["status", str(out), "--manifest", str(manifest)])
     assert "changed" in r.output, r.output
+
+
+def test_a_narrow_probe_is_refused_and_its_steps_are_bounded(tmp_path, examples_dir):
+    """Defect 2: a 10 x 2000 probe EXR (a few hundred bytes) peaked at 18.9 GB in the
+    prefilter's dense matrix. The manifest refuses a probe that is not 2:1 (exit 2, the
+    field named, nothing written); a map handed to the renderer directly is resampled to
+    2:1 at most max_width wide, so every step is bounded by its output size (measured:
+    the peak of numpy's allocations under 200 MB)."""
+    import tracemalloc
+
+    import yaml
+
+    from zcomp_cli.imageio import write_exr
+    from zcomp_cli.renderers.physical.probe import load_probe
+    from zcomp_cli.worldframe import ground_frame
+
+    img = np.zeros((2000, 10, 3), np.float32)
+    img[5, 5] = 100.0
+    img[100:, :] = 0.1
+    write_exr(tmp_path / "narrow.exr", img)
+    m = yaml.safe_load((examples_dir / "jobs.yaml").read_text())
+    sc = m["scenes"]["room_lit"]
+    for k in ("image", "depth", "normals", "albedo"):
+        sc[k] = str(examples_dir / sc[k])
+    sc["light"] = [{"type": "probe", "hdr": str(tmp_path / "narrow.exr")}]
+    mm = {"version": 1, "scenes": {"room_lit": sc}, "objects": {"vase": {"mesh": str(examples_dir / "objects/vase.glb")}},
+          "jobs": [{"scene": "room_lit", "object": "vase", "placement": {"pixel": [200, 300], "height": 0.3}}]}
+    (tmp_path / "jobs.yaml").write_text(yaml.safe_dump(mm))
+    out = tmp_path / "out"
+    r = CliRunner().invoke(cli, ["composite", str(tmp_path / "jobs.yaml"), "--out", str(out)])
+    assert r.exit_code == 2, r.output
+    assert "scenes.room_lit.light" in r.output and "10x2000" in r.output and "twice as wide" in r.output
+    assert not out.exists()
+    tracemalloc.start()
+    lights = load_probe(tmp_path / "narrow.exr", ground_frame(np.array([0.0, 1.0, 0.0])))
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    assert peak < 200 << 20, peak / 2**20
+    assert lights.gloss.maps.shape[1:3] == (32, 64) or lights.gloss.maps.shape[2] == 2 * lights.gloss.maps.shape[1]

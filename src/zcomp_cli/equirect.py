@@ -41,6 +41,16 @@ CONVENTIONS = ("zcomp", "skylibs", "blender", "mirrored")
 DEFAULT_CONVENTION = "zcomp"
 
 
+# An equirectangular map is twice as wide as high; this much off (a rounded size, a
+# cropped row) is still read as one.
+ASPECT_TOL = 0.02
+
+
+def aspect_ok(width: int, height: int) -> bool:
+    """Whether a ``width`` x ``height`` image has an equirectangular map's 2:1."""
+    return height > 0 and abs(width / (2.0 * height) - 1.0) <= ASPECT_TOL
+
+
 def _check(convention: str) -> None:
     if convention not in CONVENTIONS:
         raise ValueError(f"unknown probe convention {convention!r} (known: {', '.join(CONVENTIONS)})")
@@ -114,5 +124,5 @@ def direction_to_uv(direction, frame, convention: str = DEFAULT_CONVENTION,
     return u, v
 
 
-__all__ = ["CONVENTIONS", "DEFAULT_CONVENTION", "longitude", "pixel_directions", "solid_angles",
+__all__ = ["CONVENTIONS", "DEFAULT_CONVENTION", "ASPECT_TOL", "aspect_ok", "longitude", "pixel_directions", "solid_angles",
            "direction_to_uv"]

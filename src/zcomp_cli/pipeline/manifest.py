@@ -491,6 +491,24 @@ def _parse_estimator(name, spec, container, where, root, probs, check_files) -> 
     return out
 
 
+def _probe_shape_problem(path: Path) -> str | None:
+    """Why a probe file is not an equirectangular map (from its header alone): it must
+    be twice as wide as high. Refused rather than resampled: a 1:1 or 1:200 image is a
+    cube face, a mirror ball (``type: chrome_ball``) or a crop, not a map of every
+    direction, and stretching it would light the scene from the wrong places."""
+    from zcomp_cli.equirect import aspect_ok
+    from zcomp_cli.imageio import image_header
+
+    try:
+        w, h, _ = image_header(path)
+    except ValueError as exc:
+        return f"cannot read the probe: {exc}"
+    if not aspect_ok(w, h):
+        return (f"the probe is {w}x{h}: an equirectangular (latitude-longitude) map is twice as wide as high "
+                "(a mirror-ball photograph is type: chrome_ball)")
+    return None
+
+
 def _no_light(path: Path) -> str | None:
     """Why an HDR probe cannot light anything (all 0, negative or not finite: the object
     would be drawn black and the light's direction read as [0, 0, 0]), else None."""
@@ -520,6 +538,11 @@ def _parse_scene_light(s, where, probs, root, files: list, check_files: bool = T
 
     def resolve(container, key, w, exts=PROBE_EXTS):  # a light probe file, relative to the manifest
         p = _file(root, container[key], container, key, w, probs, exts)
+        if p is not None and check_files and exts is PROBE_EXTS:
+            bad = _probe_shape_problem(p)
+            if bad:
+                probs.add(container, key, w, bad)
+                return None
         if p is not None and check_files:
             dark = _no_light(p)
             if dark:

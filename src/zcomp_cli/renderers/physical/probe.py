@@ -119,7 +119,8 @@ class PrefilteredProbe:
 
 def read_probe(path, cfg: ProbeConfig = DEFAULT) -> np.ndarray:
     """(H, W, 3) float64 linear radiance of an equirectangular probe file, non-finite
-    and negative values set to 0, at most ``cfg.max_width`` wide (area-averaged). Raises
+    and negative values set to 0, at most ``cfg.max_width`` wide (area-averaged) and
+    2:1 (resampled when the file is not: ``aspect_ok``). Raises
     ``InputError`` naming the file when nothing in it emits light."""
     import cv2
 
@@ -133,21 +134,30 @@ def read_probe(path, cfg: ProbeConfig = DEFAULT) -> np.ndarray:
     img = np.maximum(np.nan_to_num(img, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
     h, w = img.shape[:2]
     mw = cfg.max_width
-    if w > mw:
-        img = cv2.resize(img, (mw, max(1, round(h * mw / w))), interpolation=cv2.INTER_AREA)
+    if w > mw or not equirect.aspect_ok(w, h):
+        # at most max_width wide and 2:1 (the manifest refuses another aspect; a map
+        # handed over otherwise is resampled, so every step is bounded by max_width)
+        W = max(2, min(mw, w) // 2 * 2)
+        img = cv2.resize(img, (W, W // 2), interpolation=cv2.INTER_AREA if W <= w and W // 2 <= h
+                         else cv2.INTER_LINEAR)
     if not float(img.max()) > 0:
         raise InputError(f"{path}: the light probe holds no light (every pixel is 0, negative or not finite)")
     return img.astype(np.float64)
 
 
 def _area_resize(img: np.ndarray, width: int) -> np.ndarray:
+    """The map at most ``width`` wide and exactly twice as wide as high (area-averaged
+    down, bilinear up): every later step's size is bounded by ``width``, whatever shape
+    came in (a 10 x 2000 map made the prefilter's dense matrix 20 000 x 20 000)."""
     import cv2
 
     h, w = img.shape[:2]
-    if w <= width:
+    if w <= width and w == 2 * h:
         return img
-    return cv2.resize(img.astype(np.float32), (width, max(1, width // 2)),
-                      interpolation=cv2.INTER_AREA).astype(np.float64)
+    W = max(2, min(int(width), w) // 2 * 2)
+    H = W // 2
+    interp = cv2.INTER_AREA if (W <= w and H <= h) else cv2.INTER_LINEAR
+    return cv2.resize(img.astype(np.float32), (W, H), interpolation=interp).astype(np.float64)
 
 
 def split_probe(img: np.ndarray, frame, *, convention: str = equirect.DEFAULT_CONVENTION,
