@@ -63,3 +63,26 @@ def test_the_contract_checks_plugin_renderers():
     assert not [t for t in failed if "demo-flat" in t], r.stdout
     flat = [t for t in passed if "demo-flat" in t]
     assert len(flat) == 5, r.stdout  # every contract test ran on it
+
+
+def test_a_plugin_whose_import_exits_is_left_out_and_zcomp_goes_on(tmp_path):
+    """Issue 39, defect 11: a plugin module calling ``sys.exit(0)`` at import made
+    composite, import, estimate and status exit 0 silently, writing nothing. Now it is
+    left out with a warning and the command does its work (the physical renderer here)."""
+    plug = tmp_path / "plug"
+    info = plug / "zcomp_exit_plugin-0.1.dist-info"
+    info.mkdir(parents=True)
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: zcomp-exit-plugin\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text("[zcomp.renderers]\nexiting = zcomp_exit_plugin:ENTRY\n")
+    (plug / "zcomp_exit_plugin.py").write_text("import sys\nsys.exit(0)\n")
+    make_project(tmp_path)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(SRC), str(plug)]))
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, "-m", "zcomp_cli", "composite", str(tmp_path / "jobs.yaml"), "--out",
+                        str(out)], env=env, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "exiting" in r.stderr and "SystemExit" in r.stderr and "left out" in r.stderr
+    assert (out / "000_room_ball" / "composite.png").is_file()
+    r = subprocess.run([sys.executable, "-m", "zcomp_cli", "status", str(out), "--manifest",
+                        str(tmp_path / "jobs.yaml")], env=env, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and "done" in r.stdout + r.stderr, r.stdout + r.stderr

@@ -147,8 +147,12 @@ def discover(builtin: Mapping[str, RendererEntry]) -> tuple[dict[str, RendererEn
             continue
         try:
             found[ep.name] = _entry_of(ep, ep.load())
-        except Exception as exc:  # noqa: BLE001 - one broken plugin must not break zcomp
-            problems.append(f"{what}: cannot be loaded ({type(exc).__name__}: {exc}); left out")
+        except BaseException as exc:  # noqa: BLE001 - one broken plugin must not break zcomp
+            # a plugin whose import calls sys.exit() must not end zcomp (silently, exit 0);
+            # Ctrl-C still interrupts
+            if isinstance(exc, KeyboardInterrupt):
+                raise
+            problems.append(f"{what}: cannot be loaded ({type(exc).__name__}: {str(exc)[:300]}); left out")
     for p in problems:
         log.warning("%s", p)
     return found, problems
