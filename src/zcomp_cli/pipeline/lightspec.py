@@ -114,13 +114,19 @@ def _unknown_keys(value, allowed, where, add, kind) -> bool:
     return ok
 
 
+# a colour is a multiplier of a light's given strength (itself bounded): beyond this it
+# is a strength in disguise, and its product with one overflows float32
+MAX_COLOR = 1e3
+
+
 def _color(value, where, add):
     if "color" not in value:
         return None
     c = value["color"]
     vals = [_num(x) for x in c] if isinstance(c, (list, tuple)) else []
-    if len(vals) != 3 or any(x is None or x < 0 for x in vals) or not any(vals):
-        add(value, "color", f"{where}.color", f"expected 3 non-negative numbers, not all 0, got {c!r}")
+    if len(vals) != 3 or any(x is None or not (0 <= x <= MAX_COLOR) for x in vals) or not any(vals):
+        add(value, "color", f"{where}.color",
+            f"expected 3 numbers in [0, {MAX_COLOR:g}], not all 0 (a linear RGB multiplier), got {c!r}")
         raise _Bad
     return vals
 
@@ -375,6 +381,29 @@ def to_params(lights: list, tilt: dict | None = None):
                        roll_deg=tilt.get("roll_deg") if tilt.get("pitch_deg") is not None else None)
 
 
+def check_given_directions(params, tilt: dict, where: str, add) -> None:
+    """With the camera's pitch given, world up is known at validation: a sun given by
+    ``direction`` below the horizon is refused here (as ``elevation_deg`` < 0 is), not
+    at render time."""
+    if params is None or "pitch_deg" not in tilt:
+        return
+    import numpy as np
+
+    from zcomp_cli.worldframe import angles_from_direction, up_from_pitch_roll
+
+    up = up_from_pitch_roll(tilt["pitch_deg"], tilt.get("roll_deg") or 0.0)
+    for i, s in enumerate(params.suns):
+        if s.direction.value is None:
+            continue
+        d = np.asarray(s.direction.value, np.float64)
+        el = angles_from_direction(d, up)[1]
+        if el <= 0.0:
+            add(None, None, f"{where}[{i}].direction" if len(params.suns) + len(params.lamps) > 1 else
+                f"{where}.direction",
+                f"the sun {d.round(4).tolist()} (camera frame) is {-el:.1f} deg below the horizon with the scene's "
+                "pitch_deg/roll_deg: it would light nothing the camera sees from above")
+
+
 def scene_light(params, tilt: dict):
     """A scene's light tree: ``params`` (``parse_light``'s, or None: estimated) with the
     camera's ``tilt``; None when the scene gives neither."""
@@ -406,5 +435,5 @@ def parse_tilt(scene: dict, where: str, add) -> dict:
     return out
 
 
-__all__ = ["parse_light", "parse_tilt", "scene_light", "to_params", "SUN_RADIUS_DEG", "LAMP_RADIUS_M", "MAX_LIGHTS",
+__all__ = ["parse_light", "parse_tilt", "scene_light", "check_given_directions", "MAX_COLOR", "to_params", "SUN_RADIUS_DEG", "LAMP_RADIUS_M", "MAX_LIGHTS",
            "PROBE_EXTS"]

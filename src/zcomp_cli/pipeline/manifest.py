@@ -531,7 +531,8 @@ def _parse_scene_light(s, where, probs, root, files: list, check_files: bool = T
     None when the scene has neither (the light is estimated, world up read off the
     support). Every file the light names is appended to ``files`` (the resume
     fingerprint hashes them)."""
-    from zcomp_cli.pipeline.lightspec import PROBE_EXTS, parse_light, parse_tilt, scene_light
+    from zcomp_cli.pipeline.lightspec import (PROBE_EXTS, check_given_directions, parse_light, parse_tilt,
+                                              scene_light)
 
     def add(container, key, w, msg):  # problems without a container sit on 'light'
         probs.add(s if container is None else container, "light" if container is None else key, w, msg)
@@ -554,6 +555,7 @@ def _parse_scene_light(s, where, probs, root, files: list, check_files: bool = T
 
     tilt = parse_tilt(s, where, lambda c, k, w, m: probs.add(c, k, w, m))
     params = parse_light(s["light"], f"{where}.light", add, resolve) if "light" in s else None
+    check_given_directions(params, tilt, f"{where}.light", add)
     return scene_light(params, tilt)
 
 

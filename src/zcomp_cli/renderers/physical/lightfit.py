@@ -158,6 +158,13 @@ def fit_light(params: LightParams | None, depth, normals, shading, known, albedo
             lights.append(_Light(fl, color, Origin.SHADOWS))
             continue
         d = sp.direction_in(up)
+        if float(d @ up) <= 0.0:
+            from zcomp_cli.errors import InputError
+            from zcomp_cli.worldframe import angles_from_direction
+
+            raise InputError(f"the manifest's sun (direction {np.round(d, 4).tolist()} in the camera frame) is "
+                             f"{-angles_from_direction(d, up)[1]:.1f} deg below the horizon (world up {up_from}): "
+                             "it lights nothing the camera sees from above; give a direction above the ground")
         r = float(settings.shadow_softness) if settings.shadow_softness is not None else sp.radius_deg.value
         r_from = Origin.MANIFEST if (settings.shadow_softness is not None or sp.radius_deg.frozen) else Origin.FIT
         fl = est.FitLight("sun", d, None if r is None else float(r), np.zeros(len(fp)), r_from)
@@ -185,6 +192,20 @@ def fit_light(params: LightParams | None, depth, normals, shading, known, albedo
         rm = float(lp.radius_m.value) if lp.radius_m.frozen else LAMP_RADIUS_M
         facing = None if lp.facing is None else np.asarray(lp.facing, np.float64)
         col = _lamp_column(fp, q, rm, facing, settings, seed)
+        if fp.support.sum() >= 3:
+            floor = float(np.median(fp.points[fp.support] @ up))
+            if float(q @ up) - floor < -rm:
+                from zcomp_cli.errors import InputError
+
+                raise InputError(f"the manifest's lamp at {np.round(q, 3).tolist()} (camera frame, metres) is "
+                                 f"{floor - float(q @ up):.2f} m below the floor the scene stands on (world up "
+                                 f"{up_from}): it lights none of the surfaces the camera sees")
+        if not np.any(col > 0):
+            from zcomp_cli.errors import InputError
+
+            raise InputError(f"the manifest's lamp at {np.round(q, 3).tolist()} (camera frame, metres) lights none "
+                             "of the surfaces the camera sees (under the floor, behind a wall, or facing away): "
+                             "its strength cannot be fitted, nor can it light the object as the photograph shows")
         fl = est.FitLight("lamp", q, rm, col, Origin.MANIFEST if lp.radius_m.frozen else Origin.DEFAULT, facing)
         color = np.asarray(lp.color, np.float64)
         if lp.power.frozen:
