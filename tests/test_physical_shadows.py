@@ -427,3 +427,36 @@ def test_a_degenerate_or_non_finite_occluder_mesh_hides_nothing_and_stays_finite
         assert np.all(np.isfinite(PhysicalRenderer().render(req, seed=1).images[1]))
     img = PhysicalRenderer().render([bg, dataclasses.replace(comp, occluder=flat)], seed=1).images[1]
     assert np.array_equal(img, base)  # as if there were none
+
+
+@pytest.mark.parametrize("ringing", [False, True])
+def test_radiance_weighted_mesh_occlusion_by_moments_equals_the_per_element_sum(ringing, monkeypatch):
+    """The sky a posed mesh hides, weighted by the SH radiance behind each element, is
+    summed by moments of the elements' directions where the radiance is provably positive
+    over a point's whole view of them (issue 39's speed regression): the same values as
+    evaluating and clamping each element's radiance, for a smooth sky and one whose order
+    2 rings below 0 (there the per-element path is kept)."""
+    import trimesh
+
+    from zcomp_cli.renderers.physical import meshshadow as M
+
+    sph = trimesh.creation.icosphere(subdivisions=4, radius=0.3)
+    mesh = M.PosedMesh(np.asarray(sph.vertices) + [0.4, -1.2, -3.0], np.asarray(sph.faces))
+    discs = M.mesh_discs(mesh)
+    xs, zs = np.meshgrid(np.linspace(-1, 2, 40), np.linspace(-4.5, -1.5, 40))
+    P = np.stack([xs.ravel(), np.full(xs.size, -1.5), zs.ravel()], 1)
+    N = np.tile([0.0, 1.0, 0.0], (len(P), 1))
+    sky = np.array([[1.0, 0.9, 0.8], [0.3, 0.3, 0.3], [0.5, 0.4, 0.3], [0.2, 0.1, 0.1], [0.05, 0, 0],
+                    [0, 0.05, 0], [0.1, 0.1, 0.1], [0, 0, 0.05], [0.05, 0.05, 0]])
+    if ringing:
+        sky = sky * [[1.0]] + np.array([[0], [1.4], [0.6], [0.7], [0.6], [0.2], [0.7], [0.3], [0.5]])
+    fast = M.mesh_occlusion(discs, P, N, mesh=mesh, radiance_sh=sky)
+
+    def per_element(self, f, r2, points, rows):
+        off = self.centres.astype(np.float32)[None] - np.asarray(points)[:, None].astype(np.float32)
+        return self(f, off, np.asarray(rows))
+
+    monkeypatch.setattr(M._radiance_weights, "summed", per_element)
+    slow = M.mesh_occlusion(discs, P, N, mesh=mesh, radiance_sh=sky)
+    assert slow.max() > 0.05
+    assert np.abs(fast - slow).max() < 1e-4

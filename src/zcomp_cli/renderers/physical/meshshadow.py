@@ -301,12 +301,12 @@ def mesh_occlusion(discs: MeshDiscs, points: np.ndarray, normals: np.ndarray, *,
     if len(P) == 0 or len(discs.areas) == 0:
         out = out[:, 0] if radiance_sh is None else out
         return (out, dmin) if return_distance else out
-    weigh = _radiance_weights(radiance_sh, Nn)
+    weigh = _radiance_weights(radiance_sh, Nn, discs.centres)
     cen32 = discs.centres.astype(np.float32)
     rho2 = cfg.near_field_spacings ** 2 * float(discs.areas.mean()) if mesh is not None else 0.0
     for i in range(0, len(P), chunk):
         f, r2 = _form_factors(discs, P[i:i + chunk], Nn[i:i + chunk])
-        out[i:i + chunk] = weigh(f, cen32[None] - P[i:i + chunk, None].astype(np.float32), slice(i, i + chunk))
+        out[i:i + chunk] = weigh.summed(f, r2, P[i:i + chunk], np.arange(i, min(i + chunk, len(P))))
         dmin[i:i + chunk] = np.sqrt(r2.min(1))
     if mesh is not None:
         idx = np.flatnonzero((dmin ** 2 < rho2) & (True if refine is None else np.asarray(refine, bool)))
@@ -346,10 +346,26 @@ def mesh_occlusion(discs: MeshDiscs, points: np.ndarray, normals: np.ndarray, *,
 class _radiance_weights:
     """Form factors (n, M) of elements at offsets (n, M, 3) from their points, summed
     per point: plainly (a uniform sky), or weighted by a sky of SH radiance behind each
-    element over the point's whole sky shading (a share of that sky's irradiance)."""
+    element over the point's whole sky shading (a share of that sky's irradiance).
 
-    def __init__(self, radiance_sh, normals):
+    ``summed`` does the weighted sum without building the (n, M) radiances where it can
+    do so exactly: the radiance is the quadratic ``a + b.u + u^T A u`` of the unit
+    direction ``u`` (``sh.quadratic_form``), so its form-factor-weighted sum is ``a F0 +
+    b.F1 + A:F2`` with the moments ``F0 = sum f``, ``F1 = sum f u``, ``F2 = sum f u u^T``
+    -- GEMMs of ``f / r`` and ``f / r^2`` with the elements' centres and their products.
+    That equals the clamped sum (radiance below 0, order 2's ringing, counts 0) for a
+    point whose whole view of the elements -- the cone of their bounding sphere, of
+    half-angle ``t`` about the axis ``u0`` -- lies where the radiance is positive: along
+    a great circle the radiance's rate of change is at most ``|b + 2 A u|``, which is
+    within ``2 |A| s`` of its value at ``u0`` after an arc ``s``, so ``L >= L(u0) -
+    |b + 2 A u0| t - |A| t^2`` over the cone.
+    Elsewhere (points inside the bounding sphere, skies ringing below 0 in view) each
+    element's radiance is evaluated and clamped as before. The moments replaced most of
+    a posed mesh's sky-occlusion cost (issue 39's speed regression)."""
+
+    def __init__(self, radiance_sh, normals, centres=None):
         self.c = None if radiance_sh is None else np.asarray(radiance_sh, np.float64).reshape(9, -1)
+        self.centres = None if centres is None else np.asarray(centres, np.float64)
         if self.c is not None:
             from zcomp_cli.renderers.physical import sh
 
@@ -361,6 +377,63 @@ class _radiance_weights:
             nc = self.c.shape[1]
             self._a, self._b = a.astype(np.float32), b.astype(np.float32)
             self._A = A.reshape(3, 3 * nc).astype(np.float32)
+            self._a64, self._b64, self._A64 = a, b, A
+            # the spectral norm of each colour's (symmetric) quadratic part
+            self._normA = np.array([np.abs(np.linalg.eigvalsh(0.5 * (A[..., k] + A[..., k].T))).max()
+                                    for k in range(nc)])
+            if self.centres is not None and len(self.centres):
+                o = self.centres.mean(0)
+                self._origin = o
+                cc = self.centres - o
+                self._cc = cc.astype(np.float32)  # (M, 3) centred: small numbers for float32 GEMMs
+                self._cc2 = (cc[:, :, None] * cc[:, None, :]).reshape(-1, 9).astype(np.float32)
+                self._R = float(np.sqrt(((cc) ** 2).sum(1).max()))
+
+    def summed(self, f, r2, points, rows):
+        """``__call__`` for every element of ``centres`` (f, r2: (n, M) form factors and
+        squared distances from ``points`` (n, 3)); moments where exact, else per element."""
+        if self.c is None:
+            return f.sum(1)[:, None]
+        P = np.asarray(points, np.float64)
+        rows = np.asarray(rows)
+        if self.centres is None or not len(self.centres):
+            return self(f, self.centres.astype(np.float32)[None] - P[:, None].astype(np.float32), rows)
+        po = P - self._origin
+        dist = np.linalg.norm(po, axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            axis = -po / dist[:, None]
+            ang = np.arcsin(np.clip(self._R / dist, 0.0, 1.0))
+        far = dist > self._R * (1.0 + 1e-6)
+        safe = far.copy()
+        if far.any():
+            u = axis[far]
+            L0 = self._a64 + u @ self._b64 + np.einsum("ki,kj,ijc->kc", u, u, self._A64)
+            # the gradient b + 2 A u at the axis, and how far it can change within the
+            # cone (|u - axis| <= its angle t): L >= L0 - |g0| t - |A| t^2
+            g0 = np.linalg.norm(self._b64[None] + 2.0 * np.einsum("ijc,kj->kic", self._A64, u), axis=1)
+            t = ang[far, None]
+            safe[far] = np.all(L0 - g0 * t - self._normA[None] * t * t >= 0.0, axis=1)
+        out = np.zeros((len(P), self.c.shape[1]))
+        if safe.any():
+            s_ = np.flatnonzero(safe)
+            fs = np.asarray(f[s_], np.float32)
+            r = np.sqrt(np.maximum(np.asarray(r2[s_], np.float32), np.float32(1e-24)))
+            g1 = fs / r
+            g2 = g1 / r
+            p = po[s_]
+            F0 = fs.sum(1, dtype=np.float64)
+            s1, s2 = g1.sum(1, dtype=np.float64), g2.sum(1, dtype=np.float64)
+            F1 = (g1 @ self._cc).astype(np.float64) - p * s1[:, None]
+            t2 = (g2 @ self._cc).astype(np.float64)
+            F2 = (g2 @ self._cc2).astype(np.float64).reshape(-1, 3, 3) - t2[:, :, None] * p[:, None, :] \
+                - p[:, :, None] * t2[:, None, :] + s2[:, None, None] * p[:, :, None] * p[:, None, :]
+            val = F0[:, None] * self._a64[None] + F1 @ self._b64 + np.einsum("kij,ijc->kc", F2, self._A64)
+            out[s_] = val / self.total[rows[s_]]
+        if (~safe).any():
+            u_ = np.flatnonzero(~safe)
+            off = self.centres.astype(np.float32)[None] - P[u_, None].astype(np.float32)
+            out[u_] = self(f[u_], off, rows[u_])
+        return out
 
     def _L(self, offsets):
         """(K, C) the radiance toward ``offsets`` (..., 3), not normalised: the

@@ -294,9 +294,9 @@ class PhysicalRenderer(Renderer):
         # normalised blur fills the others from their own class
         same = up2(ok) & (up2(cls[::ao_st, ::ao_st]) == cls)
         rad = max(cfg.sky_blur_px, 1.5 * ao_st)
-        ao = np.stack([classwise_blur(up2(ao_c[..., c]), cls, okf & same, rad, fill=okf) for c in range(3)], -1)
+        ao = classwise_blur(up2(ao_c), cls, okf & same, rad, fill=okf)
         if occ_c is not None:
-            occ = np.stack([classwise_blur(up2(occ_c[..., c]), cls, okf & same, rad, fill=okf) for c in range(3)], -1)
+            occ = classwise_blur(up2(occ_c), cls, okf & same, rad, fill=okf)
             dist = up2(dist_c)
             # The sky occlusion reaches past the shading mask (a sphere still hides a
             # quarter of the sky one radius past its side); cut at the mask's edge it

@@ -61,25 +61,31 @@ def gaussian_blur(img: np.ndarray, radius: float) -> np.ndarray:
 
 
 def normalized_blur(values: np.ndarray, weight: np.ndarray, radius: float) -> np.ndarray:
-    """Gaussian blur of ``values`` (H, W) over the pixels where ``weight`` (H, W) > 0,
-    normalised by the blurred weight; where no weight reaches, the value itself."""
+    """Gaussian blur of ``values`` (H, W) or (H, W, C) (C <= 4: the channels blurred
+    together, each as alone) over the pixels where ``weight`` (H, W) > 0, normalised by
+    the blurred weight; where no weight reaches, the value itself."""
     if radius <= 0:
         return values
     w = weight.astype(np.float32)
-    num = gaussian_blur((values * w).astype(np.float32), radius)
+    v = np.asarray(values)
+    wv = w if v.ndim == 2 else w[..., None]
+    num = gaussian_blur((v * wv).astype(np.float32), radius)
     den = gaussian_blur(w, radius)
-    return np.where(den > 1e-4, num / np.maximum(den, 1e-4), values).astype(np.float64)
+    if v.ndim == 3:
+        den = den[..., None]
+    return np.where(den > 1e-4, num / np.maximum(den, 1e-4), v).astype(np.float64)
 
 
 def classwise_blur(values: np.ndarray, classes: np.ndarray, valid: np.ndarray, radius: float,
                    fill: np.ndarray | None = None) -> np.ndarray:
     """``normalized_blur`` separately within each class label (e.g. object / scene),
     weighted by the ``valid`` pixels; written to the valid pixels, and also to the
-    ``fill`` pixels of the same class (their own value does not count)."""
+    ``fill`` pixels of the same class (their own value does not count). ``values``:
+    (H, W) or (H, W, C), the channels in one pass."""
     out = values.astype(np.float64).copy()
     if radius <= 0:
         return out
-    H, W = values.shape
+    H, W = values.shape[:2]
     dest = valid if fill is None else (valid | fill)
     reach = blur_reach(radius)
     for c in np.unique(classes[dest]):
