@@ -97,3 +97,29 @@ def test_composite_from_photo_casts_a_floor_shadow(tmp_path, photo_manifest):
     # a direction the photo does not fix is said, with how uncertain it is
     if light["fallback"]:
         assert "within" in light["fallback"] and light["fit"]["direction_uncertainty_deg"] > 0
+
+
+def test_estimate_never_writes_into_a_folder_holding_the_scenes_maps(tmp_path, examples_dir):
+    """Issue 39, defect 12: ``--out`` pointed at the folder holding a scene's maps, with
+    ``--overwrite``, replaced the input maps with working-size copies. A scene folder
+    holding files estimate did not write is refused (exit 2), --overwrite or not, and
+    nothing in it changes."""
+    import shutil
+
+    import yaml
+
+    proj = tmp_path / "proj"
+    shutil.copytree(examples_dir / "scenes", proj / "scenes")
+    m = yaml.safe_load((examples_dir / "jobs.yaml").read_text())
+    m["scenes"] = {"room": m["scenes"]["room"]}
+    m["objects"] = {k: {"mesh": str(examples_dir / v["mesh"])} for k, v in m["objects"].items()}
+    m["jobs"] = [j for j in m["jobs"] if j["scene"] == "room"][:1]
+    m["jobs"][0].pop("reference", None)
+    (proj / "jobs.yaml").write_text(yaml.safe_dump(m))
+    before = {p.name: p.read_bytes() for p in (proj / "scenes" / "room").iterdir() if p.is_file()}
+    for extra in ([], ["--overwrite"]):
+        r = CliRunner().invoke(cli, ["estimate", str(proj / "jobs.yaml"), "--out", str(proj / "scenes"), *extra])
+        assert r.exit_code == 2, r.output
+        assert "did not write" in r.output and "room" in r.output
+    after = {p.name: p.read_bytes() for p in (proj / "scenes" / "room").iterdir() if p.is_file()}
+    assert after == before

@@ -16,6 +16,22 @@ from zcomp_cli.cli.options import cache_dir_opt, out_dir_opt, overwrite_opt
 
 # What estimate writes per scene (an existing one is replaced only with --overwrite).
 OUTPUTS = ("depth.exr", "normals.exr", "albedo.exr", "shading.exr", "preview.png", "sources.json")
+# ... and when the maps exist (a scene folder holding anything else is not estimate's)
+OPTIONAL_OUTPUTS = ("roughness.exr", "metallic.exr", "agreement.exr")
+
+
+def foreign_files(folder) -> list[str]:
+    """Entries of a scene's output folder that ``estimate`` does not write (its hidden
+    temporaries excepted): such a folder is someone else's -- the scene's own maps,
+    with ``--out`` pointed at the folder holding them -- and is never written into."""
+    import os
+
+    try:
+        names = sorted(os.listdir(folder))
+    except (FileNotFoundError, NotADirectoryError):
+        return []
+    ours = set(OUTPUTS) | set(OPTIONAL_OUTPUTS)
+    return [n for n in names if n not in ours and not (n.startswith(".") and ".tmp" in n)]
 
 AGREEMENT_DISPLAY_MAX_DEG = 90.0  # the agreement tile's colour scale: 0 .. 90 degrees
 
@@ -97,6 +113,18 @@ def estimate(ctx, manifest, out_dir, scene_names, native, overwrite, cache_dir):
 
     for name in names:  # every folder written must stay inside --out
         check_inside(out, out / name, f"scenes.{name}")
+    for name in names:  # nothing estimate did not write is replaced, even with --overwrite
+        d = out / name
+        if d.exists() and not d.is_dir():
+            raise UsageError(f"--out: {d} (scene {name!r}'s folder) is a file, not a folder")
+        theirs = foreign_files(d)
+        inputs = [p for p in [m.scenes[name].image, *m.scenes[name].maps.values()]
+                  if p is not None and Path(p).resolve().parent == d.resolve()]
+        if theirs or inputs:
+            shown = ", ".join((theirs or [Path(p).name for p in inputs])[:5])
+            raise UsageError(f"--out: {d} (scene {name!r}'s folder) holds files zcomp estimate did not write "
+                             f"({shown}{' ...' if len(theirs) > 5 else ''}): point --out at a folder of its own "
+                             "(the scene's input maps are never replaced)")
     existing = [n for n in names if any((out / n / f).exists() for f in OUTPUTS)]
     if existing and not overwrite:  # the rule of every command: nothing replaced unasked
         raise UsageError(f"estimates already exist for scene(s) {', '.join(existing[:5])}"
