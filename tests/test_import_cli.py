@@ -191,8 +191,10 @@ def _fake_depth_model(folder: Path) -> Path:
     """Only the files ``check_model_dir`` looks for: the importer writes the manifest
     and never loads the model (composite would)."""
     folder.mkdir(parents=True, exist_ok=True)
-    for f in ("config.json", "model.safetensors", "preprocessor_config.json"):
+    for f in ("config.json", "preprocessor_config.json"):
         (folder / f).write_text("{}")
+    # a well-formed, empty safetensors file (a 2-byte one is refused as truncated)
+    (folder / "model.safetensors").write_bytes((2).to_bytes(8, "little") + b"{}")
     return folder
 
 
@@ -333,6 +335,19 @@ def test_eval_protocol_errors(imported, tmp_path, no_lpips):
     bad.write_text(yaml.safe_dump({"rows": [{"name": "x", "psnr": "high"}]}))
     r = run("eval", res, "--paper-rows", bad)
     assert r.exit_code == 2 and "rows[0].psnr" in r.output
+    # issue 39, defect 13: a 528-byte alias bomb took 4.3 GB and wrote a 1.4 GB eval.json
+    bomb = tmp_path / "bomb.yaml"
+    lines = ['a0: &a0 ["lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol"]']
+    lines += [f"a{i}: &a{i} [{', '.join(['*a' + str(i - 1)] * 9)}]" for i in range(1, 9)]
+    lines += ["rows: [{name: x, psnr: 1.0, pad: *a8}]"]
+    bomb.write_text("\n".join(lines) + "\n")
+    r = run("eval", res, "--paper-rows", bomb, "--out", tmp_path / "bomb_eval")
+    assert r.exit_code == 2 and "alias bomb" in r.output, r.output
+    assert not (tmp_path / "bomb_eval.json").exists()
+    many = tmp_path / "many.yaml"
+    many.write_text(yaml.safe_dump({"rows": [{"name": f"r{i}", "psnr": 1.0} for i in range(1001)]}))
+    r = run("eval", res, "--paper-rows", many)
+    assert r.exit_code == 2 and "1001 rows" in r.output
     r = run("eval", res, "--protocol", "paper", "--linear")
     assert r.exit_code == 2 and "--linear" in r.output
     r = run("eval", res, "--linear", "--metrics", "mae", "--out", tmp_path / "lin")  # auto: zcomp's, linear

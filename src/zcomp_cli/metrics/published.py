@@ -108,22 +108,45 @@ def dataset_of_pairs(pairs) -> str | None:
     return keys.pop() if len(keys) == 1 and None not in keys else None
 
 
+# A --paper-rows file is a paper's table: these bound it (a judgement, far above any
+# published table: ZeroComp's has 12 rows of 6 metrics).
+MAX_PAPER_ROWS = 1000
+MAX_PAPER_ROW_KEYS = 64
+MAX_PAPER_TEXT = 500
+
+
 def load_rows(path) -> dict:
     """Read and check a ``--paper-rows`` file; UsageError naming the field."""
-    import yaml
+    from zcomp_cli.errors import ManifestError
+    from zcomp_cli.yamlloc import load_yaml
 
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise UsageError(f"--paper-rows {path}: cannot read: {exc}") from exc
+        # the manifest's bounded loader: size, nesting and alias expansion limited (a
+        # 528-byte alias bomb took 4.3 GB and wrote a 1.4 GB eval.json)
+        data = load_yaml(path)
+    except ManifestError as exc:
+        raise UsageError(f"--paper-rows: {exc}") from exc
     if not isinstance(data, dict) or not isinstance(data.get("rows"), list) or not data["rows"]:
         raise UsageError(f"--paper-rows {path}: expected a mapping with a non-empty list 'rows'")
+    if len(data["rows"]) > MAX_PAPER_ROWS:
+        raise UsageError(f"--paper-rows {path}: {len(data['rows'])} rows; a paper's table has at most "
+                         f"{MAX_PAPER_ROWS}")
+    for key in ("dataset", "source"):
+        v = data.get(key)
+        if v is not None and (not isinstance(v, str) or len(v) > MAX_PAPER_TEXT):
+            raise UsageError(f"--paper-rows {path}: {key}: expected text of at most {MAX_PAPER_TEXT} characters")
     rows = []
     for i, r in enumerate(data["rows"]):
         where = f"--paper-rows {path}: rows[{i}]"
         if not isinstance(r, dict) or not isinstance(r.get("name"), str):
             raise UsageError(f"{where}: expected a mapping with a 'name'")
+        if len(r["name"]) > MAX_PAPER_TEXT or len(r) > MAX_PAPER_ROW_KEYS:
+            raise UsageError(f"{where}: a name of at most {MAX_PAPER_TEXT} characters and at most "
+                             f"{MAX_PAPER_ROW_KEYS} keys")
+        if r.get("checkpoint") is not None and (not isinstance(r["checkpoint"], str)
+                                                or len(r["checkpoint"]) > MAX_PAPER_TEXT):
+            raise UsageError(f"{where}.checkpoint: expected text of at most {MAX_PAPER_TEXT} characters")
         region = r.get("region", "full")
         if region not in ("full", "object-crop"):
             raise UsageError(f"{where}.region: expected full or object-crop, got {region!r}")
