@@ -25,7 +25,7 @@ import numpy as np
 
 from zcomp_cli.conventions import linear_to_srgb, srgb_to_linear
 from zcomp_cli.errors import InputError, OutputError
-from zcomp_cli.limits import pixel_budget_problem
+from zcomp_cli.limits import MAX_PIXELS_ENV, max_pixels, pixel_budget_problem
 
 FLOAT_EXTS = {".exr", ".hdr"}
 
@@ -409,6 +409,11 @@ def write_image(path, img_lin) -> None:
         raise InputError(f"unsupported output format {ext!r}", where=str(path))
 
 
+# The pixel budget (``limits.max_pixels``) is for images of up to this many channels
+# (RGBA); an EXR's channels beyond count against it.
+EXR_BUDGET_CHANNELS = 4
+
+
 def read_exr_channels(path) -> dict[str, np.ndarray]:
     """Every channel of an OpenEXR file by its full name (``"albedo.R"``, ``"depth.A"``),
     each an H x W float32 array. A multi-part file's parts are read in turn; a channel
@@ -429,11 +434,20 @@ def read_exr_channels(path) -> dict[str, np.ndarray]:
         if inp.format_name() != "openexr":
             raise InputError(f"not an OpenEXR file ({inp.format_name()})", where=str(path))
         sub = 0
+        values = 0
         while True:
             spec = inp.spec()
             budget = pixel_budget_problem(spec.width, spec.height)
             if budget:
                 raise InputError(f"the image is {budget}", where=str(path))
+            # the budget is for RGBA pixels: a file's channels, over all its parts,
+            # count too (a 619 KB EXR of 301 channels took 2.4 GB)
+            values += int(spec.width) * int(spec.height) * int(spec.nchannels)
+            if values > EXR_BUDGET_CHANNELS * max_pixels():
+                raise InputError(f"{spec.nchannels} channels of {spec.width}x{spec.height} (over all parts: "
+                                 f"{values:,} values) exceed the pixel budget of {max_pixels():,} pixels x "
+                                 f"{EXR_BUDGET_CHANNELS} channels (set ${MAX_PIXELS_ENV} to raise it)",
+                                 where=str(path))
             data = inp.read_image(sub, 0, 0, spec.nchannels, oiio.FLOAT)
             if data is None or not isinstance(data, np.ndarray):
                 why = _first_line(inp.geterror()) or "truncated or corrupt file"

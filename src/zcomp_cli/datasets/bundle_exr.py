@@ -86,6 +86,10 @@ def _image_layer(layer: np.ndarray, name: str, notes: list[str]) -> np.ndarray:
     return np.nan_to_num(rgb, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32)
 
 
+# layers named in an error at most (a file may have hundreds)
+MAX_LAYERS_SHOWN = 12
+
+
 def read_bundle(path, reading: BundleReading, *, fov_deg: float = FOV_DEG,
                 normals_frame: str | None = None) -> BundleCase:
     """Read one official bundle.
@@ -113,8 +117,11 @@ def read_bundle(path, reading: BundleReading, *, fov_deg: float = FOV_DEG,
     layers = group_layers(read_exr_channels(path))
     missing = [n for n in REQUIRED_LAYERS if n not in layers]
     if missing:
+        have = sorted(layers)
+        shown = ", ".join(have[:MAX_LAYERS_SHOWN]) + (f" and {len(have) - MAX_LAYERS_SHOWN} more"
+                                                       if len(have) > MAX_LAYERS_SHOWN else "")
         raise InputError(f"missing layer{'s' if len(missing) > 1 else ''} {', '.join(missing)} "
-                         f"(the file has: {', '.join(sorted(layers)) or 'no layers'})", where=str(path))
+                         f"(the file has: {shown or 'no layers'})", where=str(path))
     h, w = layers["mask"].shape[:2]
     camera = Camera.from_fov(fov_deg, w, h)
     notes: list[str] = []

@@ -1,0 +1,36 @@
+"""Issue 39, defect 8: an EXR's channels count against the pixel budget (a 619 KB bundle
+EXR of 301 channels took 2.4 GB), and an error lists a bounded number of its layers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from zcomp_cli.errors import InputError
+
+
+def test_channels_count_against_the_pixel_budget(tmp_path, monkeypatch):
+    from zcomp_cli.imageio import read_exr_channels, write_exr
+    from zcomp_cli.limits import MAX_PIXELS_ENV
+
+    p = tmp_path / "many.exr"
+    names = [f"layer{i:03d}.R" for i in range(301)]
+    write_exr(p, np.zeros((32, 32, 301), np.float32), channel_names=names)
+    monkeypatch.setenv(MAX_PIXELS_ENV, str(32 * 32 * 50))  # 50 RGBA images' worth
+    with pytest.raises(InputError, match="301 channels"):
+        read_exr_channels(p)
+    monkeypatch.setenv(MAX_PIXELS_ENV, str(32 * 32 * 100))
+    assert len(read_exr_channels(p)) == 301
+
+
+def test_a_missing_layer_error_lists_a_bounded_number_of_layers(tmp_path):
+    from zcomp_cli.datasets.bundle_exr import MAX_LAYERS_SHOWN, ZEROCOMP_READING, read_bundle
+    from zcomp_cli.imageio import write_exr
+
+    p = tmp_path / "bundle.exr"
+    names = [f"junk{i:03d}.R" for i in range(300)]
+    write_exr(p, np.zeros((8, 8, 300), np.float32), channel_names=names)
+    with pytest.raises(InputError) as e:
+        read_bundle(p, ZEROCOMP_READING)
+    msg = str(e.value)
+    assert "and 288 more" in msg and msg.count("junk") == MAX_LAYERS_SHOWN
