@@ -13,6 +13,8 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+
+import pytest
 from pathlib import Path
 
 from hostile_project import make_project
@@ -86,3 +88,33 @@ def test_a_plugin_whose_import_exits_is_left_out_and_zcomp_goes_on(tmp_path):
     r = subprocess.run([sys.executable, "-m", "zcomp_cli", "status", str(out), "--manifest",
                         str(tmp_path / "jobs.yaml")], env=env, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and "done" in r.stdout + r.stderr, r.stdout + r.stderr
+
+
+@pytest.mark.parametrize("offset", [-5.0, 3e38])
+def test_a_renderer_returning_impossible_radiance_fails_its_job(tmp_path, offset):
+    """Issue 39 (low): a plugin's outputs of -5 or 3e38 were accepted and composited."""
+    import numpy as np
+
+    from zcomp_cli.bundle import ObjectBundle
+    from zcomp_cli.errors import NumericalError
+    from zcomp_cli.pipeline.job import run_job
+    from zcomp_cli.pipeline.manifest import load_manifest
+    from zcomp_cli.pipeline.scene import load_scene
+    from zcomp_cli.renderers.base import Renderer, RenderOutput
+
+    class Broken(Renderer):
+        name = "broken"
+
+        def settings(self):
+            return {"name": self.name}
+
+        def render(self, requests, *, seed=469):
+            ims = [np.asarray(r.maps.albedo, np.float32) * np.asarray(r.shading, np.float32) for r in requests]
+            ims[1] = ims[1] + np.float32(offset)
+            return RenderOutput(images=ims, info={})
+
+    m = load_manifest(make_project(tmp_path))
+    scene = load_scene(m.scenes["room"], m.defaults.resolution)
+    bundle = ObjectBundle.load(tmp_path / "objects" / "ball")
+    with pytest.raises(NumericalError, match="linear radiance"):
+        run_job(scene, bundle, Broken())

@@ -38,6 +38,11 @@ from zcomp_cli.maps import SceneMaps
 from zcomp_cli.renderers.base import Renderer, RenderOutput, RenderRequest
 
 ROI_CONTEXT_PX = 16
+# A renderer's image is linear radiance in the photograph's units: never below 0 (beyond
+# float rounding and a denoiser's ringing) and, in a photograph's range, far below 1e6
+# (the shading the renderers clamp to; a plugin's 3e38 overflowed the compositor).
+RADIANCE_TOL = 1e-3
+MAX_RADIANCE = 1e6
 
 
 @dataclass
@@ -197,6 +202,11 @@ def finish_job(prep: PreparedJob, out: RenderOutput, renderer_name: str, rendere
             raise NumericalError(f"renderer returned {name} of shape {im.shape}, expected {(H, W, 3)}")
         if not np.all(np.isfinite(im)):
             raise NumericalError(f"renderer {renderer_name} returned non-finite values in {name}")
+        lo, hi = float(im.min()), float(im.max())
+        if lo < -RADIANCE_TOL or hi > MAX_RADIANCE:
+            raise NumericalError(f"renderer {renderer_name} returned {name} in [{lo:.3g}, {hi:.3g}]: linear "
+                                 f"radiance is in [0, {MAX_RADIANCE:g}] (a plugin's bug; the job is not "
+                                 "composited from it)")
 
     # 6. Compositor.
     timings = dict(prep.timings)
