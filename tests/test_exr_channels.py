@@ -34,3 +34,21 @@ def test_a_missing_layer_error_lists_a_bounded_number_of_layers(tmp_path):
         read_bundle(p, ZEROCOMP_READING)
     msg = str(e.value)
     assert "and 288 more" in msg and msg.count("junk") == MAX_LAYERS_SHOWN
+
+
+def test_an_all_nan_normals_map_is_refused_not_made_one_constant_normal(tmp_path):
+    """Issue 39 (low): an all-NaN normals layer was imported as one constant normal, and
+    the bundle check said "nan%"."""
+    from zcomp_cli.camera import Camera
+    from zcomp_cli.datasets.importer import _read_bg_map
+    from zcomp_cli.imageio import write_exr
+
+    p = tmp_path / "normals.exr"
+    write_exr(p, np.full((8, 8, 3), np.nan, np.float32))
+    with pytest.raises(InputError, match="no finite value"):
+        _read_bg_map("normals", p, Camera.from_fov(50.0, 8, 8))
+    z = tmp_path / "zero.exr"
+    write_exr(z, np.full((8, 8, 3), 0.5, np.float32))  # 2 e - 1 = 0: no normal at all
+    with pytest.raises(InputError, match="no usable normal") as e:
+        _read_bg_map("normals", z, Camera.from_fov(50.0, 8, 8))
+    assert "nan%" not in str(e.value)

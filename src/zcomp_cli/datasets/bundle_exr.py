@@ -156,6 +156,9 @@ def read_bundle(path, reading: BundleReading, *, fov_deg: float = FOV_DEG,
     facing = facing_fraction(normals, camera.K, obj)
     checks = {"object_normals_facing_fraction": facing, "value_layers_premultiplied": premult,
               "normals_frame": frame}
+    if not np.isfinite(facing):  # ("nan%" of its pixels facing away, before)
+        raise InputError("the normals layer holds no usable normal under the object's mask (NaN, infinite or "
+                         "zero everywhere)", where=str(path))
     if not facing >= MIN_FACING_FRACTION:
         other = [f for f in NORMAL_FRAMES if f != frame][0]
         raise InputError(

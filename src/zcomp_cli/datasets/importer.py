@@ -334,6 +334,9 @@ def _read_bg_map(m: str, path: Path, cam) -> tuple[np.ndarray, str]:
     if arr.shape[:2] != (cam.height, cam.width):
         raise InputError(f"the map is {arr.shape[1]}x{arr.shape[0]}, the bundle {cam.width}x{cam.height}",
                          where=str(path))
+    if not np.isfinite(arr).any():
+        # (made 0 below, an all-NaN normals map became one constant normal everywhere)
+        raise InputError(f"the {m} map holds no finite value (every pixel NaN or infinite)", where=str(path))
     arr = np.nan_to_num(arr.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)
     if m == "depth":
         from zcomp_cli.conventions import blender_depth_to_z_depth
@@ -342,6 +345,8 @@ def _read_bg_map(m: str, path: Path, cam) -> tuple[np.ndarray, str]:
     if m == "normals":
         n = lvsn.stablenormal_png_to_camera_normals(arr)
         facing = lvsn.facing_fraction(n, cam.K)
+        if not np.isfinite(facing):
+            raise InputError("the normals map holds no usable normal (every pixel zero once read)", where=str(path))
         if not facing >= lvsn.MIN_FACING_FRACTION:
             raise InputError(f"the normals face away from the camera at {1 - facing:.0%} of the pixels once "
                              "read as StableNormal's (x negated): not a StableNormal map?", where=str(path))
