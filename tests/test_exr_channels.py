@@ -52,3 +52,35 @@ def test_an_all_nan_normals_map_is_refused_not_made_one_constant_normal(tmp_path
     with pytest.raises(InputError, match="no usable normal") as e:
         _read_bg_map("normals", z, Camera.from_fov(50.0, 8, 8))
     assert "nan%" not in str(e.value)
+
+
+def test_object_crop_eval_skips_a_bad_or_tiny_mask_and_scores_the_rest(tmp_path):
+    """Issue 39 (low): under --region object-crop a bad object mask aborted the whole
+    eval, and a 1-pixel crop made the mean PSNR inf. Both pairs are now listed as not
+    scored, with the reason, and the good pair is scored."""
+    from zcomp_cli.imageio import write_png
+    from zcomp_cli.metrics.evaluate import MIN_OBJECT_CROP_PX, Pair, evaluate
+
+    rng = np.random.default_rng(0)
+    pairs = []
+    for name, mask in (("good", "big"), ("tiny", "one"), ("broken", "bad")):
+        d = tmp_path / name
+        d.mkdir()
+        ref = rng.random((32, 32, 3)).astype(np.float32)
+        write_png(d / "ref.png", ref)
+        write_png(d / "pred.png", np.clip(ref + 0.05 * (name != "tiny"), 0, 1))
+        m = np.zeros((32, 32), np.float32)
+        if mask == "big":
+            m[8:24, 8:24] = 1
+        elif mask == "one":
+            m[5, 5] = 1
+        if mask == "bad":
+            (d / "object_mask.png").write_bytes(b"not a png")
+        else:
+            write_png(d / "object_mask.png", m, srgb_encode=False)
+        pairs.append(Pair(name, d / "pred.png", d / "ref.png", None, None, d / "object_mask.png"))
+    res = evaluate(pairs, ["psnr", "mae"], region="object-crop")
+    assert [p.name for p in res.pairs] == ["good"]
+    assert np.isfinite(res.mean["psnr"])
+    assert set(res.unscored) == {"tiny", "broken"}
+    assert f"under {MIN_OBJECT_CROP_PX}x{MIN_OBJECT_CROP_PX}" in res.unscored["tiny"]

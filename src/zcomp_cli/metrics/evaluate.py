@@ -379,19 +379,37 @@ def score_pair(pair: Pair, metrics: list[str], *, linear: bool = False, lpips_mo
     return out
 
 
+class Unscorable(InputError):
+    """One pair cannot be scored under the asked protocol (its object mask missing,
+    unreadable, empty, or its crop too small): listed as not scored, the rest go on."""
+
+
+# An object crop smaller than this on a side is not scored: SSIM's window, and a PSNR of a
+# handful of pixels (a 1-pixel crop identical to its reference made the mean inf).
+MIN_OBJECT_CROP_PX = 7
+
+
 def _object_box(pair: Pair, shape) -> tuple[int, int, int, int]:
     """The object crop of a pair, from ``object_mask.png`` beside its reference."""
     from zcomp_cli.imageio import read_alpha_or_grey
     from zcomp_cli.metrics.protocol import object_crop_box
 
     if pair.object_mask is None:
-        raise InputError("--region object-crop needs the object's mask (object_mask.png beside the reference)",
+        raise Unscorable("--region object-crop needs the object's mask (object_mask.png beside the reference)",
                          where=str(pair.ref))
-    om = read_alpha_or_grey(pair.object_mask)
-    if om.shape != tuple(shape):
-        raise InputError(f"object mask is {om.shape[1]}x{om.shape[0]}, image is {shape[1]}x{shape[0]}",
-                         where=str(pair.object_mask))
-    return object_crop_box(om)
+    try:
+        om = read_alpha_or_grey(pair.object_mask)
+        if om.shape != tuple(shape):
+            raise InputError(f"object mask is {om.shape[1]}x{om.shape[0]}, image is {shape[1]}x{shape[0]}",
+                             where=str(pair.object_mask))
+        box = object_crop_box(om)
+    except InputError as exc:
+        raise Unscorable(str(exc)) from exc
+    w, h = box[2] - box[0], box[3] - box[1]
+    if min(w, h) < MIN_OBJECT_CROP_PX:
+        raise Unscorable(f"its object crop is {w}x{h} px, under {MIN_OBJECT_CROP_PX}x{MIN_OBJECT_CROP_PX}: too "
+                         "small to score", where=str(pair.object_mask))
+    return box
 
 
 def _shadow_metric(m: str, pair: Pair, pred_lin, ref_lin, box=None) -> float:
@@ -443,6 +461,9 @@ def evaluate(pairs: list[Pair], metrics: list[str], *, linear: bool = False,
                                      encoding=encoding))
         except SizeMismatch as exc:  # never resampled silently: listed, and the rest is scored
             unscored[pair.name] = f"{exc} (not scored: composite at another resolution?)"
+            continue
+        except Unscorable as exc:  # one bad object mask must not sink the evaluation
+            unscored[pair.name] = f"{exc} (not scored)"
             continue
         scored.append(pair)
         if on_pair is not None:
