@@ -50,15 +50,10 @@ def tiny_dpt(tmp_path_factory):
     return path
 
 
-def _project(tmp_path, model_dir):
-    from PIL import Image
-    from skimage import data as skdata
-
-    Image.fromarray(skdata.coffee()).resize((160, 120)).save(tmp_path / "photo.png")
-    m = np.zeros((60, 30), np.uint8)
-    m[4:56, 4:26] = 255
-    Image.fromarray(m).save(tmp_path / "mask.png")
-    Image.fromarray(np.full((60, 30, 3), 200, np.uint8)).save(tmp_path / "obj.png")
+def _project(make, tmp_path, model_dir):
+    """conftest's photo project (``photo_manifest``: the photograph, the card and its
+    mask) with this file's two-scene manifest."""
+    make(tmp_path)
     (tmp_path / "jobs.yaml").write_text(MANIFEST.replace("MODEL", str(model_dir)))
     return tmp_path / "jobs.yaml"
 
@@ -75,7 +70,7 @@ from transformers import DPTForDepthEstimation as EvilModel
 
 
 @pytest.mark.parametrize("how", ["auto_map", "py_beside", "component_library"])
-def test_a_model_folder_with_its_own_code_is_refused_and_nothing_runs(tmp_path, tiny_dpt, how, monkeypatch):
+def test_a_model_folder_with_its_own_code_is_refused_and_nothing_runs(tmp_path, tiny_dpt, how, monkeypatch, photo_manifest):
     """A depth folder whose config names its own code (auto_map), that merely carries a
     .py file, or a pipeline taking a component from another library: refused at
     validation with the reason (exit 2), even with "y" waiting on stdin; the code never
@@ -94,7 +89,7 @@ def test_a_model_folder_with_its_own_code_is_refused_and_nothing_runs(tmp_path, 
         (d / "model_index.json").write_text(json.dumps({"_class_name": "MarigoldDepthPipeline",
                                                         "unet": ["evil_library", "EvilUNet"]}))
     out = tmp_path / "out"
-    r = CliRunner().invoke(cli, ["composite", str(_project(tmp_path, d)), "--out", str(out)], input="y\ny\ny\n")
+    r = CliRunner().invoke(cli, ["composite", str(_project(photo_manifest, tmp_path, d)), "--out", str(out)], input="y\ny\ny\n")
     assert r.exit_code == 2, r.output
     assert "scenes.learned.depth.model" in r.output
     assert ("own code" in r.output) or ("Python code" in r.output), r.output
@@ -155,7 +150,7 @@ def _safetensors(path, tensors: dict, header_extra: dict | None = None, n_overri
     ("deep_header", "nested too deeply"),
     ("sparse", "sparse"),
 ])
-def test_a_damaged_weights_file_is_refused_by_its_header_before_loading(tmp_path, tiny_dpt, damage, words):
+def test_a_damaged_weights_file_is_refused_by_its_header_before_loading(tmp_path, tiny_dpt, damage, words, photo_manifest):
     d = _copy(tiny_dpt, tmp_path / "m")
     w = d / "model.safetensors"
     if damage == "empty":
@@ -174,13 +169,13 @@ def test_a_damaged_weights_file_is_refused_by_its_header_before_loading(tmp_path
     assert problem and words in problem, problem
     # at validation: exit 2, the scene's field and the file named, nothing written
     out = tmp_path / "out"
-    r = CliRunner().invoke(cli, ["composite", str(_project(tmp_path, d)), "--out", str(out)])
+    r = CliRunner().invoke(cli, ["composite", str(_project(photo_manifest, tmp_path, d)), "--out", str(out)])
     assert r.exit_code == 2, r.output
     assert "scenes.learned.depth.model" in r.output and "model.safetensors" in r.output
     assert not out.exists()
 
 
-def test_a_weights_file_only_loading_can_refuse_fails_its_scene_alone(tmp_path, tiny_dpt):
+def test_a_weights_file_only_loading_can_refuse_fails_its_scene_alone(tmp_path, tiny_dpt, photo_manifest):
     """A pytorch_model.bin that torch's weights_only unpickler refuses (a pickle naming
     an arbitrary callable) passes every header check: its scene's job fails with the
     reason, the other scene's job is done, no traceback, exit 1."""
@@ -195,7 +190,7 @@ def test_a_weights_file_only_loading_can_refuse_fails_its_scene_alone(tmp_path, 
 
     (d / "pytorch_model.bin").write_bytes(pickle.dumps({"weight": Evil()}))
     out = tmp_path / "out"
-    r = CliRunner().invoke(cli, ["composite", str(_project(tmp_path, d)), "--out", str(out)])
+    r = CliRunner().invoke(cli, ["composite", str(_project(photo_manifest, tmp_path, d)), "--out", str(out)])
     assert r.exit_code == 1, r.output
     assert "Traceback" not in r.output
     assert not (tmp_path / "pwned").exists()
@@ -207,14 +202,14 @@ def test_a_weights_file_only_loading_can_refuse_fails_its_scene_alone(tmp_path, 
     assert plain["status"] == "done"
 
 
-def test_new_weights_in_the_same_folder_change_the_job(tmp_path, tiny_dpt):
+def test_new_weights_in_the_same_folder_change_the_job(tmp_path, tiny_dpt, photo_manifest):
     """--resume after the model folder's weights change: the job is changed, not skipped
     (the estimate cache already saw the change; the job fingerprint now does too)."""
     import torch
     from transformers import DPTForDepthEstimation
 
     d = _copy(tiny_dpt, tmp_path / "m")
-    manifest = _project(tmp_path, d)
+    manifest = _project(photo_manifest, tmp_path, d)
     out = tmp_path / "out"
     r = CliRunner().invoke(cli, ["composite", str(manifest), "--out", str(out), "--jobs", "0"])
     assert r.exit_code == 0, r.output

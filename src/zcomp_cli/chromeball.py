@@ -160,12 +160,12 @@ def unwrap(image: np.ndarray, center, radius: float, frame, *, width: int | None
         ring = ~spot & (behind > math.cos(math.radians(min(180.0, 2.0 * blind))))
         fill = out[ring].mean(0) if ring.any() else out[~spot].mean(0)
         out[spot] = fill
-    # the ball's own pixels (for the clipped share)
-    yy, xx = np.mgrid[0:H, 0:W]
-    on_ball = (xx + 0.5 - cx) ** 2 + (yy + 0.5 - cy) ** 2 <= r * r
     clipped = 0.0
-    if not hdr and on_ball.any():
-        clipped = float((img[on_ball].max(-1) >= _linear(CLIP_LEVEL)).mean())
+    if not hdr:  # the share of the ball's own pixels at the format's maximum
+        yy, xx = np.mgrid[0:H, 0:W]
+        on_ball = (xx + 0.5 - cx) ** 2 + (yy + 0.5 - cy) ** 2 <= r * r
+        if on_ball.any():
+            clipped = float((img[on_ball].max(-1) >= _linear(CLIP_LEVEL)).mean())
     info = BallInfo(radius_px=r, reflectance=float(reflectance), blind_deg=float(blind), clipped=clipped,
                     hdr=bool(hdr))
     return (out / float(reflectance)).reshape(h, width, 3), info

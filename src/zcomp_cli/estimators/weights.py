@@ -312,7 +312,7 @@ def folder_problem(path, what: str) -> str | None:
     validation: no library is imported."""
     root = Path(path).expanduser()
     kind = folder_kind(root)
-    if kind is not None:
+    if kind == "transformers":  # (a pipeline's is read_pipeline_folder's own first check)
         try:
             check_folder_safety(root, what)
         except WeightsError as exc:

@@ -104,9 +104,9 @@ def ball_bundle(camera, object_to_camera: np.ndarray, diameter: float, *, mesh_p
             t, _ = _hit(camera.ray(xs + ox, ys + oy), C, rad)
             cover += np.isfinite(t)
     cover /= n_ss * n_ss
-    t, which = _hit(camera.ray(xs + 0.5, ys + 0.5), C, rad)
-    hit = np.isfinite(t)
     rays = camera.ray(xs + 0.5, ys + 0.5)
+    t, which = _hit(rays, C, rad)
+    hit = np.isfinite(t)
     depth = np.where(hit, t, 0.0)
     P = rays * depth[..., None]
     N = np.zeros((H, W, 3))

@@ -18,11 +18,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from zcomp_cli.errors import UsageError
+from zcomp_cli.preview.run import SUBDIR as PREVIEW_DIR  # where preview-light writes its sheets
 
 # The order statuses are listed and sorted in.
 STATUS_ORDER = ("done", "failed", "damaged", "changed", "missing")
 EVAL_FILE = "eval.json"
-PREVIEW_DIR = "preview"
 
 
 @dataclass

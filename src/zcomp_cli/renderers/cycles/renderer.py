@@ -136,7 +136,7 @@ class CyclesRenderer(Renderer):
 
     def _render_one(self, req: RenderRequest, model, seed: int, reach, timings: dict):
         from zcomp_cli.blender.intrinsics import blender_camera_from_K
-        from zcomp_cli.blender.passes import get_pass, read_multilayer_exr
+        from zcomp_cli.blender.passes import get_pass
 
         H, W = req.camera.height, req.camera.width
         albedo = np.clip(np.nan_to_num(np.asarray(req.maps.albedo, np.float64)), 0.0, 1.0)
@@ -165,24 +165,11 @@ class CyclesRenderer(Renderer):
         t = time.perf_counter()
         self._blender()
         item, arrays = self._describe(req, model, seed, box)
-        arrays_path = self._work / f"{item['id']}.npz"
-        np.savez(arrays_path, **arrays)
-        item.update(arrays=str(arrays_path), out=str(self._work / f"{item['id']}.exr"),
-                    width=W, height=H, camera=blender_camera_from_K(req.camera.K, W, H))
+        item.update(width=W, height=H, camera=blender_camera_from_K(req.camera.K, W, H))
         timings["build"] += time.perf_counter() - t
-        t = time.perf_counter()
-        res = self._session.run([item])
-        timings["blender"] += time.perf_counter() - t
-        ev = res.results.get(item["id"], {})
-        try:
-            if ev.get("event") != "done":
-                raise RenderError(f"Cycles failed: {ev.get('error', 'no answer from Blender')}")
-            ch = read_multilayer_exr(item["out"])
-            rgb = np.nan_to_num(get_pass(ch, "Combined", "RGB"), nan=0.0, posinf=0.0, neginf=0.0)
-            aov = _light_passes(ch, box, (H, W)) if req.aovs else {}
-        finally:
-            for p in (arrays_path, Path(item["out"])):
-                p.unlink(missing_ok=True)
+        ch, ev, res = self._run(item, arrays, timings)
+        rgb = np.nan_to_num(get_pass(ch, "Combined", "RGB"), nan=0.0, posinf=0.0, neginf=0.0)
+        aov = _light_passes(ch, box, (H, W)) if req.aovs else {}
         x0, y0, x1, y1 = box
         if rgb.shape[:2] != (y1 - y0, x1 - x0):
             raise RenderError(f"Cycles rendered a {rgb.shape[1]}x{rgb.shape[0]} window, expected "
@@ -207,6 +194,34 @@ class CyclesRenderer(Renderer):
                      "render_s": float(ev.get("render_s", float("nan"))),
                      "blender_build_s": float(ev.get("build_s", float("nan"))),
                      "object": item["object"] and ("file" if "mesh" in item["object"] else "maps")}, aov
+
+    def _run(self, item: dict, arrays: dict, timings: dict | None = None):
+        """One item in the worker's Blender process: its arrays written beside it, Cycles'
+        EXR read back, both scratch files removed whatever happens. Returns (the EXR's
+        channels, Blender's event for the item, the run's ``BatchResult``); raises
+        ``RenderError`` with Cycles' reason when the item failed. ``timings``: "build"
+        and "blender" seconds are added to it."""
+        from zcomp_cli.blender.passes import read_multilayer_exr
+
+        t = time.perf_counter()
+        arrays_path = self._work / f"{item['id']}.npz"
+        out = self._work / f"{item['id']}.exr"
+        try:
+            np.savez(arrays_path, **arrays)
+            item.update(arrays=str(arrays_path), out=str(out))
+            if timings is not None:
+                timings["build"] += time.perf_counter() - t
+            t = time.perf_counter()
+            res = self._session.run([item])
+            if timings is not None:
+                timings["blender"] += time.perf_counter() - t
+            ev = res.results.get(item["id"], {})
+            if ev.get("event") != "done":
+                raise RenderError(f"Cycles failed: {ev.get('error', 'no answer from Blender')}")
+            return read_multilayer_exr(str(out)), ev, res
+        finally:
+            for p in (arrays_path, out):
+                p.unlink(missing_ok=True)
 
     def _world_file(self, key: str, make) -> tuple[Path, np.ndarray]:
         """The world map (``make() -> (image, rows)``) as an EXR in the work folder, made
@@ -259,23 +274,10 @@ class CyclesRenderer(Renderer):
         item, arrays = self._describe(req, model, seed, bz, with_scene=False)
         K = np.asarray(req.camera.K, np.float64).copy()
         K[:2] *= z
-        arrays_path = self._work / f"{item['id']}.npz"
-        np.savez(arrays_path, **arrays)
-        item.update(arrays=str(arrays_path), out=str(self._work / f"{item['id']}.exr"), width=Wz, height=Hz,
-                    transparent=True, camera=blender_camera_from_K(K, Wz, Hz))
+        item.update(width=Wz, height=Hz, transparent=True, camera=blender_camera_from_K(K, Wz, Hz))
         if samples is not None:
             item["samples"] = int(samples)
-        res = self._session.run([item])
-        ev = res.results.get(item["id"], {})
-        from zcomp_cli.blender.passes import read_multilayer_exr
-
-        try:
-            if ev.get("event") != "done":
-                raise RenderError(f"Cycles failed: {ev.get('error', 'no answer from Blender')}")
-            ch = read_multilayer_exr(item["out"])
-        finally:
-            for p in (arrays_path, Path(item["out"])):
-                p.unlink(missing_ok=True)
+        ch, _, _ = self._run(item, arrays)
         rgba = np.stack([ch[f"Combined.{c}"] for c in "RGBA"], -1)
         return np.clip(np.nan_to_num(rgba, nan=0.0, posinf=0.0, neginf=0.0), 0.0, None).astype(np.float32)
 

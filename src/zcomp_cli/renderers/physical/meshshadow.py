@@ -394,10 +394,10 @@ class _radiance_weights:
         squared distances from ``points`` (n, 3)); moments where exact, else per element."""
         if self.c is None:
             return f.sum(1)[:, None]
+        if self.centres is None or not len(self.centres):
+            raise ValueError("_radiance_weights.summed needs the elements' centres")
         P = np.asarray(points, np.float64)
         rows = np.asarray(rows)
-        if self.centres is None or not len(self.centres):
-            return self(f, self.centres.astype(np.float32)[None] - P[:, None].astype(np.float32), rows)
         po = P - self._origin
         dist = np.linalg.norm(po, axis=1)
         with np.errstate(divide="ignore", invalid="ignore"):

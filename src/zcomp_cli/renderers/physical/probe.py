@@ -122,8 +122,6 @@ def read_probe(path, cfg: ProbeConfig = DEFAULT) -> np.ndarray:
     and negative values set to 0, at most ``cfg.max_width`` wide (area-averaged) and
     2:1 (resampled when the file is not: ``aspect_ok``). Raises
     ``InputError`` naming the file when nothing in it emits light."""
-    import cv2
-
     from zcomp_cli.errors import InputError
     from zcomp_cli.imageio import read_image
 
@@ -137,9 +135,7 @@ def read_probe(path, cfg: ProbeConfig = DEFAULT) -> np.ndarray:
     if w > mw or not equirect.aspect_ok(w, h):
         # at most max_width wide and 2:1 (the manifest refuses another aspect; a map
         # handed over otherwise is resampled, so every step is bounded by max_width)
-        W = max(2, min(mw, w) // 2 * 2)
-        img = cv2.resize(img, (W, W // 2), interpolation=cv2.INTER_AREA if W <= w and W // 2 <= h
-                         else cv2.INTER_LINEAR)
+        img = _area_resize(img, mw).astype(np.float32)
     if not float(img.max()) > 0:
         raise InputError(f"{path}: the light probe holds no light (every pixel is 0, negative or not finite)")
     return img.astype(np.float64)
