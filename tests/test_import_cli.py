@@ -258,7 +258,7 @@ def test_spotlight_cases_carry_their_lamps(spot, tmp_path):
     assert [f.name for f in files] == [c.name for c in cases]
     assert len(files[0].shadows) == 2
     opts = ImportOptions(src=root, out=tmp_path / "j.yaml", maps="provided")
-    e = _import_case(ARCHIVES["spotlight"], opts, files[0], "c0", tmp_path / "c0", "j_data")
+    e = _import_case(ARCHIVES["spotlight"], opts, files[0], "c0", tmp_path / "c0", "j_data", {"c0"})
     lamp = e["scenes"]["c0"]["light"][0]
     assert set(lamp) == {"type", "position", "radius_m", "power"}
     assert lamp["type"] == "lamp" and lamp["radius_m"] == 1.0 and lamp["power"] == "auto"
@@ -270,7 +270,8 @@ def test_spotlight_cases_carry_their_lamps(spot, tmp_path):
     assert info["dataset"] == "spotlight" and info["checks"]["normals_frame"] == "opengl"
     assert info["light"]["alignment"]["mode"] in ("affine", "shift")
     e = _import_case(ARCHIVES["spotlight"], ImportOptions(src=root, out=tmp_path / "j.yaml", maps="provided",
-                                                          lights="all"), files[1], "c1", tmp_path / "c1", "j_data")
+                                                          lights="all"), files[1], "c1", tmp_path / "c1", "j_data",
+                     {"c1"})
     assert list(e["scenes"]) == ["c1_light0000", "c1_lightgt_dir"]
     refs = {j["scene"]: j.get("reference") for j in e["jobs"]}
     assert refs["c1_light0000"] is None and refs["c1_lightgt_dir"].endswith("reference.exr")

@@ -73,6 +73,13 @@ def pixel_budget_problem(width: int, height: int) -> str | None:
             f"{limit:,} (set ${MAX_PIXELS_ENV} to raise it)")
 
 
+def printable(text) -> str:
+    """``text`` on one line of valid UTF-8: control characters (a newline in a folder
+    name) and the undecodable bytes of a non-UTF-8 path (surrogate escapes) written as
+    backslash escapes, everything else kept (an accented name stays readable)."""
+    return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in str(text))
+
+
 def shorten(value, limit: int = MAX_SHOWN_CHARS) -> str:
     """``repr(value)`` cut to ``limit`` characters, for error messages: a manifest value
     can be megabytes long (or an alias bomb). YAML containers are named as YAML names

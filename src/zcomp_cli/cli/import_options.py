@@ -54,20 +54,23 @@ def run_and_report(ctx, archive_key: str, src, **kw) -> None:
 
     from rich.console import Console
 
+    from rich.markup import escape
+
     from zcomp_cli.cli.progress import StageProgress
     from zcomp_cli.datasets.importer import ARCHIVES, ImportOptions, run_import
+    from zcomp_cli.limits import printable
 
     opts = ImportOptions(src=Path(src), out=Path(kw.pop("out")), **kw)
     quiet = bool(ctx.obj and ctx.obj.get("quiet"))
     with StageProgress(disable=quiet) as prog:
         res = run_import(ARCHIVES[archive_key], opts,
-                         progress=lambda i, n, label: prog.update("cases", i, n, label))
+                         progress=lambda i, n, label: prog.update("cases", i, n, printable(label)), warn=prog.warn)
     console = Console(stderr=True, soft_wrap=True)  # paths stay whole, copy-pasteable
     for name, why in res.failed.items():
-        console.print(f"[red]failed[/] {name}: {why}", highlight=False)
+        console.print(f"[red]failed[/] {escape(printable(name))}: {escape(why)}", highlight=False)
     n = len(res.imported)
     line = (f"{n} case{'s' * (n != 1)} imported ({res.jobs} job{'s' * (res.jobs != 1)}), {len(res.failed)} failed, "
-            f"from {res.root}: wrote {res.manifest} and {res.data_dir}/")
+            f"from {printable(res.root)}: wrote {printable(res.manifest)} and {printable(res.data_dir)}/")
     console.print(line if not res.failed else f"[yellow]{line}[/]", highlight=False)
     if res.failed:
         ctx.exit(1)

@@ -32,6 +32,16 @@ class StageProgress:
             self._tasks[stage] = self._progress.add_task("", total=total, stage=stage, label=label)
         self._progress.update(self._tasks[stage], completed=done, total=total, label=label)
 
+    def warn(self, text: str) -> None:
+        """A warning on stderr, printed above the bars when they are shown (a plain
+        line otherwise: warnings are not silenced by --quiet)."""
+        if self._progress is not None:
+            self._progress.console.print(f"[yellow]Warning:[/] {text}", highlight=False, soft_wrap=True)
+        else:
+            import click
+
+            click.secho(f"Warning: {text}", fg="yellow", err=True)
+
     def __exit__(self, *exc):
         if self._progress is not None:
             self._progress.__exit__(*exc)

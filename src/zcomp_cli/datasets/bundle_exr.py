@@ -169,7 +169,9 @@ def read_bundle(path, reading: BundleReading, *, fov_deg: float = FOV_DEG,
     background = _image_layer(layers["background"], "background", notes)
     reference = _image_layer(layers["composite"], "composite", notes)
     base, up, height = object_geometry(camera, depth, mask, footprint)
-    meta = {"source": str(path), "dataset": reading.dataset, "fov_deg": float(fov_deg),
+    # the file's name, not its path: the bundle is a job's input (hashed by --resume) and
+    # the same archive imported from another folder must give the same bundle
+    meta = {"source": Path(path).name, "dataset": reading.dataset, "fov_deg": float(fov_deg),
             "object_height_m": height, "read_by": f"zcomp import ({reading.loader} conventions)"}
     bundle = ObjectBundle(depth=depth, normals=normals, albedo=albedo, mask=mask, footprint_depth=footprint,
                           camera=camera, meta=meta, **extra)

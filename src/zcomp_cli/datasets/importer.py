@@ -34,6 +34,7 @@ from zcomp_cli.datasets.bundle_exr import SPOTLIGHT_READING, ZEROCOMP_READING, B
 from zcomp_cli.datasets.layouts import (SPOTLIGHT_ESTIMATES, SPOTLIGHT_SHADOWS, BG_MAP_SUFFIX, CaseFiles,
                                         case_root, list_cases, spotlight_sibling)
 from zcomp_cli.errors import InputError, ManifestError, UsageError, ZcompError
+from zcomp_cli.limits import printable
 from zcomp_cli.metrics.published import CASE_FILE
 
 MAPS_CHOICES = ("paper", "provided", "estimated")
@@ -108,7 +109,19 @@ def check_options(archive: Archive, opts: ImportOptions) -> None:
         raise UsageError(f"--out {opts.out}: a manifest file name ending in .yaml")
     if opts.out.is_dir():
         raise UsageError(f"--out {opts.out} is a folder; give the manifest file to write (e.g. {opts.out}/jobs.yaml)")
+    blocking = next((a for a in opts.out.absolute().parents if a.exists() and not a.is_dir()), None)
+    if blocking is not None:
+        raise UsageError(f"--out {printable(opts.out)}: {printable(blocking)} is a file, not a folder")
+    for what, path in (("--out", opts.out), ("--depth-model", opts.depth_model)):
+        try:
+            str(path).encode("utf-8")
+        except UnicodeEncodeError:  # the manifest is UTF-8 text and records these paths
+            raise UsageError(f"{what} {printable(path)}: the path is not valid UTF-8; the manifest could not "
+                             "name it") from None
     data = data_dir_for(opts.out)
+    if data.exists() and not data.is_dir() and not opts.overwrite:
+        raise UsageError(f"{printable(data)} is a file where the import writes its data folder; give --overwrite "
+                         "to replace it")
     if not opts.overwrite:
         existing = [p for p in (opts.out, data) if p.exists()]
         if existing:
@@ -129,24 +142,34 @@ def select_cases(cases: list[CaseFiles], pattern: str | None, limit: int | None)
 
 
 def safe_name(name: str, taken: set[str]) -> str:
-    """A zcomp name (letters, digits, ``_ . -``, at most 100 characters, unique) for a
-    case name; the original is kept in ``case.json``."""
+    """A zcomp name for a case name (the original is kept in ``case.json``): letters,
+    digits, ``_ . -``, at most 100 characters, unique in ``taken`` (which it joins), and
+    one the manifest takes for a job: a name that reads as a ``--jobs`` index (``7``) or
+    is a file zcomp writes (``summary.json``) gets a ``case_`` prefix."""
     from zcomp_cli.limits import MAX_NAME_LEN
+    from zcomp_cli.pipeline.manifest import job_name_problem
 
     base = _NAME_BAD.sub("_", name).lstrip(".") or "case"
+    if job_name_problem(base) is not None:
+        base = f"case_{base}"
     base = base[:MAX_NAME_LEN - 6]
     out, k = base, 1
-    while out in taken:
+    while out in taken or job_name_problem(out) is not None:
         k += 1
         out = f"{base}-{k}"
     taken.add(out)
     return out
 
 
-def run_import(archive: Archive, opts: ImportOptions, progress=None) -> ImportResult:
+def run_import(archive: Archive, opts: ImportOptions, progress=None, warn=None) -> ImportResult:
     """Import the selected cases of ``opts.src``; write the manifest when at least one
     case was imported (and validate it). Raises UsageError before writing anything for
-    bad options or a tree with no case, InputError when no case could be imported."""
+    bad options or a tree with no case, InputError when no case could be imported.
+
+    Each case is converted, then checked by its own manifest entry; a case that fails
+    anywhere (an unreadable file, a light file nested 100 000 deep, a 1x1 photo, a name
+    zcomp reserves...) is listed in ``failed`` with the reason and the others go on.
+    ``warn(text)`` receives warnings as soon as they are known (the manifest's size)."""
     from zcomp_cli.imageio import write_json_atomic
 
     check_options(archive, opts)
@@ -166,43 +189,163 @@ def run_import(archive: Archive, opts: ImportOptions, progress=None) -> ImportRe
 
     out = opts.out.resolve()
     data = data_dir_for(out)
+    # The cases are written to <partial>/<data name>/<case>/, laid out as they will be
+    # beside the manifest: each case's own manifest is checked in <partial> before the
+    # case is kept, so one bad case never sinks the others at the final check.
     partial = out.parent / f".{data.name}.partial"
+    stage = partial / data.name
     made_parent = not out.parent.exists()
     out.parent.mkdir(parents=True, exist_ok=True)
-    shutil.rmtree(partial, ignore_errors=True)  # a previous run's leftovers (interrupted)
-    partial.mkdir()
+    lock = _take_import_lock(out)
     result = ImportResult(None, data, root)
     entries = []
-    taken: set[str] = set()
+    taken: set[str] = set()  # every scene, object and job name of the manifest
+    budget = _ManifestBudget(archive, opts, root, len(cases), warn)
     try:
+        shutil.rmtree(partial, ignore_errors=True)  # a previous run's leftovers (interrupted)
+        stage.mkdir(parents=True)
         for i, files in enumerate(cases):
             if progress is not None:
                 progress(i, len(cases), files.name)
+            if budget.full:  # the manifest is full: the rest are listed, not converted
+                result.failed[files.name] = budget.full
+                continue
             name = safe_name(files.name, taken)
             try:
                 if files.problem:
                     raise InputError(files.problem)
-                entries.append(_import_case(archive, opts, files, name, partial / name, data.name))
+                _check_paths(files)
+                entry = _import_case(archive, opts, files, name, stage / name, data.name, taken)
+                _check_case(archive, opts, root, entry, partial)
+                budget.add(entry)
+                entries.append(entry)
                 result.imported.append(files.name)
-            except (ZcompError, ValueError, OSError, KeyError) as exc:
-                # one unreadable case is reported; the others go on
-                result.failed[files.name] = str(exc) if isinstance(exc, ZcompError) else f"{type(exc).__name__}: {exc}"
-                shutil.rmtree(partial / name, ignore_errors=True)
+            except Exception as exc:  # noqa: BLE001 -- one case's failure, whatever it is, is that case's
+                result.failed[files.name] = _reason(exc)
+                shutil.rmtree(stage / name, ignore_errors=True)
         if progress is not None:
             progress(len(cases), len(cases), "")
         if not entries:
-            raise InputError(f"no case of {root} could be imported:\n  "
-                             + "\n  ".join(f"{k}: {v}" for k, v in result.failed.items()))
+            raise InputError(f"no case of {printable(root)} could be imported:\n  "
+                             + "\n  ".join(f"{printable(k)}: {v}" for k, v in result.failed.items()))
         manifest_text = _manifest_text(archive, opts, root, entries)
         result.jobs = sum(len(e["jobs"]) for e in entries)
-        write_json_atomic(partial / IMPORT_FILE, _import_report(archive, opts, root, result))
-        _install(partial, data, out, manifest_text)
+        write_json_atomic(stage / IMPORT_FILE, _import_report(archive, opts, root, result))
+        _install(stage, data, out, manifest_text)
     finally:
         shutil.rmtree(partial, ignore_errors=True)
+        lock.release()
         if made_parent and not out.exists() and not any(out.parent.iterdir()):
             out.parent.rmdir()  # nothing imported: leave no empty folder behind
     result.manifest = out
     return result
+
+
+def _take_import_lock(out: Path):
+    """One import at a time into one manifest (two at once shared the partial folder:
+    both failed, one with a traceback). The lock file beside the manifest is flock'ed
+    (released by the kernel if the process dies) and removed when the import ends."""
+    from zcomp_cli.pipeline.outguard import _FileLock
+
+    lock = _FileLock(out.parent / f".{out.name}.import.lock", {"pid": os.getpid(), "what": "zcomp import"})
+    holder = lock.try_acquire()
+    if holder is not None:
+        pid = holder.get("pid")
+        raise UsageError(f"another zcomp import{f' (pid {pid})' if pid else ''} is writing {printable(out)} now: "
+                         "wait for it to end, or import into another manifest")
+    return lock
+
+
+def _remove(path: Path) -> None:
+    """Remove a file or a folder (whichever is there)."""
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        path.unlink(missing_ok=True)
+
+
+def _check_paths(files: CaseFiles) -> None:
+    """InputError when a file of the case has a path that is not valid UTF-8 (a Latin-1
+    folder name): OpenImageIO takes paths as UTF-8 text and cannot open it."""
+    for p in (files.bundle, *files.maps.values(), files.light):
+        if p is None:
+            continue
+        try:
+            str(p).encode("utf-8")
+        except UnicodeEncodeError:
+            raise InputError("the path is not valid UTF-8 (a name in another encoding, e.g. Latin-1): the image "
+                             "library cannot open it; rename the folder or file", where=printable(p)) from None
+
+
+def _size(n: float) -> str:
+    return f"{n / 2**20:.1f} MiB" if n >= 2**20 else f"{int(n):,} bytes"
+
+
+def _reason(exc: Exception) -> str:
+    """One line saying why a case failed: zcomp's own errors as they are, others with
+    their type (a RecursionError, an OverflowError...), bounded."""
+    if isinstance(exc, ZcompError):
+        return printable(str(exc))
+    return printable(f"{type(exc).__name__}: {exc}")[:500]
+
+
+def _check_case(archive: Archive, opts: ImportOptions, root: Path, entry: dict, partial: Path) -> None:
+    """The case's own manifest (the import's defaults, its scenes, object and jobs),
+    validated as ``zcomp composite`` will (files read): InputError with its problems.
+    Catches what only the manifest sees (a 1x1 photo, a lamp at 1e308...) per case."""
+    from zcomp_cli.imageio import write_text_atomic
+    from zcomp_cli.pipeline.manifest import load_manifest
+
+    check = partial / "case-check.yaml"
+    write_text_atomic(check, _manifest_text(archive, opts, root, [entry]))
+    try:
+        load_manifest(check)
+    except ManifestError as exc:
+        shown = [re.sub(rf"^{re.escape(check.name)}(:\d+)?: ", "", p) for p in exc.problems[:5]]
+        raise InputError("the case's manifest entry does not validate: " + "; ".join(shown)
+                         + (f" (and {len(exc.problems) - 5} more)" if len(exc.problems) > 5 else "")) from None
+    finally:
+        check.unlink(missing_ok=True)
+
+
+class _ManifestBudget:
+    """The written manifest must load (``ZCOMP_MAX_MANIFEST_BYTES``, 4 MiB by default):
+    cases are kept while their YAML fits; the cases past it are listed as failed
+    without being converted. After the first case the whole selection's size is
+    estimated and a warning given up front when it will not fit."""
+
+    def __init__(self, archive: Archive, opts: ImportOptions, root: Path, n_cases: int, warn=None):
+        from zcomp_cli.limits import max_manifest_bytes
+
+        self.limit = max_manifest_bytes()
+        self.used = len(_manifest_text(archive, opts, root, [])) + 64  # the head, defaults, section keys
+        self.n_cases, self.kept, self.warn = n_cases, 0, warn
+        self.full: str | None = None
+
+    def add(self, entry: dict) -> None:
+        """Count ``entry`` in, or raise InputError (and mark the budget full) when it
+        does not fit."""
+        import yaml
+
+        size = len(yaml.safe_dump({k: entry[k] for k in ("scenes", "objects", "jobs")}, sort_keys=False,
+                                   width=120).encode())
+        if self.used + size > self.limit:
+            from zcomp_cli.limits import MAX_MANIFEST_BYTES_ENV
+
+            self.full = (f"not imported: the manifest would pass its size limit of {self.limit:,} bytes after "
+                         f"{self.kept} case{'s' * (self.kept != 1)} (set ${MAX_MANIFEST_BYTES_ENV} for this "
+                         "import and for the runs that read it, or import in parts with --cases/--limit)")
+            raise InputError(self.full)
+        self.used += size
+        self.kept += 1
+        if self.kept == 1 and self.warn is not None and self.used + size * (self.n_cases - 1) > self.limit:
+            from zcomp_cli.limits import MAX_MANIFEST_BYTES_ENV
+
+            fit = max(1, int((self.limit - self.used) // size) + 1)
+            self.warn(f"{self.n_cases} cases make a manifest of about {_size(self.used + size * (self.n_cases - 1))}"
+                      f", past its limit of {_size(self.limit)}: about {fit} will be imported, the "
+                      f"rest listed as not imported (set ${MAX_MANIFEST_BYTES_ENV}, or import in parts with "
+                      "--cases/--limit)")
 
 
 def _install(partial: Path, data: Path, out: Path, manifest_text: str) -> None:
@@ -226,18 +369,19 @@ def _install(partial: Path, data: Path, out: Path, manifest_text: str) -> None:
         os.replace(tmp, out)
     except BaseException:
         tmp.unlink(missing_ok=True)
-        shutil.rmtree(data, ignore_errors=True)
+        _remove(data)
         if had_old:
             os.replace(old, data)
         raise
     if had_old:
-        shutil.rmtree(old, ignore_errors=True)
+        _remove(old)  # a file where the data folder was, too (rmtree left it as .old-<pid>)
 
 
 # ----------------------------------------------------------------------------- one case
 def _import_case(archive: Archive, opts: ImportOptions, files: CaseFiles, name: str, case_dir: Path,
-                 data_name: str) -> dict:
-    """Convert one case into ``case_dir``; return its scene, object and job entries."""
+                 data_name: str, taken: set[str]) -> dict:
+    """Convert one case into ``case_dir``; return its scene, object and job entries
+    (their names unique in ``taken``, the names of the whole manifest)."""
     from zcomp_cli.imageio import write_exr, write_json_atomic, write_png
 
     bc = read_bundle(files.bundle, archive.reading, normals_frame=opts.bundle_normals)
@@ -296,19 +440,18 @@ def _import_case(archive: Archive, opts: ImportOptions, files: CaseFiles, name: 
     if not frames:
         scenes[name] = scene
         jobs.append(_job(name, name, name, bc, f"{rel}/reference.exr"))
-    frame_names: set[str] = set()
     for fr in frames:
-        sname = name if opts.lights == "gt" else safe_name(f"{name}_light{fr.name}", frame_names)
+        sname = name if opts.lights == "gt" else safe_name(f"{name}_light{fr.name}", taken)
         lamp = lamp_entry(fr, light_info["centre_used"])
         scenes[sname] = {**scene, "light": [lamp]}
         light_info.setdefault("lamps", {})[fr.name] = lamp
         ref = f"{rel}/reference.exr" if fr.name == GT_FRAME else None
         jobs.append(_job(sname, name, sname, bc, ref))
     info = {
-        "dataset": archive.reading.dataset, "archive": archive.title, "case": files.name, "name": name,
-        "bundle": str(files.bundle), "maps": {k: str(v) for k, v in files.maps.items()},
-        "maps_used": opts.maps, "light_path": str(files.light) if files.light else None,
-        "shadows": [str(p) for p in files.shadows], "size": [cam.width, cam.height],
+        "dataset": archive.reading.dataset, "archive": archive.title, "case": printable(files.name), "name": name,
+        "bundle": printable(files.bundle), "maps": {k: printable(v) for k, v in files.maps.items()},
+        "maps_used": opts.maps, "light_path": printable(files.light) if files.light else None,
+        "shadows": [printable(p) for p in files.shadows], "size": [cam.width, cam.height],
         "conversions": conversions, "checks": checks, "notes": bc.notes, "light": light_info,
     }
     if cam.width != cam.height:
@@ -418,7 +561,7 @@ def _manifest_text(archive: Archive, opts: ImportOptions, root: Path, entries: l
     }[opts.maps]
     head = [
         f"# zcomp import {archive.key}: {len(entries)} case{'s' * (len(entries) != 1)} of the {archive.title} "
-        f"({root})",
+        f"({printable(root)})",  # one comment line whatever the path holds (a newline, non-UTF-8 bytes)
         f"# maps: {opts.maps} ({maps_line})",
         f"# The paper's settings: centre crop (window: center), fov {lvsn.FOV_DEG:g}, seed {lvsn.PAPER_SEED},",
         f"# {lvsn.PAPER_STEPS} DDIM steps, fp16 under autocast, shading mask radius {archive.shading_radius:g}.",
