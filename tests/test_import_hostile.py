@@ -253,3 +253,45 @@ def test_manifest_written_is_the_same_from_another_path(tmp_path):
     assert run("import", "zerocomp", moved, "--out", out, "--maps", "provided", "--overwrite").exit_code == 0
     assert job_fingerprints(load_manifest(out)) == before
     assert yaml.safe_load(out.read_text())  # still one document
+
+
+def test_a_fifo_is_named_as_a_fifo_and_never_opened(spot, tmp_path):
+    """A FIFO in place of a map or a light file: that case fails saying so (it was
+    reported as not found; opening it would hang the import)."""
+    root, names = spot
+    light = _light_file(root, names[0])
+    light.unlink()
+    os.mkfifo(light)
+    normal = root.parent / "WACV_bg_estimates" / names[1] / f"{names[1]}_bg_normal.png"
+    normal.unlink()
+    os.mkfifo(normal)
+    out = tmp_path / "o" / "jobs.yaml"
+    r = run("import", "spotlight", root, "--out", out, "--maps", "provided")
+    assert r.exit_code == 1, r.output
+    assert f"failed {names[0]}: '{light}' is a FIFO (named pipe), not a regular file" in r.output
+    assert f"failed {names[1]}: '{normal}' is a FIFO (named pipe), not a regular file" in r.output
+    assert _imported(out) == names[2:]
+
+
+def test_one_broken_case_json_does_not_switch_the_protocol(tmp_path):
+    """eval picks the paper's protocol for imported cases; one unreadable case.json
+    switched every case to zcomp's, silently. Now the others decide and it is named."""
+    root = tmp_path / "labo"
+    cases = replica.make_zerocomp_archive(root, 2)
+    out = tmp_path / "o" / "jobs.yaml"
+    assert run("import", "zerocomp", root, "--out", out, "--maps", "provided").exit_code == 0
+    res = tmp_path / "naive"
+    assert run("composite", out, "--out", res, "--renderer", "naive").exit_code == 0
+    broken = out.parent / "jobs_data" / cases[1].name / "case.json"
+    broken.write_text("{not json")
+    r = run("eval", res, "--metrics", "psnr", "--out", tmp_path / "ev")
+    assert r.exit_code == 0, r.output
+    proto = json.loads((tmp_path / "ev.json").read_text())["protocol"]
+    assert proto["name"] == "paper" and proto["dataset"] == "zerocomp-labo"
+    assert f"1 case.json file could not be read (the protocol follows the others): {broken}" in r.output
+    assert proto["warnings"]
+    # a mix of imported cases and plain references is said, not silent
+    broken.unlink()
+    r = run("eval", res, "--metrics", "psnr", "--out", tmp_path / "ev2")
+    assert r.exit_code == 0 and "the references mix 1 zerocomp-labo case, 1 reference not from `zcomp import`" in r.output
+    assert json.loads((tmp_path / "ev2.json").read_text())["protocol"]["name"] == "zcomp"

@@ -122,7 +122,9 @@ def _protocol_setup(ctx, pairs, protocol, region, paper_rows, linear, metrics) -
     from zcomp_cli.metrics import protocol as proto
     from zcomp_cli.metrics.published import dataset_of_pairs, load_rows, rows_for
 
-    dataset = dataset_of_pairs(pairs)
+    dataset, warnings = dataset_of_pairs(pairs)
+    for w in warnings:
+        click.secho(f"Warning: {w}", fg="yellow", err=True)
     if protocol is None:  # the paper's protocol on the paper's data, unless --linear asks for zcomp's
         protocol = "paper" if dataset is not None and not linear else "zcomp"
     if protocol == "paper" and linear:
@@ -136,7 +138,7 @@ def _protocol_setup(ctx, pairs, protocol, region, paper_rows, linear, metrics) -
     # the published figures are only comparable under the paper's protocol (or when given)
     entry, rows = rows_for(dataset, region, given) if protocol == "paper" or given else (None, [])
     info = {"name": protocol, "encoding": "linear" if linear else proto.ENCODINGS[protocol], "region": region,
-            "dataset": dataset}
+            "dataset": dataset, **({"warnings": warnings} if warnings else {})}
     if entry is not None:
         info["paper_source"] = entry["source"]
         info["paper_rows"] = rows

@@ -265,11 +265,17 @@ def _remove(path: Path) -> None:
 
 
 def _check_paths(files: CaseFiles) -> None:
-    """InputError when a file of the case has a path that is not valid UTF-8 (a Latin-1
-    folder name): OpenImageIO takes paths as UTF-8 text and cannot open it."""
+    """InputError when a file of the case is not a regular file (a FIFO would hang the
+    reader) or has a path that is not valid UTF-8 (a Latin-1 folder name: OpenImageIO
+    takes paths as UTF-8 text and cannot open it)."""
+    from zcomp_cli.pipeline.manifest import special_file_problem
+
     for p in (files.bundle, *files.maps.values(), files.light):
         if p is None:
             continue
+        special = special_file_problem(p)
+        if special:
+            raise InputError(printable(special))
         try:
             str(p).encode("utf-8")
         except UnicodeEncodeError:

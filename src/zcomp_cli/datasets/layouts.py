@@ -55,8 +55,14 @@ def case_name(bundle: Path) -> str:
     return m.group("name") if m else bundle.stem
 
 
+def _present(p: Path) -> bool:
+    """Something other than a folder is there (a FIFO or a device too: the importer
+    says what it is instead of "not found", and never opens it)."""
+    return p.exists() and not p.is_dir()
+
+
 def _bundles(folder: Path) -> list[Path]:
-    return sorted(p for p in folder.glob("*bundle*.exr") if p.is_file() and not p.name.startswith("."))
+    return sorted(p for p in folder.glob("*bundle*.exr") if _present(p) and not p.name.startswith("."))
 
 
 def case_root(root) -> Path:
@@ -105,11 +111,11 @@ def list_cases(root: Path, maps_dir=None, light: bool = False, shadows_dir=None)
             mdir = folder if maps_dir is None else Path(maps_dir) / name
             for m, suffix in BG_MAP_SUFFIX.items():
                 p = mdir / f"{name}{suffix}"
-                if p.is_file():
+                if _present(p):
                     files.maps[m] = p
             if light:
                 p = folder / f"{name}{LIGHT_SUFFIX}"
-                files.light = p if p.is_file() else None
+                files.light = p if _present(p) else None
             if shadows_dir is not None and (Path(shadows_dir) / name).is_dir():
                 files.shadows = sorted((Path(shadows_dir) / name).glob("shadow_*.png"))
             out.append(files)

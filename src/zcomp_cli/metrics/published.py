@@ -94,18 +94,58 @@ def format_value(metric: str, value: float) -> str:
 
 def dataset_of_reference(ref) -> str | None:
     """The dataset key of an imported case (``case.json`` beside its reference), else None."""
+    key, _ = _case_dataset(ref)
+    return key
+
+
+def _case_dataset(ref) -> tuple[str | None, str | None]:
+    """(the dataset key, None) of an imported case; (None, None) when no ``case.json``
+    is beside the reference; (None, why) when one is there but cannot be read."""
+    path = Path(ref).parent / CASE_FILE
+    if not path.exists():
+        return None, None
     try:
-        d = json.loads((Path(ref).parent / CASE_FILE).read_text())
-    except (OSError, ValueError):
-        return None
+        d = json.loads(path.read_text())
+    except RecursionError:
+        return None, f"{path}: JSON nested too deep"
+    except (OSError, ValueError) as exc:
+        return None, f"{path}: {type(exc).__name__}: {exc}"[:300]
     v = d.get("dataset") if isinstance(d, dict) else None
-    return v if isinstance(v, str) else None
+    return (v, None) if isinstance(v, str) else (None, f"{path}: no 'dataset' text")
 
 
-def dataset_of_pairs(pairs) -> str | None:
-    """The one dataset every pair's reference belongs to, else None (mixed or unknown)."""
-    keys = {dataset_of_reference(p.ref) for p in pairs}
-    return keys.pop() if len(keys) == 1 and None not in keys else None
+def dataset_of_pairs(pairs) -> tuple[str | None, list[str]]:
+    """The one dataset the pairs' references belong to, else None; and warnings.
+
+    A ``case.json`` that cannot be read does not decide alone: when every readable one
+    names the same dataset, that is the dataset (the broken files are named in the
+    warnings: one broken file switched every case to the zcomp protocol, silently).
+    References of several datasets, or imported cases beside others, give None with a
+    warning saying so."""
+    keys: dict[str, int] = {}
+    broken: list[str] = []
+    plain = 0
+    for p in pairs:
+        key, why = _case_dataset(p.ref)
+        if why:
+            broken.append(why)
+        elif key is None:
+            plain += 1
+        else:
+            keys[key] = keys.get(key, 0) + 1
+    notes = []
+    if broken:
+        notes.append(f"{len(broken)} case.json file{'s' * (len(broken) != 1)} could not be read (the protocol "
+                     f"follows the others): " + "; ".join(broken[:3]) + (" ..." if len(broken) > 3 else ""))
+    if len(keys) == 1 and not plain:
+        return next(iter(keys)), notes
+    if keys:
+        parts = [f"{n} {k} case{'s' * (n != 1)}" for k, n in sorted(keys.items())]
+        if plain:
+            parts.append(f"{plain} reference{'s' * (plain != 1)} not from `zcomp import`")
+        notes.append(f"the references mix {', '.join(parts)}: no one dataset's protocol applies (the zcomp "
+                     "protocol unless --protocol is given; score each dataset apart to compare with a paper)")
+    return None, notes
 
 
 # A --paper-rows file is a paper's table: these bound it (a judgement, far above any
