@@ -30,6 +30,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -44,6 +45,7 @@ from zcomp_cli.errors import RenderError
 
 EVENT_PREFIX = "@@ZCOMP@@ "
 LOG_PREFIX = "zcomp-blender-"
+TMP_PREFIX = "zcomp-blendertmp-"  # the child's TMPDIR (see _spawn)
 # The last line of a log kept on purpose (an item failed and its error names the log):
 # a later run's sweep leaves such a log alone.
 KEEP_MARK = "[zcomp] log kept: an item failed"
@@ -61,28 +63,50 @@ def _temporary_log() -> Path:
 
 def _spawn(path: Path, arg: str, **popen_kw) -> subprocess.Popen:
     """Start ``python -m zcomp_cli.blender.launch SCRIPT ARG`` (the script then dies
-    with this process: ``launch``)."""
+    with this process: ``launch``).
+
+    The child's temporary folder (``TMPDIR``: Blender makes its session folder
+    ``blender_XXXXXX`` there) is ``/tmp/zcomp-blendertmp-<pid>-*``, made here and removed
+    by ``_end``: a Blender killed mid-render (``kill -9``, its parent's death) left an
+    empty ``/tmp/blender_*`` behind; this one goes when the child ends, or at a later
+    run's sweep when zcomp itself was killed (``outguard.sweep_dead_temporaries``)."""
     from zcomp_cli.blender.launch import PARENT_ENV
+    from zcomp_cli.interrupts import deferred
 
     env = dict(os.environ)
     env.setdefault("PYTHONUNBUFFERED", "1")
     env[PARENT_ENV] = str(os.getpid())
-    # -P: no current folder on the child's sys.path (launch puts the script's folder there)
-    return subprocess.Popen([sys.executable, "-P", "-m", "zcomp_cli.blender.launch", str(path), arg],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, errors="replace",
-                            env=env, bufsize=1, **popen_kw)
+    with deferred():
+        tmp = tempfile.mkdtemp(prefix=f"{TMP_PREFIX}{os.getpid()}-")
+    env["TMPDIR"] = env["TMP"] = env["TEMP"] = tmp
+    try:
+        # -P: no current folder on the child's sys.path (launch puts the script's folder there)
+        proc = subprocess.Popen([sys.executable, "-P", "-m", "zcomp_cli.blender.launch", str(path), arg],
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, errors="replace",
+                                env=env, bufsize=1, **popen_kw)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    proc.zcomp_tmpdir = tmp
+    return proc
 
 
 def _end(proc: subprocess.Popen, *, kill: bool, timeout_s: float = 60.0) -> None:
-    """Wait for ``proc`` (``kill``: kill it first, for an interrupted batch)."""
-    if kill and proc.poll() is None:
-        with contextlib.suppress(OSError):
-            proc.kill()
+    """Wait for ``proc`` (``kill``: kill it first, for an interrupted batch), then
+    remove its temporary folder."""
     try:
-        proc.wait(timeout=timeout_s)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
+        if kill and proc.poll() is None:
+            with contextlib.suppress(OSError):
+                proc.kill()
+        try:
+            proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    finally:
+        tmp = getattr(proc, "zcomp_tmpdir", None)
+        if tmp:
+            shutil.rmtree(tmp, ignore_errors=True)
 
 
 def _keep_log(log) -> None:

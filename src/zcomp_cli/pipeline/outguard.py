@@ -400,10 +400,12 @@ def _kept_log(p: Path) -> bool:
 def sweep_dead_temporaries(cache_root: Path | None = None) -> int:
     """Remove ``/tmp/zcomp-job-<pid>-*``, ``/tmp/zcomp-intrinsics-work-<pid>-*``, the cycles
     renderer's ``/tmp/zcomp-cycles-<pid>-*``,
-    ``<cache>/intrinsics/.work-<pid>-*`` and Blender's logs ``/tmp/zcomp-blender-<pid>-*.log``
+    ``<cache>/intrinsics/.work-<pid>-*``, Blender's temporary folders ``/tmp/zcomp-blendertmp-<pid>-*``
+    and its logs ``/tmp/zcomp-blender-<pid>-*.log``
     (unless kept on purpose: ``blender.runner.KEEP_MARK``) whose process is gone."""
     n = 0
-    places = [(Path(tempfile.gettempdir()), ("zcomp-job-", "zcomp-intrinsics-work-", "zcomp-cycles-", "zcomp-blender-"))]
+    places = [(Path(tempfile.gettempdir()), ("zcomp-job-", "zcomp-intrinsics-work-", "zcomp-cycles-", "zcomp-blender-",
+                                             "zcomp-blendertmp-"))]
     if cache_root is not None:
         places.append((Path(cache_root) / "intrinsics", (".work-",)))
     for folder, prefixes in places:
