@@ -57,3 +57,24 @@ def test_a_light_that_reaches_no_visible_pixel_fails_its_job(tmp_path, examples_
     job = json.loads((out / "summary.json").read_text())["jobs"][0]
     assert job["status"] == "failed" and words in job["reason"], job
     assert not (out / "000_room_vase" / "composite.png").exists()
+
+
+def test_a_lamp_inside_the_object_is_noted(tmp_path, examples_dir):
+    """A given lamp at the object's centre lights it from within (its outside drawn
+    unlit): the job runs, its report says so (there was no note)."""
+    import numpy as np
+
+    from zcomp_cli.pose import Pose
+
+    out = tmp_path / "out"
+    m = _manifest(tmp_path, examples_dir, {"type": "lamp", "position": [0.0, 1.0, -2.0], "power": 60})
+    assert CliRunner().invoke(cli, ["composite", str(m), "--out", str(out)]).exit_code == 0
+    rep = json.loads((out / "000_room_vase" / "report.json").read_text())
+    assert not any("inside the object" in n for n in rep["notes"])
+    pose = Pose.from_dict(rep["pose"])
+    centre = np.asarray(pose.position) + pose.up * (rep["pose"]["height"] / 2)
+    m = _manifest(tmp_path, examples_dir, {"type": "lamp", "position": centre.tolist(), "power": 60})
+    r = CliRunner().invoke(cli, ["composite", str(m), "--out", str(tmp_path / "out2")])
+    assert r.exit_code == 0, r.output
+    notes = json.loads((tmp_path / "out2" / "000_room_vase" / "report.json").read_text())["notes"]
+    assert any("light: lamp 0 at" in n and "is inside the object" in n for n in notes), notes

@@ -87,6 +87,38 @@ class PreparedJob:
     debug_maps: dict
 
 
+def lamps_inside_object(light, cam, obj_depth, obj_mask, footprint_depth) -> list[str]:
+    """Notes for the given lamps whose centre lies inside the object's bounds (camera
+    frame: the box of its visible surface and of its footprint, which covers the base
+    the camera does not see). Such a lamp lights the object from within: its outside
+    is drawn unlit and its shadow swallows the scene. Said, not refused: a lamp inside a
+    lampshade is a real scene, a typo in a position is the likelier one.
+
+    Args:
+        light: the scene's ``LightParams`` (None or no lamps: no note).
+        obj_depth, footprint_depth: (H, W) z-depth, metres, > 0 where valid (aligned).
+        obj_mask: (H, W) coverage in [0, 1].
+    """
+    lamps = getattr(light, "lamps", ()) or ()
+    if not lamps:
+        return []
+    seen = (obj_mask > 0.5) & np.isfinite(obj_depth) & (obj_depth > 0)
+    foot = np.isfinite(footprint_depth) & (footprint_depth > 0)
+    pts = np.concatenate([cam.unproject(np.where(seen, obj_depth, 0.0))[seen],
+                          cam.unproject(np.where(foot, footprint_depth, 0.0))[foot]])
+    if len(pts) < 4:
+        return []
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    notes = []
+    for i, lp in enumerate(lamps):
+        q = np.asarray(lp.position.value, np.float64) if lp.position.value is not None else None
+        if q is not None and q.shape == (3,) and np.all(q >= lo) and np.all(q <= hi):
+            notes.append(f"light: lamp {i} at {np.round(q, 3).tolist()} (camera frame, m) is inside the object "
+                         f"(its bounds {np.round(lo, 3).tolist()} .. {np.round(hi, 3).tolist()}): it lights the "
+                         "object from within, so the object's outside is drawn unlit; move the lamp out of it")
+    return notes
+
+
 def prepare_job(
     scene: Scene,
     bundle: ObjectBundle,
@@ -166,6 +198,8 @@ def prepare_job(
         except Exception as exc:  # nor must maps that make no solid: 2.5D shadows
             occluder = None
             notes.append(f"object maps not used as an occluder: {type(exc).__name__}: {exc}")
+    notes += lamps_inside_object(getattr(scene, "light", None), cam, obj_depth, obj_mask,
+                                 apply_alignment(bundle.footprint_depth, alignment))
     requests = [RenderRequest(maps=bg, **common),
                 RenderRequest(maps=comp, **common, occluder=occluder, coverage=m)]
     x0, y0, x1, y1 = roi
