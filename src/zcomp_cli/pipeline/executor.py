@@ -57,9 +57,17 @@ class Executor(ABC):
         and return one status per item."""
 
 
+# What a job's step may raise and the job (not the batch) then fails with: every error,
+# and SystemExit -- a renderer plugin calling sys.exit() in render() ended the batch
+# with its jobs pending and exit 0. KeyboardInterrupt still interrupts.
+JOB_FAILURES = (Exception, SystemExit)
+
+
 def _failure(exc: BaseException) -> str:
     if isinstance(exc, ZcompError):
         return str(exc)
+    if isinstance(exc, SystemExit):
+        return f"the renderer called sys.exit({exc.code!r}) (a plugin's bug: zcomp went on with the other jobs)"
     # A bug must not lose the rest of the batch; -v shows the traceback.
     log.debug("job crashed:\n%s", "".join(traceback.format_exception(exc)))
     return f"internal error: {type(exc).__name__}: {exc}"
@@ -168,7 +176,7 @@ def _render_and_finish(ctx: BatchContext, prepared, statuses, started) -> None:
             for (w, _, p), out in zip(prepared, outs):
                 p.timings["render_s"] = share
                 outputs[w.job.index] = out
-        except Exception as exc:  # noqa: BLE001
+        except JOB_FAILURES as exc:  # noqa: BLE001
             if len(prepared) == 1:  # nothing to isolate: the one job failed
                 w = prepared[0][0]
                 statuses[w.job.index] = _failed(ctx, w, exc, started[w.job.index])
@@ -178,7 +186,7 @@ def _render_and_finish(ctx: BatchContext, prepared, statuses, started) -> None:
                     try:
                         outputs[w.job.index] = renderer.render(p.requests, seed=p.seed)
                         p.timings["render_s"] = time.perf_counter() - t1
-                    except Exception as exc1:  # noqa: BLE001
+                    except JOB_FAILURES as exc1:  # noqa: BLE001
                         statuses[w.job.index] = _failed(ctx, w, exc1, started[w.job.index])
 
     # 6. Compositor and outputs, job by job.
@@ -194,5 +202,5 @@ def _render_and_finish(ctx: BatchContext, prepared, statuses, started) -> None:
             write_job_outputs(out_dir, scene, result, report, debug=ctx.debug, aovs=ctx.aovs, started=started[w.job.index])
             statuses[w.job.index] = JobStatus(w.job, "done", None, time.perf_counter() - started[w.job.index],
                                               out_dir)
-        except Exception as exc:  # noqa: BLE001
+        except JOB_FAILURES as exc:  # noqa: BLE001
             statuses[w.job.index] = _failed(ctx, w, exc, started[w.job.index])

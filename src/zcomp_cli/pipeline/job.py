@@ -33,6 +33,7 @@ from zcomp_cli.compositing import (
 from zcomp_cli.compositing.compositor import BLUR_SIZE
 from zcomp_cli.conventions import DEFAULT_SEED, valid_depth_mask
 from zcomp_cli.errors import GeometryError, NumericalError, RenderError
+from zcomp_cli.limits import type_name
 from zcomp_cli.pipeline.scene import Scene
 from zcomp_cli.maps import SceneMaps
 from zcomp_cli.renderers.base import Renderer, RenderOutput, RenderRequest
@@ -230,7 +231,19 @@ def finish_job(prep: PreparedJob, out: RenderOutput, renderer_name: str, rendere
                *, debug: bool = False, aovs: bool = False) -> JobOutput:
     """Check the renderer's two images (step 5's output) and run step 6, the compositor."""
     H, W = prep.scene.camera.height, prep.scene.camera.width
-    f_bg, f_comp = (np.asarray(im, dtype=np.float32) for im in out.images)
+    images = list(out.images) if isinstance(out.images, (list, tuple)) else None
+    if images is None or len(images) != len(prep.requests):
+        raise NumericalError(f"renderer {renderer_name} returned {type_name(out.images)} "
+                             f"{'of ' + str(len(images)) + ' images ' if images is not None else ''}for "
+                             f"{len(prep.requests)} requests (one image per request)")
+    for name, im in zip(("f(i_bg)", "f(i_comp)"), images):
+        kind = getattr(getattr(im, "dtype", None), "kind", None)
+        if not isinstance(im, np.ndarray) or kind != "f":
+            # an integer image is display-encoded (0..255), not linear radiance
+            raise NumericalError(f"renderer {renderer_name} returned {name} as "
+                                 f"{str(im.dtype) + ' array' if isinstance(im, np.ndarray) else type_name(im)}: "
+                                 "expected a float array of linear radiance (a plugin's bug)")
+    f_bg, f_comp = (np.asarray(im, dtype=np.float32) for im in images)
     for name, im in (("f(i_bg)", f_bg), ("f(i_comp)", f_comp)):
         if im.shape != (H, W, 3):
             raise NumericalError(f"renderer returned {name} of shape {im.shape}, expected {(H, W, 3)}")
