@@ -265,3 +265,32 @@ def test_a_narrow_probe_is_refused_and_its_steps_are_bounded(tmp_path, examples_
     tracemalloc.stop()
     assert peak < 200 << 20, peak / 2**20
     assert lights.gloss.maps.shape[1:3] == (32, 64) or lights.gloss.maps.shape[2] == 2 * lights.gloss.maps.shape[1]
+
+
+@pytest.mark.parametrize("edit", ["config", "weights"])
+def test_weights_that_do_not_fit_the_config_fail_their_scene(tmp_path, tiny_dpt, photo_manifest, edit):
+    """Found by the fuzzer: transformers loads a model whose weights lack tensors by
+    filling them with random values (a load report, no error), and the job was done
+    with a depth map of noise. Now that scene's jobs fail, naming the keys. (A config
+    edited to other shapes is refused by transformers itself.)"""
+    from safetensors.numpy import load_file, save_file
+
+    d = _copy(tiny_dpt, tmp_path / "m")
+    if edit == "config":
+        cfg = json.loads((d / "config.json").read_text())
+        cfg["hidden_size"] = 4
+        (d / "config.json").write_text(json.dumps(cfg))
+    else:
+        tensors = load_file(d / "model.safetensors")
+        save_file({k: v for i, (k, v) in enumerate(sorted(tensors.items())) if i % 2}, d / "model.safetensors")
+    out = tmp_path / "out"
+    r = CliRunner().invoke(cli, ["composite", str(_project(photo_manifest, tmp_path, d)), "--out", str(out)])
+    assert r.exit_code == 1, r.output
+    jobs = {j["name"]: j for j in json.loads((out / "summary.json").read_text())["jobs"]}
+    learned = next(j for n, j in jobs.items() if "learned" in n)
+    assert learned["status"] == "failed", learned
+    if edit == "config":  # transformers itself refuses mismatched shapes (after its report)
+        assert "ignore_mismatched_sizes" in learned["reason"] or "mismatched keys" in learned["reason"]
+    else:
+        assert "does not match its config.json" in learned["reason"] and "missing keys" in learned["reason"]
+    assert next(j for n, j in jobs.items() if "plain" in n)["status"] == "done"

@@ -73,10 +73,20 @@ def load_depth_model(model_dir):
 
         # trust_remote_code=False: never the folder's own code, and never a question on stdin
         processor = AutoImageProcessor.from_pretrained(str(d), local_files_only=True, trust_remote_code=False)
-        model = AutoModelForDepthEstimation.from_pretrained(str(d), local_files_only=True, trust_remote_code=False)
+        model, info = AutoModelForDepthEstimation.from_pretrained(
+            str(d), local_files_only=True, trust_remote_code=False, output_loading_info=True)
     except Exception as exc:  # noqa: BLE001 - a damaged folder fails its scene's jobs, not the batch
         raise WeightsError(f"cannot load the depth model in {str(d)!r}: {type(exc).__name__}: "
                            f"{str(exc)[:500]}") from exc
+    # transformers loads weights that do not fit the config by initialising the missing
+    # or mismatched ones at random (a report, no error): a depth map from such a model is
+    # noise. Refused (found by the fuzzer: a config.json edited after saving).
+    bad = {k: sorted(map(str, info.get(k) or ()))[:3] for k in ("missing_keys", "mismatched_keys")
+           if info.get(k)}
+    if bad:
+        said = "; ".join(f"{len(info[k])} {k.replace('_', ' ')} (e.g. {', '.join(v)})" for k, v in bad.items())
+        raise WeightsError(f"the depth model in {str(d)!r} does not match its config.json: {said}; transformers "
+                           "would fill them with random values. Save the model and its config together")
     model.eval()
     return model, processor
 
