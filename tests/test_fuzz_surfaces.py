@@ -326,7 +326,7 @@ def test_fuzz_model_folders(tiny_model, photo_manifest, damages, tmp_path_factor
     for dmg in damages:
         try:
             _damage_model(d, dmg, marker)
-        except (OSError, ValueError, RecursionError):  # an earlier damage took what this one edits (a dropped or unparsable file)
+        except (OSError, ValueError, TypeError, RecursionError):  # an earlier damage took what this one edits (a dropped or unparsable file)
             pass
     photo_manifest(work)
     manifest = work / "jobs.yaml"
