@@ -111,6 +111,23 @@ def marigold_dirs(tmp_path_factory):
     return {name: save_pipeline(root / name, name) for name in FAMILIES}
 
 
+@pytest.fixture(scope="session")
+def tiny_dpt(tmp_path_factory):
+    """A tiny random transformers DPT depth model with its image processor (32x32 input),
+    saved once per session. Tests must not modify it (copy first)."""
+    import torch
+    from transformers import DPTConfig, DPTForDepthEstimation, DPTImageProcessor
+
+    torch.manual_seed(0)
+    cfg = DPTConfig(hidden_size=16, num_hidden_layers=4, num_attention_heads=2, intermediate_size=32,
+                    image_size=32, patch_size=8, backbone_out_indices=[0, 1, 2, 3],
+                    neck_hidden_sizes=[8, 8, 8, 8], fusion_hidden_size=8, reassemble_factors=[4, 2, 1, 0.5])
+    path = tmp_path_factory.mktemp("tiny_dpt")
+    DPTForDepthEstimation(cfg).save_pretrained(path)
+    DPTImageProcessor(size={"height": 32, "width": 32}, keep_aspect_ratio=False).save_pretrained(path)
+    return path
+
+
 @pytest.fixture
 def no_ray(monkeypatch):
     """``no_ray()``: from then on, ``import ray`` fails as on a plain install."""

@@ -261,21 +261,6 @@ _model_damage = st.one_of(
 )
 
 
-@pytest.fixture(scope="module")
-def tiny_model(tmp_path_factory):
-    import torch
-    from transformers import DPTConfig, DPTForDepthEstimation, DPTImageProcessor
-
-    torch.manual_seed(0)
-    cfg = DPTConfig(hidden_size=16, num_hidden_layers=4, num_attention_heads=2, intermediate_size=32,
-                    image_size=32, patch_size=8, backbone_out_indices=[0, 1, 2, 3],
-                    neck_hidden_sizes=[8, 8, 8, 8], fusion_hidden_size=8, reassemble_factors=[4, 2, 1, 0.5])
-    path = tmp_path_factory.mktemp("fuzz_dpt")
-    DPTForDepthEstimation(cfg).save_pretrained(path)
-    DPTImageProcessor(size={"height": 32, "width": 32}, keep_aspect_ratio=False).save_pretrained(path)
-    return path
-
-
 def _damage_model(d: Path, damage, marker: Path) -> None:
     kind, a, b = damage
     w = d / "model.safetensors"
@@ -316,12 +301,12 @@ def _damage_model(d: Path, damage, marker: Path) -> None:
 @pytest.mark.slow
 @_settings("models")
 @given(damages=st.lists(_model_damage, min_size=1, max_size=3))
-def test_fuzz_model_folders(tiny_model, photo_manifest, damages, tmp_path_factory):
+def test_fuzz_model_folders(tiny_dpt, photo_manifest, damages, tmp_path_factory):
     from transformers.dynamic_module_utils import HF_MODULES_CACHE
 
     work = tmp_path_factory.mktemp("mod")
     d = work / "model"
-    shutil.copytree(tiny_model, d)
+    shutil.copytree(tiny_dpt, d)
     marker = work / "MARKER"
     for dmg in damages:
         try:

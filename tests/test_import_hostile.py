@@ -41,6 +41,14 @@ def spot(tmp_path):
     return data / CONTROL, [c.name for c in cases]
 
 
+def _as_case(parent: Path, old: str, new: str, *, copy: bool = False) -> None:
+    """Case folder ``parent/old`` moved (or copied) to ``parent/new``, its files renamed
+    as the archives name them (``<case>_bundle0001.exr``...)."""
+    (shutil.copytree if copy else os.rename)(parent / old, parent / new)
+    for f in (parent / new).iterdir():
+        f.rename(parent / new / f.name.replace(old, new))
+
+
 def _imported(out: Path) -> list[str]:
     return json.loads((out.parent / f"{out.stem}_data" / "import.json").read_text())["imported"]
 
@@ -79,9 +87,7 @@ def test_names_the_manifest_refuses_are_renamed(tmp_path):
     cases = replica.make_zerocomp_archive(root, 1)
     g = root / "GT_emission_envmap"
     for nm in ("7", "summary.json"):
-        shutil.copytree(g / cases[0].name, g / nm)
-        for f in (g / nm).iterdir():
-            f.rename(g / nm / f.name.replace(cases[0].name, nm))
+        _as_case(g, cases[0].name, nm, copy=True)
     out = tmp_path / "o" / "jobs.yaml"
     r = run("import", "zerocomp", root, "--out", out, "--maps", "provided")
     assert r.exit_code == 0, r.output
@@ -100,13 +106,8 @@ def test_frame_scenes_never_collide_with_other_cases(tmp_path):
     a, b = cases[0].name, cases[1].name
     # case b renamed to what case a's first frame's scene would be called
     clash = f"{a}_light0000"
-    (root / b).rename(root / clash)
-    for f in (root / clash).iterdir():
-        f.rename(root / clash / f.name.replace(b, clash))
-    est = data / "WACV_bg_estimates"
-    (est / b).rename(est / clash)
-    for f in (est / clash).iterdir():
-        f.rename(est / clash / f.name.replace(b, clash))
+    _as_case(root, b, clash)
+    _as_case(data / "WACV_bg_estimates", b, clash)
     # case a's second frame makes the scene name the clash case's gt_dir frame makes
     _light_file(root, a).write_text(_frames(("gt_dir", [0.3, -0.2, 0.9]), ("0000_lightgt_dir", [1, 0, 0])))
     out = tmp_path / "o" / "jobs.yaml"
@@ -170,9 +171,7 @@ def test_non_utf8_and_newline_names(tmp_path):
     cases = replica.make_zerocomp_archive(root, 1)
     g = root / "GT_emission_envmap"
     latin = os.fsdecode(b"caf\xe9")
-    shutil.copytree(g / cases[0].name, g / latin)
-    for f in (g / latin).iterdir():
-        f.rename(g / latin / f.name.replace(cases[0].name, latin))
+    _as_case(g, cases[0].name, latin, copy=True)
     out = tmp_path / "o" / "jobs.yaml"
     r = run("import", "zerocomp", root, "--out", out, "--maps", "provided")
     assert r.exit_code == 1, r.output
