@@ -53,7 +53,6 @@ def run_and_report(ctx, archive_key: str, src, **kw) -> None:
     from pathlib import Path
 
     from rich.console import Console
-
     from rich.markup import escape
 
     from zcomp_cli.cli.progress import StageProgress

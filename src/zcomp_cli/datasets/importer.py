@@ -113,11 +113,9 @@ def check_options(archive: Archive, opts: ImportOptions) -> None:
     if blocking is not None:
         raise UsageError(f"--out {printable(opts.out)}: {printable(blocking)} is a file, not a folder")
     for what, path in (("--out", opts.out), ("--depth-model", opts.depth_model)):
-        try:
-            str(path).encode("utf-8")
-        except UnicodeEncodeError:  # the manifest is UTF-8 text and records these paths
+        if not _is_utf8(path):  # the manifest is UTF-8 text and records these paths
             raise UsageError(f"{what} {printable(path)}: the path is not valid UTF-8; the manifest could not "
-                             "name it") from None
+                             "name it")
     data = data_dir_for(opts.out)
     if data.exists() and not data.is_dir() and not opts.overwrite:
         raise UsageError(f"{printable(data)} is a file where the import writes its data folder; give --overwrite "
@@ -276,11 +274,19 @@ def _check_paths(files: CaseFiles) -> None:
         special = special_file_problem(p)
         if special:
             raise InputError(printable(special))
-        try:
-            str(p).encode("utf-8")
-        except UnicodeEncodeError:
+        if not _is_utf8(p):
             raise InputError("the path is not valid UTF-8 (a name in another encoding, e.g. Latin-1): the image "
-                             "library cannot open it; rename the folder or file", where=printable(p)) from None
+                             "library cannot open it; rename the folder or file", where=printable(p))
+
+
+def _is_utf8(path) -> bool:
+    """Whether ``path`` is text UTF-8 can write (a non-UTF-8 file name decodes to
+    surrogate escapes, which it cannot)."""
+    try:
+        str(path).encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
 
 
 def _size(n: float) -> str:
@@ -324,7 +330,7 @@ class _ManifestBudget:
         from zcomp_cli.limits import max_manifest_bytes
 
         self.limit = max_manifest_bytes()
-        self.used = len(_manifest_text(archive, opts, root, [])) + 64  # the head, defaults, section keys
+        self.used = len(_manifest_text(archive, opts, root, []).encode()) + 64  # the head (its case count), defaults
         self.n_cases, self.kept, self.warn = n_cases, 0, warn
         self.full: str | None = None
 
@@ -333,6 +339,8 @@ class _ManifestBudget:
         does not fit."""
         import yaml
 
+        # the case's sections alone: their keys counted again for every case, so the sum
+        # stays above the manifest written (which must load under the same limit)
         size = len(yaml.safe_dump({k: entry[k] for k in ("scenes", "objects", "jobs")}, sort_keys=False,
                                    width=120).encode())
         if self.used + size > self.limit:

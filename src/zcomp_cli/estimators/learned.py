@@ -78,9 +78,9 @@ def load_depth_model(model_dir):
     except Exception as exc:  # noqa: BLE001 - a damaged folder fails its scene's jobs, not the batch
         raise WeightsError(f"cannot load the depth model in {str(d)!r}: {type(exc).__name__}: "
                            f"{str(exc)[:500]}") from exc
-    # transformers loads weights that do not fit the config by initialising the missing
-    # or mismatched ones at random (a report, no error): a depth map from such a model is
-    # noise. Refused (found by the fuzzer: a config.json edited after saving).
+    # transformers loads weights that lack tensors the config needs by initialising them
+    # at random (a load report, no error): a depth map from such a model is noise.
+    # Refused (found by the fuzzer). Mismatched shapes it refuses itself; kept here too.
     bad = {k: sorted(map(str, info.get(k) or ()))[:3] for k in ("missing_keys", "mismatched_keys")
            if info.get(k)}
     if bad:

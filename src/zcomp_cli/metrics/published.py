@@ -92,12 +92,6 @@ def format_value(metric: str, value: float) -> str:
     return f"{value:.{_DECIMALS.get(metric, 4)}f}"
 
 
-def dataset_of_reference(ref) -> str | None:
-    """The dataset key of an imported case (``case.json`` beside its reference), else None."""
-    key, _ = _case_dataset(ref)
-    return key
-
-
 def _case_dataset(ref) -> tuple[str | None, str | None]:
     """(the dataset key, None) of an imported case; (None, None) when no ``case.json``
     is beside the reference; (None, why) when one is there but cannot be read."""

@@ -403,9 +403,11 @@ def sweep_dead_temporaries(cache_root: Path | None = None) -> int:
     ``<cache>/intrinsics/.work-<pid>-*``, Blender's temporary folders ``/tmp/zcomp-blendertmp-<pid>-*``
     and its logs ``/tmp/zcomp-blender-<pid>-*.log``
     (unless kept on purpose: ``blender.runner.KEEP_MARK``) whose process is gone."""
+    from zcomp_cli.blender.runner import LOG_PREFIX, TMP_PREFIX
+
     n = 0
-    places = [(Path(tempfile.gettempdir()), ("zcomp-job-", "zcomp-intrinsics-work-", "zcomp-cycles-", "zcomp-blender-",
-                                             "zcomp-blendertmp-"))]
+    places = [(Path(tempfile.gettempdir()), ("zcomp-job-", "zcomp-intrinsics-work-", "zcomp-cycles-", LOG_PREFIX,
+                                             TMP_PREFIX))]
     if cache_root is not None:
         places.append((Path(cache_root) / "intrinsics", (".work-",)))
     for folder, prefixes in places:
@@ -420,7 +422,7 @@ def sweep_dead_temporaries(cache_root: Path | None = None) -> int:
                 pid = _pid_of(p.name, prefix)
                 if pid is None or pid_alive(pid):
                     continue
-                if prefix == "zcomp-blender-" and (not p.name.endswith(".log") or _kept_log(p)):
+                if prefix == LOG_PREFIX and (not p.name.endswith(".log") or _kept_log(p)):
                     continue
                 with contextlib.suppress(OSError):
                     if p.is_dir() and not p.is_symlink():
