@@ -430,33 +430,76 @@ def test_a_degenerate_or_non_finite_occluder_mesh_hides_nothing_and_stays_finite
 
 
 @pytest.mark.parametrize("ringing", [False, True])
-def test_radiance_weighted_mesh_occlusion_by_moments_equals_the_per_element_sum(ringing, monkeypatch):
+def test_radiance_weighted_mesh_occlusion_by_moments_equals_the_per_element_sum(ringing):
     """The sky a posed mesh hides, weighted by the SH radiance behind each element, is
     summed by moments of the elements' directions where the radiance is provably positive
-    over a point's whole view of them (issue 39's speed regression): the same values as
-    evaluating and clamping each element's radiance, for a smooth sky and one whose order
-    2 rings below 0 (there the per-element path is kept)."""
+    wherever a point counts an element (its hemisphere within the elements' cone; issue
+    39's speed regression): the same values as evaluating and clamping each element's
+    radiance (written out here from ``sh.basis``), for a smooth sky and one whose order 2
+    rings below 0 (there the points facing the ringing keep the per-element sum). Floor
+    points around the object, points on it (inside the elements' bounding sphere) and
+    points facing down and sideways."""
     import trimesh
 
     from zcomp_cli.renderers.physical import meshshadow as M
+    from zcomp_cli.renderers.physical import sh
 
     sph = trimesh.creation.icosphere(subdivisions=4, radius=0.3)
-    mesh = M.PosedMesh(np.asarray(sph.vertices) + [0.4, -1.2, -3.0], np.asarray(sph.faces))
+    # a bumpy sphere: its own points see its other elements (concave dents)
+    v = np.asarray(sph.vertices) * (1.0 + 0.15 * np.sin(9.0 * np.asarray(sph.vertices)[:, :1] / 0.3))
+    mesh = M.PosedMesh(v + [0.4, -1.2, -3.0], np.asarray(sph.faces))
     discs = M.mesh_discs(mesh)
-    xs, zs = np.meshgrid(np.linspace(-1, 2, 40), np.linspace(-4.5, -1.5, 40))
-    P = np.stack([xs.ravel(), np.full(xs.size, -1.5), zs.ravel()], 1)
-    N = np.tile([0.0, 1.0, 0.0], (len(P), 1))
+    xs, zs = np.meshgrid(np.linspace(-1, 2, 30), np.linspace(-4.5, -1.5, 30))
+    floor = np.stack([xs.ravel(), np.full(xs.size, -1.5), zs.ravel()], 1)
+    P = np.concatenate([floor, floor + [0, 0.6, 0], mesh.vertices[::7]])
+    rng = np.random.default_rng(3)
+    N = np.concatenate([np.tile([0.0, 1.0, 0.0], (len(floor), 1)), rng.normal(size=(len(floor), 3)),
+                        np.asarray(sph.vertex_normals)[::7]])
+    N /= np.linalg.norm(N, axis=1, keepdims=True)
     sky = np.array([[1.0, 0.9, 0.8], [0.3, 0.3, 0.3], [0.5, 0.4, 0.3], [0.2, 0.1, 0.1], [0.05, 0, 0],
                     [0, 0.05, 0], [0.1, 0.1, 0.1], [0, 0, 0.05], [0.05, 0.05, 0]])
     if ringing:
         sky = sky * [[1.0]] + np.array([[0], [1.4], [0.6], [0.7], [0.6], [0.2], [0.7], [0.3], [0.5]])
-    fast = M.mesh_occlusion(discs, P, N, mesh=mesh, radiance_sh=sky)
-
-    def per_element(self, f, r2, points, rows):
-        off = self.centres.astype(np.float32)[None] - np.asarray(points)[:, None].astype(np.float32)
-        return self(f, off, np.asarray(rows))
-
-    monkeypatch.setattr(M._radiance_weights, "summed", per_element)
-    slow = M.mesh_occlusion(discs, P, N, mesh=mesh, radiance_sh=sky)
+    else:  # (its red rings to -0.002 at the least: lifted to stay positive everywhere)
+        sky[0] += 0.1
+    fast = M.mesh_occlusion(discs, P, N, radiance_sh=sky)
+    # the reference: each element's form factor times its clamped radiance
+    f, _ = M._form_factors(discs, P, N)
+    u = discs.centres[None] - P[:, None]
+    u /= np.linalg.norm(u, axis=-1, keepdims=True)
+    L = np.maximum(sh.basis(u.reshape(-1, 3)) @ sky, 0.0).reshape(len(P), -1, 3)
+    total = np.maximum(sh.evaluate(sh.shading_coeffs(sky), N), 1e-9)
+    slow = np.clip(np.einsum("nm,nmc->nc", f, L) / total, 0.0, 1.0)
     assert slow.max() > 0.05
+    assert (slow[len(floor):] > 1e-3).sum() > 50  # the points off the floor count elements too
     assert np.abs(fast - slow).max() < 1e-4
+    weigh = M._radiance_weights(sky, N, discs.centres)
+    safe = weigh._safe(P - weigh._origin, np.arange(len(P)))
+    if ringing:  # both paths taken
+        assert 0 < safe.sum() < len(P)
+    else:
+        assert safe.all()
+
+
+def test_negative_cells_bound_the_ringing():
+    """``_negative_cells`` finds every direction where a ringing sky is below 0 (a dense
+    set of directions, each inside a cell found), and none for a sky positive everywhere."""
+    from zcomp_cli.renderers.physical import meshshadow as M
+    from zcomp_cli.renderers.physical import sh
+
+    def cells(c):
+        a, b, A = sh.quadratic_form(c)
+        nA = np.array([np.abs(np.linalg.eigvalsh(A[..., k])).max() for k in range(c.shape[1])])
+        return M._negative_cells(a, b, A, nA)
+
+    u = np.random.default_rng(0).normal(size=(200000, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    ringing = np.array([[1.0], [1.7], [1.0], [0.9], [0.6], [0.2], [0.8], [0.3], [0.5]])
+    neg = (sh.basis(u) @ ringing)[:, 0] < 0
+    assert 0.02 < neg.mean() < 0.5
+    c, t = cells(ringing)
+    inside = (u[neg] @ c.T) >= np.cos(t)[None] - 1e-12
+    assert inside.any(1).all()
+    assert len(c) < 0.7 * 6 * 16 * 16  # and not the whole sphere
+    c, t = cells(np.array([[1.0], [0.3], [0.2], [0.1], [0], [0], [0.05], [0], [0]]))
+    assert len(c) == 0

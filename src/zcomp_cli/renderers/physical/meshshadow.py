@@ -302,7 +302,6 @@ def mesh_occlusion(discs: MeshDiscs, points: np.ndarray, normals: np.ndarray, *,
         out = out[:, 0] if radiance_sh is None else out
         return (out, dmin) if return_distance else out
     weigh = _radiance_weights(radiance_sh, Nn, discs.centres)
-    cen32 = discs.centres.astype(np.float32)
     rho2 = cfg.near_field_spacings ** 2 * float(discs.areas.mean()) if mesh is not None else 0.0
     for i in range(0, len(P), chunk):
         f, r2 = _form_factors(discs, P[i:i + chunk], Nn[i:i + chunk])
@@ -315,7 +314,7 @@ def mesh_occlusion(discs: MeshDiscs, points: np.ndarray, normals: np.ndarray, *,
             # points: computed again for them rather than kept for all)
             f, r2 = _form_factors(discs, P[idx], Nn[idx])
             part = np.zeros((len(P), C))
-            part[idx] = weigh(f * (r2 < rho2), cen32[None] - P[idx, None].astype(np.float32), idx)
+            part[idx] = weigh.per_element(f * (r2 < rho2), P[idx], idx)
             whole = _area_triangles(mesh)
             near_mesh = _near_field_mesh(mesh, np.sqrt(rho2), area=whole[2], cfg=cfg)
             tri, _, _, inside_out = whole if near_mesh is mesh else _area_triangles(near_mesh)
@@ -344,9 +343,9 @@ def mesh_occlusion(discs: MeshDiscs, points: np.ndarray, normals: np.ndarray, *,
 
 
 class _radiance_weights:
-    """Form factors (n, M) of elements at offsets (n, M, 3) from their points, summed
-    per point: plainly (a uniform sky), or weighted by a sky of SH radiance behind each
-    element over the point's whole sky shading (a share of that sky's irradiance).
+    """Form factors (n, M) of elements seen from their points, summed per point: plainly
+    (a uniform sky), or weighted by a sky of SH radiance behind each element over the
+    point's whole sky shading (a share of that sky's irradiance).
 
     ``summed`` does the weighted sum without building the (n, M) radiances where it can
     do so exactly: the radiance is the quadratic ``a + b.u + u^T A u`` of the unit
@@ -354,18 +353,25 @@ class _radiance_weights:
     b.F1 + A:F2`` with the moments ``F0 = sum f``, ``F1 = sum f u``, ``F2 = sum f u u^T``
     -- GEMMs of ``f / r`` and ``f / r^2`` with the elements' centres and their products.
     That equals the clamped sum (radiance below 0, order 2's ringing, counts 0) for a
-    point whose whole view of the elements -- the cone of their bounding sphere, of
-    half-angle ``t`` about the axis ``u0`` -- lies where the radiance is positive: along
-    a great circle the radiance's rate of change is at most ``|b + 2 A u|``, which is
-    within ``2 |A| s`` of its value at ``u0`` after an arc ``s``, so ``L >= L(u0) -
-    |b + 2 A u0| t - |A| t^2`` over the cone.
-    Elsewhere (points inside the bounding sphere, skies ringing below 0 in view) each
-    element's radiance is evaluated and clamped as before. The moments replaced most of
-    a posed mesh's sky-occlusion cost (issue 39's speed regression)."""
+    point whose counted elements all lie where the radiance is positive. An element
+    counts (``f > 0``) only in the point's upper hemisphere (``w . n > 0``) and within
+    the cone of the elements' bounding sphere (half-angle ``t`` about the axis ``u0``;
+    the whole sphere of directions from a point inside it). Where the radiance may be
+    negative is found once per sky (``_negative_cells``): cells of a cube map whose
+    bound ``L(c) - |b + 2 A c| t_c - |A| t_c^2`` (``t_c`` the cell's angular radius) is
+    below 0 -- along a great circle the radiance's rate of change is at most ``|b + 2 A
+    u|``, within ``2 |A| s`` of its value at ``c`` after an arc ``s``. A point none of
+    whose cells meets its hemisphere and its cone takes the moments: for a sky that
+    never rings below 0, every point.
+    The others (a point facing the ringing, below the horizon, with elements in view)
+    evaluate and clamp the radiance of each element they count, and only those
+    (``per_element``: the pairs with ``f > 0``). The moments replaced most of a posed
+    mesh's sky-occlusion cost (issue 39's speed regression)."""
 
     def __init__(self, radiance_sh, normals, centres=None):
         self.c = None if radiance_sh is None else np.asarray(radiance_sh, np.float64).reshape(9, -1)
         self.centres = None if centres is None else np.asarray(centres, np.float64)
+        self.normals = np.asarray(normals, np.float64)
         if self.c is not None:
             from zcomp_cli.renderers.physical import sh
 
@@ -379,8 +385,10 @@ class _radiance_weights:
             self._A = A.reshape(3, 3 * nc).astype(np.float32)
             self._a64, self._b64, self._A64 = a, b, A
             # the spectral norm of each colour's (symmetric) quadratic part
-            self._normA = np.array([np.abs(np.linalg.eigvalsh(0.5 * (A[..., k] + A[..., k].T))).max()
-                                    for k in range(nc)])
+            normA = np.array([np.abs(np.linalg.eigvalsh(0.5 * (A[..., k] + A[..., k].T))).max()
+                              for k in range(nc)])
+            self._neg, self._neg_t = _negative_cells(a, b, A, normA)
+            self._neg32 = self._neg.astype(np.float32)
             if self.centres is not None and len(self.centres):
                 o = self.centres.mean(0)
                 self._origin = o
@@ -389,8 +397,27 @@ class _radiance_weights:
                 self._cc2 = (cc[:, :, None] * cc[:, None, :]).reshape(-1, 9).astype(np.float32)
                 self._R = float(np.sqrt(((cc) ** 2).sum(1).max()))
 
+    def _safe(self, po, rows):
+        """(n,) bool: the points at ``po`` (n, 3) from the elements' centre, normals
+        ``self.normals[rows]``, that count no element where the radiance may be negative."""
+        if not len(self._neg):
+            return np.ones(len(po), bool)
+        n = self.normals[rows].astype(np.float32)
+        # (every cell taken as wide as the widest: two GEMMs and no (n, k) trigonometry)
+        t = float(self._neg_t.max())
+        # a cell meets the open hemisphere of n where its centre is within 90 deg + t of n
+        meets = (n @ self._neg32.T) > (-np.sin(t) * np.linalg.norm(n, axis=1))[:, None]
+        dist = np.linalg.norm(po, axis=1)
+        far = dist > self._R * (1.0 + 1e-6)
+        if far.any():
+            # ... and the cone of the bounding sphere where the point is outside it
+            axis = (-po[far] / dist[far, None]).astype(np.float32)
+            ang = np.arcsin(np.clip(self._R / dist[far], 0.0, 1.0))
+            meets[far] &= (axis @ self._neg32.T) > np.cos(np.minimum(ang + t, np.pi))[:, None]
+        return ~meets.any(1)
+
     def summed(self, f, r2, points, rows):
-        """``__call__`` for every element of ``centres`` (f, r2: (n, M) form factors and
+        """``per_element`` for every element of ``centres`` (f, r2: (n, M) form factors and
         squared distances from ``points`` (n, 3)); moments where exact, else per element."""
         if self.c is None:
             return f.sum(1)[:, None]
@@ -399,20 +426,7 @@ class _radiance_weights:
         P = np.asarray(points, np.float64)
         rows = np.asarray(rows)
         po = P - self._origin
-        dist = np.linalg.norm(po, axis=1)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            axis = -po / dist[:, None]
-            ang = np.arcsin(np.clip(self._R / dist, 0.0, 1.0))
-        far = dist > self._R * (1.0 + 1e-6)
-        safe = far.copy()
-        if far.any():
-            u = axis[far]
-            L0 = self._a64 + u @ self._b64 + np.einsum("ki,kj,ijc->kc", u, u, self._A64)
-            # the gradient b + 2 A u at the axis, and how far it can change within the
-            # cone (|u - axis| <= its angle t): L >= L0 - |g0| t - |A| t^2
-            g0 = np.linalg.norm(self._b64[None] + 2.0 * np.einsum("ijc,kj->kic", self._A64, u), axis=1)
-            t = ang[far, None]
-            safe[far] = np.all(L0 - g0 * t - self._normA[None] * t * t >= 0.0, axis=1)
+        safe = self._safe(po, rows)
         out = np.zeros((len(P), self.c.shape[1]))
         if safe.any():
             s_ = np.flatnonzero(safe)
@@ -431,8 +445,7 @@ class _radiance_weights:
             out[s_] = val / self.total[rows[s_]]
         if (~safe).any():
             u_ = np.flatnonzero(~safe)
-            off = self.centres.astype(np.float32)[None] - P[u_, None].astype(np.float32)
-            out[u_] = self(f[u_], off, rows[u_])
+            out[u_] = self.per_element(f[u_], P[u_], rows[u_])
         return out
 
     def _L(self, offsets):
@@ -451,16 +464,59 @@ class _radiance_weights:
         quad += self._a
         return np.maximum(quad, 0.0, out=quad)
 
-    def __call__(self, f, offsets, rows):
+    def per_element(self, f, points, rows):
+        """(n, C): the form factors ``f`` (n, M) >= 0 of every element of ``centres``
+        seen from ``points`` (n, 3), each times the clamped radiance behind it, summed,
+        over each point's sky shading (``rows``: the points' indices into the normals).
+        Only the pairs with ``f > 0`` are evaluated: an element a point does not count
+        costs nothing."""
+        f = np.asarray(f, np.float32)
         if self.c is None:
-            return f.sum(1)[:, None]
-        L = self._L(offsets).reshape(f.shape + (-1,))
-        return np.einsum("nm,nmc->nc", np.asarray(f, np.float32), L).astype(np.float64) / self.total[rows]
+            return f.sum(1, dtype=np.float64)[:, None]
+        pi, mi = np.nonzero(f > 0)
+        off = self.centres[mi].astype(np.float32) - np.asarray(points, np.float64)[pi].astype(np.float32)
+        fw = self.pairs(f[pi, mi], off, np.asarray(rows)[pi])
+        return np.stack([np.bincount(pi, fw[:, c], minlength=len(f)) for c in range(fw.shape[1])], 1)
 
     def pairs(self, ff, offsets, rows):
+        """(K, C): the form factors ``ff`` (K,) of (point, element) pairs, each times the
+        clamped radiance toward its offset (K, 3), over its point's (``rows`` (K,)) sky
+        shading."""
         if self.c is None:
-            return ff[:, None]
-        return ff[:, None] * self._L(offsets) / self.total[rows]
+            return np.asarray(ff, np.float64)[:, None]
+        return np.asarray(ff, np.float64)[:, None] * self._L(offsets) / self.total[rows]
+
+
+def _negative_cells(a, b, A, norm_A, m: int = 16):
+    """Where the radiance ``a + b.u + u^T A u`` (``sh.quadratic_form``, C colours) may
+    fall below 0 on the unit sphere: the cells of an ``m`` x ``m`` per face cube map
+    (``m`` only sets how tight the answer is: 16 gives cells of at most ~4 deg)
+    whose lower bound ``L(c) - |b + 2 A c| t - |A| t^2`` is below 0 for some colour
+    (``c`` the cell's centre direction, ``t`` the angle to its farthest corner, ``|A|``
+    ``norm_A`` (C,)): (centres (k, 3) unit, angular radii (k,))."""
+    g = (np.arange(m + 1) / m) * 2.0 - 1.0  # the cells' edges on a face
+    mid = 0.5 * (g[:-1] + g[1:])
+    cen, rad = [], []
+    for ax in range(3):
+        e0, e1, e2 = np.eye(3)[ax], np.eye(3)[(ax + 1) % 3], np.eye(3)[(ax + 2) % 3]
+        for sgn in (1.0, -1.0):
+            s, t = np.meshgrid(mid, mid, indexing="ij")
+            c = sgn * e0 + s[..., None] * e1 + t[..., None] * e2
+            c /= np.linalg.norm(c, axis=-1, keepdims=True)
+            worst = np.full(s.shape, 1.0)
+            for ds in (0, 1):
+                for dt in (0, 1):
+                    k = sgn * e0 + g[ds:m + ds, None, None] * e1 + g[None, dt:m + dt, None] * e2
+                    k = k / np.linalg.norm(k, axis=-1, keepdims=True)
+                    worst = np.minimum(worst, np.sum(c * k, -1))
+            cen.append(c.reshape(-1, 3))
+            rad.append(np.arccos(np.clip(worst, -1.0, 1.0)).reshape(-1))
+    c, t = np.concatenate(cen), np.concatenate(rad)
+    L0 = a[None] + c @ b + np.einsum("ki,kj,ijc->kc", c, c, A)
+    g0 = np.linalg.norm(b[None] + 2.0 * np.einsum("ijc,kj->kic", A, c), axis=1)
+    low = L0 - g0 * t[:, None] - norm_A[None] * (t * t)[:, None]
+    neg = np.any(low < 0.0, axis=1)
+    return c[neg], t[neg]
 
 
 def _near_field_mesh(mesh: PosedMesh, radius: float, area: np.ndarray | None = None,
