@@ -33,7 +33,7 @@ from zcomp_cli.renderers.physical.depthmesh import has_geometry
 from zcomp_cli.renderers.physical.evidence_maps import LightEvidence
 from zcomp_cli.renderers.physical.lightmodel import LightModel, ShadowKind
 from zcomp_cli.renderers.physical.settings import PhysicalSettings, TransportConfig
-from zcomp_cli.renderers.physical.softshadow import (classwise_blur, penumbra_filter, pixel_jitter, sky_samples,
+from zcomp_cli.renderers.physical.softshadow import (blur_reach, classwise_blur, penumbra_filter, pixel_jitter, sky_samples,
                                                      weighted_visibility)
 from zcomp_cli.renderers.physical.visibility import march_visibility
 
@@ -261,6 +261,15 @@ class PhysicalRenderer(Renderer):
         ao_st = 4 if H * W > cfg.full_res_pixels else 2
         ay0, ax0, ay1, ax1 = _window(ys, xs, H, W, int(3 * max(cfg.sky_blur_px, 1.5 * ao_st)) + 4, even=ao_st)
         gy, gx, P, N, ok = _grid_points(d, n, geo_all, camera, (ay0, ax0, ay1, ax1), ao_st)
+        rad = max(cfg.sky_blur_px, 1.5 * ao_st)
+        # only the grid points a todo pixel's blur reads (its kernel's reach, plus a
+        # block: a pixel takes its block's anchor) are computed; the window's wider
+        # margin only keeps the blur's border away from them
+        import cv2
+
+        grow = blur_reach(rad) + ao_st
+        need = cv2.dilate(todo[ay0:ay1, ax0:ax1].astype(np.uint8), np.ones((2 * grow + 1,) * 2, np.uint8)) > 0
+        ok &= need[::ao_st, ::ao_st]
         ao_c = np.ones(gy.shape + (3,))
         scene_only = None
         if occluder is not None:
@@ -293,7 +302,6 @@ class PhysicalRenderer(Renderer):
         # (a light rim): only pixels of their anchor's class vouch for it; the
         # normalised blur fills the others from their own class
         same = up2(ok) & (up2(cls[::ao_st, ::ao_st]) == cls)
-        rad = max(cfg.sky_blur_px, 1.5 * ao_st)
         ao = classwise_blur(up2(ao_c), cls, okf & same, rad, fill=okf)
         if occ_c is not None:
             occ = classwise_blur(up2(occ_c), cls, okf & same, rad, fill=okf)
