@@ -89,18 +89,19 @@ def main(argv=None) -> int:
 
     sph = trimesh.creation.icosphere(subdivisions=5, radius=0.3)
     mesh = PosedMesh(np.asarray(sph.vertices) + s.world_to_camera([0.4, 0.3, -2.6]), np.asarray(sph.faces))
-    comp_m = dataclasses.replace(comp, occluder=mesh)
+    # (a fresh mesh each time, as each job poses its own: what the renderer keeps on a
+    # mesh between its uses in one render must not carry over to the next)
+    fresh = lambda m: PosedMesh(m.vertices.copy(), m.faces.copy())  # noqa: E731
     mesh_t = []
     for _ in range(args.repeats):
-        out = r.render([bg, comp_m])
+        out = r.render([bg, dataclasses.replace(comp, occluder=fresh(mesh))])
         mesh_t.append(out.timings["synthesis"])
     # a dense mesh (a scan, a sculpt): its cost should grow with the pixels, not the faces
     big = trimesh.creation.icosphere(subdivisions=7, radius=0.3)
-    comp_b = dataclasses.replace(comp, occluder=PosedMesh(
-        np.asarray(big.vertices) + s.world_to_camera([0.4, 0.3, -2.6]), np.asarray(big.faces)))
+    big_m = PosedMesh(np.asarray(big.vertices) + s.world_to_camera([0.4, 0.3, -2.6]), np.asarray(big.faces))
     big_t = []
     for _ in range(args.repeats):
-        out = r.render([bg, comp_b])
+        out = r.render([bg, dataclasses.replace(comp, occluder=fresh(big_m))])
         big_t.append(out.timings["synthesis"])
     print(f"synthesis (bg + composite pass), 512x512, roi {bg.roi}: median {statistics.median(syn_t):.3f} s "
           f"(runs: {', '.join(f'{t:.3f}' for t in syn_t)})")

@@ -232,7 +232,14 @@ def _area_triangles(mesh: PosedMesh):
     """The mesh's triangles with area (finite corners, non-zero area) as the sky's
     elements and its exact near field both use them: (tri (M, 3, 3), corner cross
     products (M, 3), areas (M,), inside_out). ``inside_out``: wound inside out, a
-    negative signed volume; their outward normals are then the cross products turned."""
+    negative signed volume; their outward normals are then the cross products turned.
+
+    Kept on the mesh for its other uses in the same render (its shadow map per light,
+    its sky elements, its near field: four a job), while it holds the same vertex and
+    face arrays (a posed mesh's arrays are not changed in place)."""
+    memo = getattr(mesh, "_area_memo", None)
+    if memo is not None and memo[0] is mesh.vertices and memo[1] is mesh.faces:
+        return memo[2]
     tri = mesh.vertices[mesh.faces]
     with np.errstate(invalid="ignore"):  # a non-finite corner: dropped just below
         cr = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
@@ -240,7 +247,14 @@ def _area_triangles(mesh: PosedMesh):
     ok = area > 0  # (False for a non-finite corner too)
     tri, cr, area = tri[ok], cr[ok], area[ok]
     inside_out = bool(len(tri)) and bool(np.einsum("ij,ij->i", tri[:, 0] - tri[:, 0].mean(0), cr).sum() < 0)
-    return tri, cr, area, inside_out
+    for a in (tri, cr, area):
+        a.setflags(write=False)  # shared by the mesh's uses
+    out = (tri, cr, area, inside_out)
+    try:
+        mesh._area_memo = (mesh.vertices, mesh.faces, out)
+    except AttributeError:  # (a mesh type without a __dict__: computed each time)
+        pass
+    return out
 
 
 def mesh_discs(mesh: PosedMesh, n: int | None = None, cfg: TransportConfig = DEFAULT) -> MeshDiscs:

@@ -302,9 +302,12 @@ class PhysicalRenderer(Renderer):
         # (a light rim): only pixels of their anchor's class vouch for it; the
         # normalised blur fills the others from their own class
         same = up2(ok) & (up2(cls[::ao_st, ::ao_st]) == cls)
-        ao = classwise_blur(up2(ao_c), cls, okf & same, rad, fill=okf)
+        # (the sky's visibility and the mesh's occlusion blurred together: one pass)
+        both = classwise_blur(up2(ao_c if occ_c is None else np.concatenate([ao_c, occ_c], -1)), cls,
+                              okf & same, rad, fill=okf)
+        ao = both[..., :3]
         if occ_c is not None:
-            occ = classwise_blur(up2(occ_c), cls, okf & same, rad, fill=okf)
+            occ = both[..., 3:]
             dist = up2(dist_c)
             # The sky occlusion reaches past the shading mask (a sphere still hides a
             # quarter of the sky one radius past its side); cut at the mask's edge it

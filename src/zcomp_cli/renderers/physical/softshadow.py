@@ -81,13 +81,16 @@ def classwise_blur(values: np.ndarray, classes: np.ndarray, valid: np.ndarray, r
     """``normalized_blur`` separately within each class label (e.g. object / scene),
     weighted by the ``valid`` pixels; written to the valid pixels, and also to the
     ``fill`` pixels of the same class (their own value does not count). ``values``:
-    (H, W) or (H, W, C), the channels in one pass."""
-    out = values.astype(np.float64).copy()
+    (H, W) or (H, W, C), the channels in one pass (any number)."""
+    out = values.astype(np.float64)
     if radius <= 0:
         return out
     H, W = values.shape[:2]
     dest = valid if fill is None else (valid | fill)
     reach = blur_reach(radius)
+    # (float32 once for every class: the weights are 0 or 1, so weighting after the
+    # cast is the same as before it; each class's quotient is formed at its own pixels)
+    v32 = values.astype(np.float32)
     for c in np.unique(classes[dest]):
         in_c = classes == c
         m = dest & in_c
@@ -96,8 +99,15 @@ def classwise_blur(values: np.ndarray, classes: np.ndarray, valid: np.ndarray, r
         # needs a small crop): the same result as over the whole frame
         sl = (slice(max(0, ys[0] - reach), min(H, ys[-1] + 1 + reach)),
               slice(max(0, xs[0] - reach), min(W, xs[-1] + 1 + reach)))
-        m = dest[sl] & in_c[sl]
-        out[sl][m] = normalized_blur(values[sl], valid[sl] & in_c[sl], radius)[m]
+        w = (valid[sl] & in_c[sl]).astype(np.float32)
+        num = gaussian_blur(v32[sl] * (w if v32.ndim == 2 else w[..., None]), radius)
+        den = gaussian_blur(w, radius)
+        # the class's pixels that some weight reaches (elsewhere the value stays)
+        put = dest[sl] & in_c[sl] & (den > 1e-4)
+        if num.ndim == 3:
+            den, put = den[..., None], put[..., None]
+        np.divide(num, np.maximum(den, 1e-4), out=num)
+        np.copyto(out[sl], num, where=put)
     return out
 
 
@@ -144,8 +154,14 @@ def penumbra_filter(vis: np.ndarray, t_hit: np.ndarray, z: np.ndarray, classes: 
     sl = around(blur_reach(search))
     v_c, ok_c, t_c = vis[sl], valid[sl], t_hit[sl]
     shadowed = ok_c & (v_c < 0.5) & np.isfinite(t_c)
-    tb = normalized_blur(np.where(shadowed, t_c, 0.0), shadowed, search)[inner(sl)]
-    has = normalized_blur(shadowed.astype(np.float64), ok_c, search)[inner(sl)] > 1e-3
+    # the occluder distance's mean over the shadowed pixels, and the shadowed share of
+    # the valid ones: two normalised blurs sharing one (the shadowed pixels' blur)
+    ins = inner(sl)
+    g_s = gaussian_blur(shadowed.astype(np.float32), search)[ins]
+    g_t = gaussian_blur(np.where(shadowed, t_c, 0.0).astype(np.float32), search)[ins]
+    g_v = gaussian_blur(ok_c.astype(np.float32), search)[ins]
+    tb = np.where(g_s > 1e-4, g_t / np.maximum(g_s, 1e-4), np.where(shadowed[ins], t_c[ins], 0.0))
+    has = np.where(g_v > 1e-4, g_s / np.maximum(g_v, 1e-4), shadowed[ins]) > 1e-3
     # 3. penumbra half-width in pixels
     ok_b = valid[y0:y1, x0:x1]
     r = np.where(has & ok_b, tb * np.maximum(tan_b, 0.0) * focal_px / np.maximum(z[y0:y1, x0:x1], 1e-6), 0.0)
