@@ -91,8 +91,12 @@ def _sample_triangles(tri: np.ndarray, p: np.ndarray, n: int):
                       len(tri) - 1)
     r1, r2 = rng.random(n), rng.random(n)
     s1 = np.sqrt(r1)
-    pts = ((1 - s1)[:, None] * tri[pick, 0] + (s1 * (1 - r2))[:, None] * tri[pick, 1]
-           + (s1 * r2)[:, None] * tri[pick, 2])
+    # (the picked triangles' corners in one gather of contiguous rows: tri[pick, k]
+    # three times cost more than the rest)
+    g = np.take(np.ascontiguousarray(tri).reshape(-1, 9), pick, axis=0)
+    pts = g[:, 0:3] * (1 - s1)[:, None]
+    pts += g[:, 3:6] * (s1 * (1 - r2))[:, None]
+    pts += g[:, 6:9] * (s1 * r2)[:, None]
     return pick, pts
 
 

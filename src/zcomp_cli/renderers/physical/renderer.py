@@ -52,9 +52,14 @@ def _march_kw(cfg: TransportConfig) -> dict:
 
 
 def _clean(a, lo, hi):
-    # one copy (np.array), then nan_to_num and the clip in place on it
-    out = np.nan_to_num(np.array(a, np.float64), copy=False, nan=0.0, posinf=hi, neginf=lo)
-    return np.clip(out, lo, hi, out=out)
+    # one copy (np.array), then in place: the clip (which sends +-inf to the bounds, as
+    # nan_to_num would before it) and NaN to 0 (two passes where nan_to_num took four)
+    out = np.array(a, np.float64)
+    np.clip(out, lo, hi, out=out)
+    nan = np.isnan(out)
+    if nan.any():
+        out[nan] = min(max(0.0, lo), hi)
+    return out
 
 
 class PhysicalRenderer(Renderer):
@@ -225,7 +230,7 @@ class PhysicalRenderer(Renderer):
         alb = _clean(req.maps.albedo, 0.0, 1e6)
         H, W = d.shape
         out_sh = sh.copy()
-        spec = np.zeros((H, W, 3))
+        glossy = None
         unknown = ~known
         x0, y0, x1, y1 = (0, 0, W, H) if req.roi is None else req.roi
         x0, y0 = max(0, int(x0)), max(0, int(y0))
@@ -238,12 +243,16 @@ class PhysicalRenderer(Renderer):
         if todo.any():
             cov = getattr(req, "coverage", None)
             cov = np.zeros((H, W)) if cov is None else np.clip(np.nan_to_num(np.asarray(cov, np.float64)), 0, 1)
-            alb_mean = alb[(d > 0)].mean(0) if (d > 0).any() else np.zeros(3)
+            pos = d > 0
+            # (per channel: three contiguous gathers, a third of one (N, 3) gather's time)
+            alb_mean = np.array([alb[..., c][pos].mean() for c in range(3)]) if pos.any() else np.zeros(3)
             shade, glossy = self._synthesise(d, n, todo, req.camera, model, alb_mean, req.occluder, unknown,
                                              alb, cov, req.maps.roughness, req.maps.metallic)
             out_sh[todo] = shade
-            spec[todo] = glossy
-        img = (alb * out_sh + spec).astype(np.float32)
+        img = alb * out_sh
+        if glossy is not None and glossy.any():  # (the object's glossy layer: only at the todo pixels)
+            img[todo] += glossy
+        img = img.astype(np.float32)
         if not np.all(np.isfinite(img)):
             bad = int((~np.isfinite(img)).sum())
             raise NumericalError(f"physical renderer produced {bad} non-finite values")
