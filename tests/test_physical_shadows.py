@@ -53,24 +53,42 @@ def test_penumbra_filter_over_a_box_matches_the_whole_frame():
         np.testing.assert_allclose(part, whole[y0:y1, x0:x1], atol=1e-6)
 
 
-def test_classwise_blur_is_the_per_class_normalised_blur():
-    # each class cropped to the box its kernels read gives the definition's values
+@pytest.mark.parametrize("channels", [None, 3, 6])
+def test_classwise_blur_is_the_per_class_normalised_blur(channels):
+    # each class cropped to the box its kernels read gives the definition's values,
+    # channel by channel (the sky's visibility and the mesh's occlusion go as 6)
     from zcomp_cli.renderers.physical.softshadow import classwise_blur, normalized_blur
 
     rng = np.random.default_rng(4)
     H, W = 80, 100
-    vals = rng.random((H, W))
+    vals = rng.random((H, W) if channels is None else (H, W, channels))
     cls = np.zeros((H, W), int)
     cls[20:40, 30:50] = 1
     cls[:, :8] = 2
     valid = rng.random((H, W)) > 0.2
     fill = rng.random((H, W)) > 0.5
+    fill[60:, 60:] = valid[60:, 60:] = False  # pixels neither valid nor filled keep their value
+    planes = [vals] if channels is None else [vals[..., k] for k in range(channels)]
     for radius in (0.0, 2.0, 8.0, 32.0):
         got = classwise_blur(vals, cls, valid, radius, fill=fill)
-        want = vals.copy()
-        for c in (0, 1, 2):
-            want = np.where((valid | fill) & (cls == c), normalized_blur(vals, valid & (cls == c), radius), want)
-        np.testing.assert_allclose(got, want, atol=1e-6)
+        assert got.shape == vals.shape and got.dtype == np.float64
+        for k, v in enumerate(planes):
+            want = v.copy()
+            for c in (0, 1, 2):
+                want = np.where((valid | fill) & (cls == c), normalized_blur(v, valid & (cls == c), radius), want)
+            np.testing.assert_allclose(got if channels is None else got[..., k], want, atol=1e-6)
+        assert np.array_equal(got[60:, 60:], vals[60:, 60:])
+
+
+def test_length_is_numpys_norm():
+    # the same values as np.linalg.norm (the renderer's images do not change), any shape
+    from zcomp_cli.renderers.physical.sampling import length
+
+    rng = np.random.default_rng(2)
+    v = rng.normal(size=(400, 3)) * 10.0 ** rng.integers(-3, 5, (400, 1))
+    v = np.concatenate([v, [[0, 0, 0], [np.inf, 0, 1], [np.nan, 1, 1], [1e200, 1e200, 0], [1e-200, 0, 0]]])
+    np.testing.assert_array_equal(length(v), np.linalg.norm(v, axis=-1))
+    assert length(v[:400].reshape(20, 20, 3)).shape == (20, 20)
 
 
 def test_triangle_samples_are_stratified_by_area():

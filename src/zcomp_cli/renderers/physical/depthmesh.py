@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from zcomp_cli.camera import Camera
+from zcomp_cli.renderers.physical.sampling import length
 from zcomp_cli.renderers.physical.settings import MeshConfig
 
 # The constants are ``settings.MeshConfig``'s, each with its provenance.
@@ -46,7 +47,7 @@ DEFAULT = MeshConfig()
 def has_geometry(depth: np.ndarray, normals: np.ndarray, cfg: MeshConfig = DEFAULT) -> np.ndarray:
     """(h, w) bool: the pixels with geometry, a positive depth and a unit normal (within
     ``cfg.unit_normal_tol``). ``depth`` (h, w) and ``normals`` (h, w, 3) finite."""
-    return (np.asarray(depth) > 0) & (np.abs(np.linalg.norm(normals, axis=-1) - 1) < cfg.unit_normal_tol)
+    return (np.asarray(depth) > 0) & (np.abs(length(normals) - 1) < cfg.unit_normal_tol)
 
 
 @dataclass(frozen=True)

@@ -32,6 +32,7 @@ from zcomp_cli.renderers.base import Renderer, RenderOutput, RenderRequest
 from zcomp_cli.renderers.physical.depthmesh import has_geometry
 from zcomp_cli.renderers.physical.evidence_maps import LightEvidence
 from zcomp_cli.renderers.physical.lightmodel import LightModel, ShadowKind
+from zcomp_cli.renderers.physical.sampling import length
 from zcomp_cli.renderers.physical.settings import PhysicalSettings, TransportConfig
 from zcomp_cli.renderers.physical.softshadow import (blur_reach, classwise_blur, penumbra_filter, pixel_jitter, sky_samples,
                                                      weighted_visibility)
@@ -350,7 +351,7 @@ class PhysicalRenderer(Renderer):
         vis_sky, scene_only = self._sky_visibility(d, n, todo, camera, occluder, geo_all, albedo_mean,
                                                    model.sky.radiance_sh, model.walls)
         nv = n[ys, xs].astype(np.float64)
-        nv = nv / np.maximum(np.linalg.norm(nv, axis=1, keepdims=True), 1e-12)
+        nv = nv / np.maximum(length(nv), 1e-12)[:, None]
         nv[~geo_all[ys, xs]] = 0.0
         from zcomp_cli.renderers.physical import sh as shm
         from zcomp_cli.renderers.physical.lightmodel import ground_view
@@ -546,7 +547,7 @@ def _grid_points(d, n, valid, camera, box, step=1):
     gy, gx = np.mgrid[wy0:wy1:step, wx0:wx1:step]
     nv = n[gy, gx].astype(np.float64)
     ok = valid[gy, gx]
-    nv = np.where(ok[..., None], nv / np.maximum(np.linalg.norm(nv, axis=-1, keepdims=True), 1e-12), 0.0)
+    nv = np.where(ok[..., None], nv / np.maximum(length(nv), 1e-12)[..., None], 0.0)
     return gy, gx, camera.ray(gx + 0.5, gy + 0.5) * d[gy, gx][..., None], nv, ok
 
 

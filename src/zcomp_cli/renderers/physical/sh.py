@@ -25,14 +25,22 @@ _A_OVER_PI = np.array([1.0, 2.0 / 3.0, 2.0 / 3.0, 2.0 / 3.0, 0.25, 0.25, 0.25, 0
 
 def basis(dirs: np.ndarray) -> np.ndarray:
     """(N, 9) real SH Y_00, Y_1-1, Y_10, Y_11, Y_2-2, Y_2-1, Y_20, Y_21, Y_22 of unit
-    vectors (N, 3) (the usual x, y, z axes of whatever frame the vectors are in)."""
+    vectors (N, 3) (the usual x, y, z axes of whatever frame the vectors are in); a
+    transposed view of (9, N) rows (each function written whole: a third of the time of
+    stacking columns)."""
     d = np.asarray(dirs, np.float64).reshape(-1, 3)
     x, y, z = d[:, 0], d[:, 1], d[:, 2]
-    return np.stack([
-        np.full(len(d), 0.282095),
-        0.488603 * y, 0.488603 * z, 0.488603 * x,
-        1.092548 * x * y, 1.092548 * y * z, 0.315392 * (3 * z * z - 1),
-        1.092548 * x * z, 0.546274 * (x * x - y * y)], 1)
+    out = np.empty((N_COEFFS, len(d)))
+    out[0] = 0.282095
+    np.multiply(0.488603, y, out=out[1])
+    np.multiply(0.488603, z, out=out[2])
+    np.multiply(0.488603, x, out=out[3])
+    out[4] = 1.092548 * x * y
+    out[5] = 1.092548 * y * z
+    out[6] = 0.315392 * (3 * z * z - 1)
+    out[7] = 1.092548 * x * z
+    out[8] = 0.546274 * (x * x - y * y)
+    return out.T
 
 
 def quadratic_form(coeffs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

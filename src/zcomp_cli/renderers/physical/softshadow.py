@@ -26,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from zcomp_cli.camera import Camera
+from zcomp_cli.renderers.physical.sampling import length
 from zcomp_cli.renderers.physical.settings import TransportConfig
 from zcomp_cli.renderers.physical.visibility import march_visibility
 
@@ -190,7 +191,7 @@ def _hemisphere_dirs(normals: np.ndarray, jitter: np.ndarray, k: int) -> list[np
     n = normals
     a = np.where(np.abs(n[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
     u = np.cross(n, a)
-    u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-12)
+    u /= np.maximum(length(u), 1e-12)[:, None]
     v = np.cross(n, u)
     out = []
     for i in range(k):
@@ -199,7 +200,7 @@ def _hemisphere_dirs(normals: np.ndarray, jitter: np.ndarray, k: int) -> list[np
         ph = 2 * np.pi * (i * 0.618034 + jitter)
         ct = np.sqrt(max(1 - rr * rr, 0.0))
         d = ct * n + rr * (np.cos(ph)[:, None] * u + np.sin(ph)[:, None] * v)
-        out.append(d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12))
+        out.append(d / np.maximum(length(d), 1e-12)[:, None])
     return out
 
 
