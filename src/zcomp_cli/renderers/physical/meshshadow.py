@@ -411,8 +411,12 @@ class _radiance_weights:
                 o = self.centres.mean(0)
                 self._origin = o
                 cc = self.centres - o
-                self._cc = cc.astype(np.float32)  # (M, 3) centred: small numbers for float32 GEMMs
-                self._cc2 = (cc[:, :, None] * cc[:, None, :]).reshape(-1, 9).astype(np.float32)
+                # (M, .) centred, small numbers for float32 GEMMs: the centres, their
+                # products, a column of ones for the sums
+                one = np.ones((len(cc), 1))
+                self._ones = np.ones(len(cc), np.float32)
+                self._cc1 = np.hstack([cc, one]).astype(np.float32)
+                self._cc2 = np.hstack([cc, (cc[:, :, None] * cc[:, None, :]).reshape(-1, 9), one]).astype(np.float32)
                 self._R = float(np.sqrt(((cc) ** 2).sum(1).max()))
 
     def _safe(self, po, rows):
@@ -447,17 +451,20 @@ class _radiance_weights:
         safe = self._safe(po, rows)
         out = np.zeros((len(P), self.c.shape[1]))
         if safe.any():
-            s_ = np.flatnonzero(safe)
+            s_ = slice(None) if safe.all() else np.flatnonzero(safe)  # (no copy when all are)
             fs = np.asarray(f[s_], np.float32)
             r = np.sqrt(np.maximum(np.asarray(r2[s_], np.float32), np.float32(1e-24)))
             g1 = fs / r
-            g2 = g1 / r
+            g2 = np.divide(g1, r, out=r)
             p = po[s_]
-            F0 = fs.sum(1, dtype=np.float64)
-            s1, s2 = g1.sum(1, dtype=np.float64), g2.sum(1, dtype=np.float64)
-            F1 = (g1 @ self._cc).astype(np.float64) - p * s1[:, None]
-            t2 = (g2 @ self._cc).astype(np.float64)
-            F2 = (g2 @ self._cc2).astype(np.float64).reshape(-1, 3, 3) - t2[:, :, None] * p[:, None, :] \
+            # the sums ride in the GEMMs as a column of ones (float32 accumulation, as
+            # the moments themselves: a relative 1e-6)
+            F0 = (fs @ self._ones).astype(np.float64)
+            m1 = (g1 @ self._cc1).astype(np.float64)  # (centres, 1)
+            m2 = (g2 @ self._cc2).astype(np.float64)  # (centres, their products, 1)
+            s1, s2, t2 = m1[:, 3], m2[:, 12], m2[:, :3]
+            F1 = m1[:, :3] - p * s1[:, None]
+            F2 = m2[:, 3:12].reshape(-1, 3, 3) - t2[:, :, None] * p[:, None, :] \
                 - p[:, :, None] * t2[:, None, :] + s2[:, None, None] * p[:, :, None] * p[:, None, :]
             val = F0[:, None] * self._a64[None] + F1 @ self._b64 + np.einsum("kij,ijc->kc", F2, self._A64)
             out[s_] = val / self.total[rows[s_]]
