@@ -172,18 +172,32 @@ def penumbra_filter(vis: np.ndarray, t_hit: np.ndarray, z: np.ndarray, classes: 
     levels_px = cfg.penumbra_levels_px
     n_lv = max(2, int(np.searchsorted(levels_px, r.max())) + 1)
     radii = levels_px[:n_lv]
-    levels = []
-    for rad in radii:
-        sl = around(blur_reach(rad))
-        levels.append(classwise_blur(vis[sl], classes[sl], valid[sl], rad)[inner(sl)])
     lv = np.log2(1.0 + np.asarray(radii))
     pos = np.interp(np.log2(1.0 + r), lv, np.arange(len(lv)))
     i0 = np.clip(np.floor(pos).astype(int), 0, len(lv) - 2)
     f = pos - i0
-    stack = np.stack(levels, 0)
-    a = np.take_along_axis(stack, i0[None], 0)[0]
-    b = np.take_along_axis(stack, (i0 + 1)[None], 0)[0]
-    return np.clip((1 - f) * a + f * b, 0.0, 1.0)
+    # (1 - f) level i0 + f level i0 + 1, each level blurred only over the box of the
+    # pixels that take it (the wide levels only near the wide penumbrae), plus the
+    # context its kernel reads: the same values as over the whole box
+    out = np.zeros(r.shape)
+    for k, rad in enumerate(radii):
+        lo, hi = i0 == k, (i0 == k - 1) & (f > 0)
+        take = lo | hi
+        if not take.any():
+            continue
+        rows, cols = np.flatnonzero(take.any(1)), np.flatnonzero(take.any(0))
+        ty0, tx0, ty1, tx1 = y0 + rows[0], x0 + cols[0], y0 + rows[-1] + 1, x0 + cols[-1] + 1
+        reach = blur_reach(rad)
+        sl = (slice(max(0, ty0 - reach), min(H, ty1 + reach)), slice(max(0, tx0 - reach), min(W, tx1 + reach)))
+        L = classwise_blur(vis[sl], classes[sl], valid[sl], rad)[ty0 - sl[0].start:ty1 - sl[0].start,
+                                                                   tx0 - sl[1].start:tx1 - sl[1].start]
+        tb_ = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
+        o, fb = out[tb_], f[tb_]
+        m = lo[tb_]
+        o[m] += (1 - fb[m]) * L[m]
+        m = hi[tb_]
+        o[m] += fb[m] * L[m]
+    return np.clip(out, 0.0, 1.0)
 
 
 def _hemisphere_dirs(normals: np.ndarray, jitter: np.ndarray, k: int) -> list[np.ndarray]:
