@@ -53,6 +53,49 @@ def test_penumbra_filter_over_a_box_matches_the_whole_frame():
         np.testing.assert_allclose(part, whole[y0:y1, x0:x1], atol=1e-6)
 
 
+def test_penumbra_filter_blends_the_two_levels_about_each_pixels_width():
+    # each level is blurred only around the pixels that take it: the values are the
+    # definition's, every level blurred over the whole frame and blended per pixel
+    # between the two about its penumbra's width (log2(1 + r), linearly)
+    from zcomp_cli.renderers.physical.settings import TransportConfig
+    from zcomp_cli.renderers.physical.softshadow import blur_reach, classwise_blur, gaussian_blur
+
+    cfg = TransportConfig()
+    rng = np.random.default_rng(8)
+    H, W = 120, 160
+    vis = np.ones((H, W))
+    vis[30:90, 20:60] = 0.0  # a near occluder: narrow penumbra
+    vis[40:100, 100:150] = 0.0  # a far one: wide
+    vis[rng.random((H, W)) > 0.97] = 0.0
+    t_hit = np.where(vis < 1, np.where(np.arange(W)[None] < 80, 0.1, 4.0), np.inf)
+    z = np.full((H, W), 3.0)
+    cls = np.zeros((H, W), int)
+    cls[50:70, 110:130] = 1
+    valid = rng.random((H, W)) > 0.02
+    tan_a = np.tan(np.deg2rad(6.0))
+    got = penumbra_filter(vis, t_hit, z, cls, valid, 300.0, tan_a, cfg=cfg)
+    # the definition, written out
+    v = np.where(valid, vis, 1.0)
+    shadowed = valid & (v < 0.5) & np.isfinite(t_hit)
+    s_ = cfg.blocker_search_px
+    g_s = gaussian_blur(shadowed.astype(np.float32), s_)
+    g_t = gaussian_blur(np.where(shadowed, t_hit, 0.0).astype(np.float32), s_)
+    g_v = gaussian_blur(valid.astype(np.float32), s_)
+    tb = np.where(g_s > 1e-4, g_t / np.maximum(g_s, 1e-4), np.where(shadowed, t_hit, 0.0))
+    has = np.where(g_v > 1e-4, g_s / np.maximum(g_v, 1e-4), shadowed) > 1e-3
+    r = np.clip(np.nan_to_num(np.where(has & valid, tb * tan_a * 300.0 / z, 0.0)), 0.0, cfg.max_penumbra_px)
+    radii = cfg.penumbra_levels_px[:max(2, int(np.searchsorted(cfg.penumbra_levels_px, r.max())) + 1)]
+    assert len(radii) >= 6 and blur_reach(radii[-1]) > 20  # the wide levels are in play
+    levels = np.stack([classwise_blur(v, cls, valid, rad) for rad in radii])
+    pos = np.interp(np.log2(1.0 + r), np.log2(1.0 + np.asarray(radii)), np.arange(len(radii)))
+    i0 = np.clip(np.floor(pos).astype(int), 0, len(radii) - 2)
+    f = pos - i0
+    want = np.clip((1 - f) * np.take_along_axis(levels, i0[None], 0)[0]
+                   + f * np.take_along_axis(levels, (i0 + 1)[None], 0)[0], 0.0, 1.0)
+    np.testing.assert_allclose(got, want, atol=1e-12)
+    assert 0.05 < got[40:100, 100:150].mean() < 0.95 and got[30:90, 20:60].mean() < 0.2
+
+
 @pytest.mark.parametrize("channels", [None, 3, 6])
 def test_classwise_blur_is_the_per_class_normalised_blur(channels):
     # each class cropped to the box its kernels read gives the definition's values,
@@ -522,3 +565,18 @@ def test_negative_cells_bound_the_ringing():
     assert len(c) < 0.7 * 6 * 16 * 16  # and not the whole sphere
     c, t = cells(np.array([[1.0], [0.3], [0.2], [0.1], [0], [0], [0.05], [0], [0]]))
     assert len(c) == 0
+
+
+def test_a_meshs_triangle_areas_are_kept_for_its_arrays_only():
+    # kept on the mesh for its uses in one render, read-only; new vertex arrays (a new
+    # pose) are measured again
+    from zcomp_cli.renderers.physical import meshshadow as M
+
+    mesh = M.PosedMesh(np.array([[0.0, 0, -3], [1, 0, -3], [0, 1, -3], [0, 0, -4]]), np.array([[0, 1, 2], [0, 1, 3]]))
+    tri, cr, area, _ = M._area_triangles(mesh)
+    assert M._area_triangles(mesh)[2] is area
+    np.testing.assert_allclose(area, [0.5, 0.5])
+    with pytest.raises(ValueError):
+        area[0] = 2.0
+    mesh.vertices = mesh.vertices * 2.0
+    np.testing.assert_allclose(M._area_triangles(mesh)[2], [2.0, 2.0])
