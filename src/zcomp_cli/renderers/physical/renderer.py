@@ -34,8 +34,8 @@ from zcomp_cli.renderers.physical.evidence_maps import LightEvidence
 from zcomp_cli.renderers.physical.lightmodel import LightModel, ShadowKind
 from zcomp_cli.renderers.physical.sampling import length
 from zcomp_cli.renderers.physical.settings import PhysicalSettings, TransportConfig
-from zcomp_cli.renderers.physical.softshadow import (blur_reach, classwise_blur, penumbra_filter, pixel_jitter, sky_samples,
-                                                     weighted_visibility)
+from zcomp_cli.renderers.physical.softshadow import (blur_reach, classwise_blur, penumbra_filter, pixel_jitter,
+                                                     sky_samples, weighted_visibility)
 from zcomp_cli.renderers.physical.visibility import march_visibility
 
 # The synthesis's constants (the march's reach, bias and thickness, the penumbra's
@@ -328,8 +328,6 @@ class PhysicalRenderer(Renderer):
             tw = todo[ay0:ay1, ax0:ax1] & okf & np.isfinite(dist)
             R = float(dist[tw].max()) if tw.any() else 0.0
             if R > 0:  # (a mesh without area has no elements: nothing hidden)
-                import cv2
-
                 t = np.clip((R - dist) / max(cfg.mesh_ao_fade * R, 1e-9), 0.0, 1.0)
                 px = cv2.distanceTransform(np.pad(todo[ay0:ay1, ax0:ax1], 1).astype(np.uint8),
                                            cv2.DIST_L2, 5)[1:-1, 1:-1]
