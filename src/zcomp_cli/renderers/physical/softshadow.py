@@ -61,9 +61,16 @@ def gaussian_blur(img: np.ndarray, radius: float) -> np.ndarray:
     return cv2.GaussianBlur(img, (k, k), radius / 2.0, borderType=cv2.BORDER_REPLICATE)
 
 
+def _reached(den: np.ndarray):
+    """(where a blurred weight ``den`` reaches, the weight to divide by): below 1e-4 no
+    weight counts as reaching (a normalised blur keeps the value there), and the
+    divisor is floored at it."""
+    return den > 1e-4, np.maximum(den, 1e-4)
+
+
 def normalized_blur(values: np.ndarray, weight: np.ndarray, radius: float) -> np.ndarray:
-    """Gaussian blur of ``values`` (H, W) or (H, W, C) (C <= 4: the channels blurred
-    together, each as alone) over the pixels where ``weight`` (H, W) > 0, normalised by
+    """Gaussian blur of ``values`` (H, W) or (H, W, C) (the channels blurred together,
+    each as alone) over the pixels where ``weight`` (H, W) > 0, normalised by
     the blurred weight; where no weight reaches, the value itself."""
     if radius <= 0:
         return values
@@ -74,7 +81,8 @@ def normalized_blur(values: np.ndarray, weight: np.ndarray, radius: float) -> np
     den = gaussian_blur(w, radius)
     if v.ndim == 3:
         den = den[..., None]
-    return np.where(den > 1e-4, num / np.maximum(den, 1e-4), v).astype(np.float64)
+    ok, den = _reached(den)
+    return np.where(ok, num / den, v).astype(np.float64)
 
 
 def classwise_blur(values: np.ndarray, classes: np.ndarray, valid: np.ndarray, radius: float,
@@ -104,10 +112,11 @@ def classwise_blur(values: np.ndarray, classes: np.ndarray, valid: np.ndarray, r
         num = gaussian_blur(v32[sl] * (w if v32.ndim == 2 else w[..., None]), radius)
         den = gaussian_blur(w, radius)
         # the class's pixels that some weight reaches (elsewhere the value stays)
-        put = dest[sl] & in_c[sl] & (den > 1e-4)
+        ok, den = _reached(den)
+        put = dest[sl] & in_c[sl] & ok
         if num.ndim == 3:
             den, put = den[..., None], put[..., None]
-        np.divide(num, np.maximum(den, 1e-4), out=num)
+        np.divide(num, den, out=num)
         np.copyto(out[sl], num, where=put)
     return out
 
@@ -161,8 +170,10 @@ def penumbra_filter(vis: np.ndarray, t_hit: np.ndarray, z: np.ndarray, classes: 
     g_s = gaussian_blur(shadowed.astype(np.float32), search)[ins]
     g_t = gaussian_blur(np.where(shadowed, t_c, 0.0).astype(np.float32), search)[ins]
     g_v = gaussian_blur(ok_c.astype(np.float32), search)[ins]
-    tb = np.where(g_s > 1e-4, g_t / np.maximum(g_s, 1e-4), np.where(shadowed[ins], t_c[ins], 0.0))
-    has = np.where(g_v > 1e-4, g_s / np.maximum(g_v, 1e-4), shadowed[ins]) > 1e-3
+    ok_s, d_s = _reached(g_s)
+    ok_v, d_v = _reached(g_v)
+    tb = np.where(ok_s, g_t / d_s, np.where(shadowed[ins], t_c[ins], 0.0))
+    has = np.where(ok_v, g_s / d_v, shadowed[ins]) > 1e-3
     # 3. penumbra half-width in pixels
     ok_b = valid[y0:y1, x0:x1]
     r = np.where(has & ok_b, tb * np.maximum(tan_b, 0.0) * focal_px / np.maximum(z[y0:y1, x0:x1], 1e-6), 0.0)
