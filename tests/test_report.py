@@ -312,3 +312,42 @@ def test_synthetic_folder_pages(tmp_path):
     assert col.counts == {"done": 225, "failed": 25}
     assert col.metrics == ["psnr", "ssim", "lpips", "flip"]
     assert sum(1 for r in col.rows if r["metrics"]) == 125  # eval.json scores every even job (all done)
+
+
+class _Attrs(HTMLParser):
+    def __init__(self):
+        super().__init__()
+        self.attrs: list[tuple[str, str, str | None]] = []
+        self.metas: list[dict] = []
+
+    def handle_starttag(self, tag, attrs):
+        self.attrs += [(tag, k, v) for k, v in attrs]
+        if tag == "meta":
+            self.metas.append(dict(attrs))
+
+
+def test_the_template_is_filled_in_one_pass(tmp_path):
+    """Issue 50, defect 1: a preview named ``%DATA%.png`` pulled the whole JSON into
+    its image's ``alt`` (chained replaces), so `` onload=CODE `` in any text became a
+    handler. Now every slot is filled once, the data's quotes are escaped and the
+    policy allows the page's one script by its nonce, no inline handler."""
+    from report_project import HANDLER, SLOTS, make_slot_named_output
+
+    out = make_slot_named_output(tmp_path)
+    path, col = write_report(out, title="t %DATA% %JS% %NONCE%")
+    page = path.read_text()
+    p = _Attrs()
+    p.feed(page)
+    assert [a for a in p.attrs if a[1].startswith("on")] == []
+    alts = sorted(v for t, k, v in p.attrs if t == "img" and k == "alt")
+    assert alts == sorted(f"preview of {s}" for s in SLOTS)
+    csp = next(m["content"] for m in p.metas if m.get("http-equiv") == "Content-Security-Policy")
+    nonce = re.search(r"script-src 'nonce-([A-Za-z0-9_-]{16,})'", csp).group(1)
+    assert "unsafe-inline" not in csp.split("script-src", 1)[1]
+    assert [v for t, k, v in p.attrs if t == "script" and k == "nonce"] == [nonce]
+    assert "<title>t %DATA% %JS% %NONCE%</title>" in page
+    blob = re.search(r'application/json">(.*?)</script>', page, re.S).group(1)
+    assert '\\"' not in blob
+    rows = {r["job"]: r for r in _rows(page)}
+    assert HANDLER in rows['q"uote' + HANDLER]["reason"] and set(rows) == {"job" + HANDLER, 'q"uote' + HANDLER,
+                                                                          "plain"}

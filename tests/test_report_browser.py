@@ -238,3 +238,35 @@ def test_screenshot(driver, page, tmp_path):
     if os.environ.get("ZCOMP_WRITE_DOCS") == "1":
         shutil.copy(shot, DOCS / "report.png")
     assert _severe(d) == []
+
+
+def test_no_handler_from_the_data_whatever_the_names(driver, tmp_path):
+    """Issue 50, defect 1: preview sheets named after the template's slots (``%DATA%.png``)
+    and names, reasons and metrics holding `` onload=CODE ``: the page runs no handler,
+    no element carries one, and the script runs only by its nonce."""
+    from click.testing import CliRunner
+
+    from report_project import SLOTS, make_slot_named_output
+    from zcomp_cli.cli import cli
+
+    out = make_slot_named_output(tmp_path)
+    r = CliRunner().invoke(cli, ["report", str(out), "--title", "t %DATA% %JS%"])
+    assert r.exit_code == 0, r.output
+    d = driver
+    d.get_log("browser")
+    _open(d, out / "report.html")
+    _choose(d, "page-size", "0")
+    imgs = d.execute_script("return Array.from(document.images)")
+    assert len(imgs) == len(SLOTS)  # the preview sheets, each its own image
+    for img in imgs:
+        d.execute_script("arguments[0].scrollIntoView({block: 'center'})", img)
+        _wait(d, "return arguments[0].complete && arguments[0].naturalWidth > 0", img)
+    assert d.execute_script("return typeof window.__pwned") == "undefined"
+    handlers = d.execute_script(
+        "var got = []; document.querySelectorAll('*').forEach(function (e) {"
+        "  Array.from(e.attributes).forEach(function (a) { if (/^on/i.test(a.name)) got.push(e.tagName + ' ' + a.name); });"
+        "}); return got;")
+    assert handlers == []
+    assert sorted(_col(d, "job", None)) == sorted(["job" + " onload=window.__pwned=3 onerror=window.__pwned=4 ",
+                                                   'q"uote onload=window.__pwned=3 onerror=window.__pwned=4 ',
+                                                   "plain"])

@@ -1,9 +1,11 @@
 """The page of ``zcomp report``: one self-contained HTML file.
 
 Inline CSS and JavaScript, no external resource (a Content-Security-Policy forbids any:
-images come from relative links only), so it works from ``file://``. The rows travel as
-one JSON document in a ``<script type="application/json">``, with every ``<``, ``>``
-and ``&`` written as a ``\\u`` escape so that no text (a job name holding
+images come from relative links only; the one script runs by its nonce, no inline event
+handler), so it works from ``file://``. The template's slots are filled in one pass
+(``fill``: no value is searched for slots again). The rows travel as one JSON document in
+a ``<script type="application/json">``, with every ``<``, ``>``, ``&`` and quote inside
+a string written as a ``\\u`` escape so that no text (a job name holding
 ``</script>``) can end it; the script builds the table with DOM text nodes and
 attributes, never HTML strings, so text is never markup. Sorting (every column; numbers
 numerically, missing values last both ways), a status filter, a text filter and
@@ -17,6 +19,8 @@ import datetime as _dt
 import html
 import json
 import math
+import re
+import secrets
 
 from zcomp_cli.report.collect import STATUS_ORDER, Collected, status_rank
 
@@ -86,14 +90,20 @@ def page_data(col: Collected, page_size: int, urls: dict) -> dict:
 
 
 def script_json(obj) -> str:
-    """JSON safe inside ``<script>``: ``<``, ``>``, ``&`` and the two JavaScript line
-    separators as ``\\u`` escapes (they occur only inside JSON strings, where the escape
-    means the same character)."""
+    """JSON safe inside ``<script>`` and anywhere else in the page: ``<``, ``>``, ``&``,
+    the two JavaScript line separators and a quote inside a string (JSON's ``\\"``) as
+    ``\\u`` escapes (they occur only inside JSON strings, where the escape means the
+    same character), so no text of the data can end the element or an attribute."""
     s = json.dumps(obj, ensure_ascii=False, separators=(",", ":"), allow_nan=False)
     for ch, esc in (("<", "\\u003c"), (">", "\\u003e"), ("&", "\\u0026"), ("\u2028", "\\u2028"),
                     ("\u2029", "\\u2029")):
         s = s.replace(ch, esc)
-    return s
+    # JSON's escapes, read pairwise from the left (so ``\\\\`` before a closing quote
+    # stays a backslash): an escaped quote becomes \\u0022
+    return _ESCAPE.sub(lambda m: "\\u0022" if m.group(0) == '\\"' else m.group(0), s)
+
+
+_ESCAPE = re.compile(r"\\.", re.S)
 
 
 def _fmt(v) -> str:
@@ -151,8 +161,19 @@ def render_page(col: Collected, *, title: str, page_size: int, urls: dict, url_o
         previews = (f'<details id="previews" open><summary>Light preview sheets ({len(col.previews)})</summary>'
                     f'<div class="sheets">{"".join(figs)}</div></details>')
     data = script_json(page_data(col, page_size, urls))
-    return (_PAGE.replace("%TITLE%", e(title)).replace("%HEAD%", "".join(head)).replace("%PREVIEWS%", previews)
-            .replace("%CSS%", _CSS).replace("%JS%", _JS).replace("%DATA%", data))
+    return fill(_PAGE, {"TITLE": e(title), "HEAD": "".join(head), "PREVIEWS": previews, "CSS": _CSS, "JS": _JS,
+                        "DATA": data, "NONCE": secrets.token_urlsafe(18)})
+
+
+_SLOT = re.compile(r"%([A-Z]+)%")
+
+
+def fill(template: str, values: dict[str, str]) -> str:
+    """``template`` with each ``%NAME%`` replaced by ``values[NAME]``, in one pass: a
+    value is never read again for slots (a preview named ``%DATA%.png`` stays that
+    text; chained replaces pasted the data into its ``alt``). A slot without a value
+    stays as it is."""
+    return _SLOT.sub(lambda m: values.get(m.group(1), m.group(0)), template)
 
 
 _PAGE = """<!DOCTYPE html>
@@ -160,7 +181,7 @@ _PAGE = """<!DOCTYPE html>
 <head>
 <meta charset="utf-8">
 <meta name="viewport" content="width=device-width, initial-scale=1">
-<meta http-equiv="Content-Security-Policy" content="default-src 'none'; img-src 'self' file: data:; style-src 'unsafe-inline'; script-src 'unsafe-inline'">
+<meta http-equiv="Content-Security-Policy" content="default-src 'none'; img-src 'self' file: data:; style-src 'unsafe-inline'; script-src 'nonce-%NONCE%'">
 <meta name="referrer" content="no-referrer">
 <link rel="icon" href="data:,">
 <title>%TITLE%</title>
@@ -185,7 +206,7 @@ _PAGE = """<!DOCTYPE html>
 <table id="jobs"><thead><tr></tr></thead><tbody></tbody></table>
 <p id="empty" hidden>No job matches.</p>
 <script id="zcomp-data" type="application/json">%DATA%</script>
-<script>%JS%</script>
+<script nonce="%NONCE%">%JS%</script>
 </body>
 </html>
 """
@@ -437,4 +458,4 @@ _JS = r"""
 })();
 """
 
-__all__ = ["columns", "page_data", "render_page", "script_json"]
+__all__ = ["columns", "fill", "page_data", "render_page", "script_json"]
