@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from zcomp_cli.errors import InputError, UsageError
+from zcomp_cli.safe_read import read_json_file
 
 ALL_METRICS = ("psnr", "rmse", "si-rmse", "ssim", "mae", "lpips", "flip", "shadow-iou", "shadow-darkness")
 # Metrics that compare each image with the background it was composited into.
@@ -242,7 +243,7 @@ def pair_composite_output(out_dir, refs=None, mask=None, background=None,
                 problems.append(f"{job.name}: no image named {job.name}.* in {refs}")
                 continue
         try:
-            report = json.loads((job / "report.json").read_text())
+            report = read_json_file(job / "report.json")
         except (OSError, ValueError) as exc:
             raise InputError(f"cannot read report.json: {exc}", where=str(job)) from exc
         if not isinstance(report, dict):

@@ -207,9 +207,9 @@ def special_file_problem(p: Path, want: str = "file") -> str | None:
         return None if want == "folder" else f"{shorten(str(p), 200)} is a folder, expected a file"
     if stat.S_ISREG(mode):
         return None if want == "file" else f"{shorten(str(p), 200)} is a file, expected a folder"
-    kind = ("a FIFO (named pipe)" if stat.S_ISFIFO(mode) else "a character device" if stat.S_ISCHR(mode)
-            else "a block device" if stat.S_ISBLK(mode) else "a socket" if stat.S_ISSOCK(mode) else "not a file")
-    return f"{shorten(str(p), 200)} is {kind}, not a regular file"
+    from zcomp_cli.safe_read import file_kind
+
+    return f"{shorten(str(p), 200)} is {file_kind(mode)}, not a regular file"
 
 
 def _file(root: Path, value, container, key, where, probs, exts=None, want: str = "file") -> Path | None:

@@ -36,6 +36,7 @@ from pathlib import Path
 
 from zcomp_cli.errors import UsageError
 from zcomp_cli.interrupts import deferred
+from zcomp_cli.safe_read import read_json_file
 
 LOCK_PREFIX = ".zcomp-"
 
@@ -295,7 +296,7 @@ class DigestCache:
         self._dirty = False
         if store is not None and store.is_file():
             try:
-                data = json.loads(store.read_text())
+                data = read_json_file(store)
                 if isinstance(data, dict):
                     self._data = data
             except (OSError, ValueError):

@@ -33,6 +33,7 @@ import numpy as np
 
 from zcomp_cli import __version__
 from zcomp_cli.errors import UsageError
+from zcomp_cli.safe_read import JsonFileError, read_json_file
 from zcomp_cli.pipeline.fingerprint import job_fingerprint  # noqa: F401 - re-exported
 from zcomp_cli.pipeline.manifest import JobSpec, Manifest, RendererSpec
 
@@ -95,10 +96,12 @@ def read_report_noted(out_dir: Path) -> tuple[dict | None, str | None]:
     """(report, note): the note says why an existing ``report.json`` was not usable."""
     p = Path(out_dir) / REPORT
     try:
-        if not p.is_file():
+        if not os.path.lexists(p):
             return None, None
-        doc = json.loads(p.read_text())
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        doc = read_json_file(p)
+    except JsonFileError as exc:
+        return None, f"{p}: {exc}; treated as missing"
+    except (OSError, ValueError) as exc:
         return None, f"{p}: unreadable ({type(exc).__name__}), treated as missing"
     if not isinstance(doc, dict):
         return None, f"{p}: holds {type(doc).__name__}, not a job report; treated as missing"
@@ -351,7 +354,7 @@ def merged_summary(out_root: Path, summary: BatchSummary, manifest: Manifest | N
     failed)."""
     prev = {}
     try:
-        old = json.loads((out_root / summary_name(summary.shard)).read_text())
+        old = read_json_file(out_root / summary_name(summary.shard))
         prev = {j["name"]: j for j in old.get("jobs", []) if isinstance(j, dict) and isinstance(j.get("name"), str)}
     except (OSError, ValueError, AttributeError, TypeError):
         pass

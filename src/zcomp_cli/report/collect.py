@@ -11,7 +11,6 @@ listed as preview sheets.
 from __future__ import annotations
 
 import csv
-import json
 import math
 import os
 from dataclasses import dataclass, field
@@ -19,6 +18,7 @@ from pathlib import Path
 
 from zcomp_cli.errors import UsageError
 from zcomp_cli.preview.run import SUBDIR as PREVIEW_DIR  # where preview-light writes its sheets
+from zcomp_cli.safe_read import read_json_file
 
 # The order statuses are listed and sorted in.
 STATUS_ORDER = ("done", "failed", "damaged", "changed", "missing")
@@ -194,8 +194,8 @@ def _summary_seconds(out: Path) -> dict[str, float]:
     found = []
     for p in out.glob("summary*.json"):
         try:
-            found.append((p.stat().st_mtime, p.name, json.loads(p.read_text())))
-        except (OSError, UnicodeDecodeError, ValueError):
+            found.append((p.stat().st_mtime, p.name, read_json_file(p)))
+        except (OSError, ValueError):
             continue
     got: dict[str, float] = {}
     for _, _, doc in sorted(found, key=lambda t: (t[0], t[1])):
@@ -396,7 +396,7 @@ def _metric_value(v):
 
 
 def _read_eval_json(path: Path):
-    doc = json.loads(path.read_text())
+    doc = read_json_file(path)
     unavailable = doc.get("unavailable") or {}
     metrics = [m for m in doc["metrics"] if isinstance(m, str) and m not in unavailable]
     values = {}
@@ -442,10 +442,10 @@ def previews(out: Path) -> list[dict]:
         light = None
         if js.is_file():
             try:
-                doc = json.loads(js.read_text())
+                doc = read_json_file(js)
                 if isinstance(doc, dict) and isinstance(doc.get("light"), dict):
                     light = light_summary({"light": doc["light"]})[0]
-            except (OSError, UnicodeDecodeError, ValueError):
+            except (OSError, ValueError):
                 pass
         found.append({"scene": p.stem, "image": p, "json": js if js.is_file() else None, "light": light})
     return found
