@@ -299,12 +299,14 @@ def fit_light(params: LightParams | None, depth, normals, shading, known, albedo
         else:
             # (by identity: a light's == compares its arrays)
             e, s_from = np.asarray(w[f"light{next(i for i, f in enumerate(free) if f is lt)}"]), Origin.FIT
+        # (a searched direction with no shadow read came from the shading's fit and the prior)
+        d_from = Origin.FIT if lt.direction_from is Origin.SHADOWS and not n_eff > 0 else lt.direction_from
         if fl.kind == "sun":
-            suns.append(Sun(direction=fl.param, radius_deg=fl.radius, irradiance=e, direction_from=lt.direction_from,
+            suns.append(Sun(direction=fl.param, radius_deg=fl.radius, irradiance=e, direction_from=d_from,
                             radius_from=fl.radius_from, strength_from=s_from))
         else:
             lamps.append(Lamp(position=fl.param, radius_m=fl.radius, intensity=e, facing=fl.facing,
-                              position_from=lt.direction_from, radius_from=fl.radius_from, strength_from=s_from))
+                              position_from=d_from, radius_from=fl.radius_from, strength_from=s_from))
     note = ""
     if hedged:
         fl = search.light
