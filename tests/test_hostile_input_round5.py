@@ -104,3 +104,27 @@ def test_deeply_nested_json_in_out_counts_as_damaged(project, where):
         assert this_run == {"000_room_ball": "skipped", "001_room_card": "skipped"}
     if where == "summary.json":
         assert any("summary.json" in n and "nested" in n for n in doc["notes"]), doc["notes"]
+
+
+# ------------------------------------------------------------------ where it came from
+CHEAP_PHYSICAL = {"name": "physical", "march_steps": 4, "estimate_march_steps": 4, "n_light_candidates": 16,
+                  "cone_samples": 2, "max_fit_pixels": 500}
+
+
+def test_no_light_is_read_off_shadows_when_none_were_read(tmp_path):
+    """Issue 50 (the coffee photograph): the preview and the report said the direction
+    was "read off the photograph's cast shadows" where the fit read no shadow. On a
+    bare floor (no shadow at all), the direction comes from the shading's fit."""
+    import yaml
+
+    p = make_project(tmp_path, width=64, height=48)
+    doc = yaml.safe_load(p.read_text())
+    doc["defaults"]["renderer"] = CHEAP_PHYSICAL
+    doc["jobs"] = doc["jobs"][:1]
+    p.write_text(yaml.safe_dump(doc))
+    assert run_composite(p, tmp_path / "out").exit_code == 0
+    light = json.loads((tmp_path / "out/000_room_ball/report.json").read_text())["renderer"]["info"]["light"]
+    assert light["fit"]["shadow_blocks"] == 0
+    sun = next(x for x in light["lights"] if x["kind"] == "sun")
+    assert sun["direction_from"] != "read off the photograph's cast shadows"
+    assert sun["direction_from"] == "fitted to the photograph's shading"
