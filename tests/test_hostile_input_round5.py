@@ -128,3 +128,122 @@ def test_no_light_is_read_off_shadows_when_none_were_read(tmp_path):
     sun = next(x for x in light["lights"] if x["kind"] == "sun")
     assert sun["direction_from"] != "read off the photograph's cast shadows"
     assert sun["direction_from"] == "fitted to the photograph's shading"
+
+
+# ------------------------------------------------------------------ preview-light
+def _preview(project: Path, out: Path, *extra):
+    r = CliRunner().invoke(cli, ["-q", "preview-light", str(project / "jobs.yaml"), "--out", str(out),
+                                 *map(str, extra)])
+    assert r.exception is None or isinstance(r.exception, SystemExit), r.exc_info
+    return r
+
+
+def test_preview_refuses_a_linked_preview_folder(project, tmp_path):
+    """Defect 3: preview-light followed a symlinked OUT/preview and wrote (with
+    --overwrite, replaced) files outside --out; every other command refuses it."""
+    out, elsewhere = tmp_path / "out", tmp_path / "elsewhere"
+    out.mkdir()
+    elsewhere.mkdir()
+    (elsewhere / "room.png").write_bytes(b"precious")
+    (out / "preview").symlink_to(elsewhere)
+    for extra in ([], ["--overwrite"]):
+        r = _preview(project, out, *extra)
+        assert r.exit_code == 2 and "symbolic link" in r.output, r.output
+    assert sorted(p.name for p in elsewhere.iterdir()) == ["room.png"]
+    assert (elsewhere / "room.png").read_bytes() == b"precious"
+
+
+def test_preview_renders_a_repeated_scene_once(project, tmp_path, monkeypatch):
+    from zcomp_cli.preview import run as prun
+
+    seen = []
+    monkeypatch.setattr(prun, "preview_scene", lambda m, name, *a, **k: seen.append(name) or prun.PreviewResult(name))
+    r = _preview(project, tmp_path / "out", "--scene", "room", "--scene", "room")
+    assert r.exit_code == 0, r.output
+    assert seen == ["room"]
+
+
+def test_a_second_preview_run_into_the_folder_is_refused(project, tmp_path, monkeypatch):
+    """Two runs into one --out replaced each other's sheets without --overwrite: the
+    second is refused while the first holds the folder."""
+    from zcomp_cli.pipeline.outguard import held_or_refused
+    from zcomp_cli.preview import run as prun
+
+    out = tmp_path / "out"
+    (out / "preview").mkdir(parents=True)
+    seen = []
+    monkeypatch.setattr(prun, "preview_scene", lambda m, name, *a, **k: seen.append(name) or prun.PreviewResult(name))
+    with held_or_refused(out / "preview" / ".zcomp-preview.lock", "zcomp preview-light"):
+        r = _preview(project, out)
+    assert r.exit_code == 2 and f"pid {os.getpid()}" in r.output, r.output
+    assert seen == []
+    assert _preview(project, out).exit_code == 0 and seen == ["room"]  # free again
+
+
+@pytest.mark.parametrize("diameter, words", [("1e-9", "too small to see"), ("50", "larger than the")])
+def test_preview_names_a_diameter_too_small_or_too_large(project, tmp_path, diameter, words):
+    """Defect (preview-light): --diameter 1e-9 and 50 both said "the object lies fully
+    outside the frame"."""
+    r = _preview(project, tmp_path / "out", "--diameter", diameter)
+    text = " ".join(r.output.split())
+    assert r.exit_code == 1 and words in text and "give --diameter" in text, r.output
+    assert "fully outside" not in r.output
+
+
+def test_preview_of_a_surface_1e30_away_is_refused_with_a_note(project, tmp_path):
+    """A scene depth of 1e30 gave a blank sheet with no note."""
+    import numpy as np
+
+    from zcomp_cli.imageio import read_map, write_exr
+
+    d = read_map(project / "scenes/depth.exr", channels=1)
+    write_exr(project / "scenes/depth.exr", np.where(d > 0, np.float32(1e30), d).astype(np.float32))
+    out = tmp_path / "out"
+    r = _preview(project, out)
+    assert r.exit_code == 1 and "1e+30 m away" in " ".join(r.output.split()), r.output
+    assert not list((out / "preview").glob("*.png"))
+
+
+def test_a_killed_previews_work_folder_is_swept(tmp_path):
+    """kill -9 of preview-light left /tmp/zcomp-preview-* that nothing swept."""
+    import tempfile
+
+    from zcomp_cli.pipeline.outguard import sweep_dead_temporaries
+    from zcomp_cli.preview.run import WORK_PREFIX
+
+    child = subprocess.Popen([sys.executable, "-c", "pass"])
+    child.wait()
+    dead = Path(tempfile.mkdtemp(prefix=f"{WORK_PREFIX}{child.pid}-"))
+    mine = Path(tempfile.mkdtemp(prefix=f"{WORK_PREFIX}{os.getpid()}-"))
+    (dead / "balls.glb").write_bytes(b"x")
+    try:
+        sweep_dead_temporaries()
+        assert not dead.exists() and mine.exists()
+    finally:
+        import shutil
+
+        shutil.rmtree(dead, ignore_errors=True)
+        shutil.rmtree(mine, ignore_errors=True)
+
+
+@pytest.mark.blender
+def test_sigterm_between_a_sheet_and_its_numbers_leaves_both_or_neither(tmp_path, monkeypatch):
+    """A SIGTERM that arrived between a sheet's PNG and its JSON left half a pair."""
+    import signal
+
+    import zcomp_cli.imageio as io
+
+    make_project(tmp_path, width=128, height=96)
+    real = io.write_json_atomic
+
+    def term_then_write(path, obj):
+        if Path(path).suffix == ".json" and Path(path).parent.name == "preview":
+            os.kill(os.getpid(), signal.SIGTERM)
+        return real(path, obj)
+
+    monkeypatch.setattr(io, "write_json_atomic", term_then_write)
+    out = tmp_path / "out"
+    r = _preview(tmp_path, out, "--samples", "4")
+    assert r.exit_code == 143, r.output
+    names = sorted(p.name for p in (out / "preview").iterdir() if not p.name.startswith("."))
+    assert names in ([], ["room.json", "room.png"]), names
