@@ -247,3 +247,23 @@ def test_sigterm_between_a_sheet_and_its_numbers_leaves_both_or_neither(tmp_path
     assert r.exit_code == 143, r.output
     names = sorted(p.name for p in (out / "preview").iterdir() if not p.name.startswith("."))
     assert names in ([], ["room.json", "room.png"]), names
+
+
+# ------------------------------------------------------------------ cycles settings
+@pytest.mark.parametrize("setting, value", [("samples", ".inf"), ("max_bounces", ".inf"), ("samples", "1e30"),
+                                            ("sky_width", "8192"), ("probe_width", "100000"),
+                                            ("threads", "-.inf")])
+def test_cycles_settings_out_of_bounds_are_refused_naming_the_field(project, tmp_path, setting, value):
+    """`samples: .inf` gave an OverflowError traceback, `samples: 1e30` passed and failed
+    every job in Blender, `sky_width: 8192` peaked at 4 GB."""
+    text = (project / "jobs.yaml").read_text().replace(
+        "renderer: naive", f"renderer: {{name: cycles, {setting}: {value}}}")
+    (project / "m.yaml").write_text(text)
+    r = run_composite(project / "m.yaml", tmp_path / "out")
+    assert r.exit_code == 2 and "defaults.renderer" in r.output and setting in r.output, r.output
+    assert not (tmp_path / "out").exists()
+
+
+def test_cycles_samples_flag_is_bounded(project, tmp_path):
+    r = run_composite(project / "jobs.yaml", tmp_path / "out", "--renderer", "cycles", "--samples", "1000000000")
+    assert r.exit_code == 2 and "samples" in r.output and "4096" in r.output, r.output

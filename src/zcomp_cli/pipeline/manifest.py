@@ -287,7 +287,7 @@ def _check_renderer(d, spec: RendererSpec, probs) -> None:
     container = d if isinstance(d, dict) and "renderer" in d else None
     try:
         get_renderer(spec.name, **spec.settings)
-    except (ZcompError, TypeError, ValueError) as exc:
+    except (ZcompError, TypeError, ValueError, OverflowError) as exc:
         where = "defaults.renderer" + (f" ({spec.name})" if container is None else "")
         if container is None:
             probs.items.append(f"{probs.path.name}: {where}: {exc}")

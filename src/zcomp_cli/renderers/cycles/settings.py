@@ -9,6 +9,15 @@ from dataclasses import dataclass
 from zcomp_cli.errors import UsageError
 from zcomp_cli.renderers.physical.settings import knob
 
+# Upper bounds of the settings, checked when the manifest (or a flag) is read: past them
+# a pass cannot finish within item_timeout_s or its world map leaves the pixel budget.
+MAX_SAMPLES = 4096          # preview-light's cap too: 128 is the sweep's far end, 4096 is 32 times that
+MAX_BOUNCES = 1024          # Blender's own limit on light-path bounces
+MAX_THREADS = 1024          # Blender's own limit on render threads
+MAX_SKY_WIDTH = 1024        # an order-2 SH sky is smooth: 1024 is 8 times the default's 1.4 deg texels
+MAX_MAP_WIDTH = 16384       # a probe world or its importance map: also within the pixel budget (w x w/2)
+MAX_MARGIN_PX = 256         # the pixel filter reaches 1.5 px; the denoiser's context a few dozen
+
 
 @dataclass(frozen=True)
 class CyclesSettings:
@@ -64,14 +73,21 @@ class CyclesSettings:
                     out[k] = float(v)
                 else:
                     out[k] = str(v)
-            except (TypeError, ValueError):
+            except (TypeError, ValueError, OverflowError):  # (int(inf): OverflowError)
                 raise UsageError(f"cycles renderer setting {k}: expected {want}, got {v!r}") from None
         s = cls(**out)
-        lows = {"samples": 1, "max_bounces": 0, "threads": 0, "sky_width": 8, "probe_width": 8, "margin_px": 0,
-                "world_map_resolution": 0}
-        for k, lo in lows.items():
-            if getattr(s, k) < lo:
-                raise UsageError(f"cycles renderer setting {k}: at least {lo}, got {getattr(s, k)}")
+        bounds = {"samples": (1, MAX_SAMPLES), "max_bounces": (0, MAX_BOUNCES), "threads": (0, MAX_THREADS),
+                  "sky_width": (8, MAX_SKY_WIDTH), "probe_width": (8, MAX_MAP_WIDTH), "margin_px": (0, MAX_MARGIN_PX),
+                  "world_map_resolution": (0, MAX_MAP_WIDTH)}
+        for k, (lo, hi) in bounds.items():
+            if not lo <= getattr(s, k) <= hi:
+                raise UsageError(f"cycles renderer setting {k}: from {lo} to {hi}, got {getattr(s, k)}")
+        from zcomp_cli.limits import pixel_budget_problem
+
+        for k in ("probe_width", "world_map_resolution"):
+            problem = pixel_budget_problem(getattr(s, k), max(1, getattr(s, k) // 2))
+            if problem:
+                raise UsageError(f"cycles renderer setting {k}: a world map {problem}")
         if s.world not in ("probe", "model"):
             raise UsageError(f"cycles renderer setting world: probe or model, got {s.world!r}")
         if s.exposure not in ("light", "render"):
