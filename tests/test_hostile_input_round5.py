@@ -267,3 +267,34 @@ def test_cycles_settings_out_of_bounds_are_refused_naming_the_field(project, tmp
 def test_cycles_samples_flag_is_bounded(project, tmp_path):
     r = run_composite(project / "jobs.yaml", tmp_path / "out", "--renderer", "cycles", "--samples", "1000000000")
     assert r.exit_code == 2 and "samples" in r.output and "4096" in r.output, r.output
+
+
+# ------------------------------------------------------------------ flipped normals
+@pytest.mark.parametrize("which", ["scene", "bundle"])
+def test_normals_facing_away_are_named_not_blamed_on_a_plugin(project, tmp_path, which):
+    """Normals that all face away from the camera made the built-in renderer return
+    2.1e6 and the job's reason blamed "a plugin's bug". The flipped frame is named,
+    with the file, as the importer does."""
+    import numpy as np
+    import yaml
+
+    from zcomp_cli.imageio import read_map, write_exr
+
+    path = project / ("scenes/normals.exr" if which == "scene" else "objects/ball/normals.exr")
+    write_exr(path, (-read_map(path, channels=3)).astype(np.float32))
+    doc = yaml.safe_load((project / "jobs.yaml").read_text())
+    doc["defaults"]["renderer"] = CHEAP_PHYSICAL
+    doc["jobs"] = doc["jobs"][:1]
+    (project / "m.yaml").write_text(yaml.safe_dump(doc))
+    r = run_composite(project / "m.yaml", tmp_path / "out")
+    assert r.exit_code == 1, r.output
+    text = json.loads((tmp_path / "out/summary.json").read_text())["jobs"][0]["reason"]
+    assert "face away from the camera" in text and "normals.exr" in text, text
+    assert "plugin" not in text
+
+
+def test_a_builtin_renderers_impossible_output_is_not_called_a_plugins_bug():
+    from zcomp_cli.pipeline import job
+
+    assert "plugin" not in job._whose_bug("physical") and "report" in job._whose_bug("physical")
+    assert job._whose_bug("toon") == "a plugin's bug"

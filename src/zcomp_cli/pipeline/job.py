@@ -227,6 +227,17 @@ def prepare_job(
     return PreparedJob(requests, seed, scene, m, s, roi, report, timings, notes, dbg)
 
 
+def _whose_bug(renderer_name: str) -> str:
+    """Who to blame for a renderer's impossible output: a plugin's author, or, for one of
+    zcomp's own renderers, an input it could not handle (and zcomp, to be told)."""
+    from zcomp_cli.renderers.registry import BUILTIN_RENDERERS
+
+    if renderer_name in BUILTIN_RENDERERS:
+        return (f"zcomp's own {renderer_name} renderer met an input it cannot handle: check the scene's maps "
+                "(depth, normals, albedo) against docs/limits.md, and please report it")
+    return "a plugin's bug"
+
+
 def finish_job(prep: PreparedJob, out: RenderOutput, renderer_name: str, renderer_settings: dict,
                *, debug: bool = False, aovs: bool = False) -> JobOutput:
     """Check the renderer's two images (step 5's output) and run step 6, the compositor."""
@@ -242,7 +253,7 @@ def finish_job(prep: PreparedJob, out: RenderOutput, renderer_name: str, rendere
             # an integer image is display-encoded (0..255), not linear radiance
             raise NumericalError(f"renderer {renderer_name} returned {name} as "
                                  f"{str(im.dtype) + ' array' if isinstance(im, np.ndarray) else type_name(im)}: "
-                                 "expected a float array of linear radiance (a plugin's bug)")
+                                 f"expected a float array of linear radiance ({_whose_bug(renderer_name)})")
     f_bg, f_comp = (np.asarray(im, dtype=np.float32) for im in images)
     for name, im in (("f(i_bg)", f_bg), ("f(i_comp)", f_comp)):
         if im.shape != (H, W, 3):
@@ -252,8 +263,8 @@ def finish_job(prep: PreparedJob, out: RenderOutput, renderer_name: str, rendere
         lo, hi = float(im.min()), float(im.max())
         if lo < -RADIANCE_TOL or hi > MAX_RADIANCE:
             raise NumericalError(f"renderer {renderer_name} returned {name} in [{lo:.3g}, {hi:.3g}]: linear "
-                                 f"radiance is in [0, {MAX_RADIANCE:g}] (a plugin's bug; the job is not "
-                                 "composited from it)")
+                                 f"radiance is in [0, {MAX_RADIANCE:g}] ({_whose_bug(renderer_name)}; the job is "
+                                 "not composited from it)")
 
     # 6. Compositor.
     timings = dict(prep.timings)

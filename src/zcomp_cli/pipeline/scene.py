@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from zcomp_cli.camera import DEFAULT_FOV_DEG, Camera
-from zcomp_cli.conventions import normalize, valid_depth_mask
+from zcomp_cli.conventions import facing_problem, normalize, valid_depth_mask
 from zcomp_cli.errors import InputError
 from zcomp_cli.pipeline.manifest import SceneSpec
 from zcomp_cli.maps import SceneMaps
@@ -155,6 +155,10 @@ def load_scene(spec: SceneSpec, resolution: tuple[int, int] | None, *, cache_dir
     )
     if not valid_depth_mask(depth).any():
         raise InputError("the depth map has no valid pixel", where=where)
+    if "normals" in spec.maps:  # (estimated normals face the camera by construction)
+        problem = facing_problem(normals, camera.K, valid_depth_mask(depth))
+        if problem:
+            raise InputError(problem, where=str(spec.maps["normals"]))
     rough = maps.get("roughness")
     metal = maps.get("metallic")
     scene_maps = SceneMaps(
