@@ -298,3 +298,35 @@ def test_a_builtin_renderers_impossible_output_is_not_called_a_plugins_bug():
 
     assert "plugin" not in job._whose_bug("physical") and "report" in job._whose_bug("physical")
     assert job._whose_bug("toon") == "a plugin's bug"
+
+
+# ------------------------------------------------------------------ negative pixels
+def test_negative_pixels_are_kept_outside_the_edited_region(tmp_path):
+    """A photograph with negative pixels (an EXR, graded or denoised) was clamped to 0
+    everywhere, so the composite's background differed from the photograph outside the
+    edited region. Now it is bit for bit the photograph there, with a note."""
+    import numpy as np
+    import yaml
+
+    from zcomp_cli.imageio import read_image, write_exr
+
+    project = tmp_path / "p"
+    make_project(project, width=128, height=96)
+    img = read_image(project / "scenes/room.png")
+    img[:4, :4] = -0.25  # the top-left corner: far from the ball
+    img[-1, -1] = -1e-3
+    write_exr(project / "scenes/room.exr", img)
+    doc = yaml.safe_load((project / "jobs.yaml").read_text())
+    doc["scenes"]["room"]["image"] = "scenes/room.exr"
+    doc["jobs"] = doc["jobs"][:1]
+    (project / "m.yaml").write_text(yaml.safe_dump(doc))
+    out = tmp_path / "out"
+    assert run_composite(project / "m.yaml", out).exit_code == 0
+    comp = read_image(out / "000_room_ball/composite.exr")
+    rep = json.loads((out / "000_room_ball/report.json").read_text())
+    x0, y0, x1, y1 = rep["roi"]["box"]
+    far = np.ones(img.shape[:2], bool)
+    far[y0:y1, x0:x1] = False
+    assert far[:4, :4].all()
+    assert np.array_equal(comp[far], img[far])
+    assert any("negative" in n for n in json.dumps(rep).split('"') if "pixels of the photograph" in n)

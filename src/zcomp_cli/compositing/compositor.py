@@ -111,7 +111,7 @@ class CompositeResult:
     notes: list = field(default_factory=list)
 
 
-def composite(x_bg, f_bg, f_comp, shading_mask, obj_mask, *, balance_region=None) -> CompositeResult:
+def composite(x_bg, f_bg, f_comp, shading_mask, obj_mask, *, balance_region=None, keep=None) -> CompositeResult:
     """The final composite (equations 4-5).
 
     Args:
@@ -120,6 +120,8 @@ def composite(x_bg, f_bg, f_comp, shading_mask, obj_mask, *, balance_region=None
         shading_mask: (H, W) bool s.
         obj_mask: (H, W) object coverage m in [0, 1] (after occlusion).
         balance_region: (H, W) bool where C is measured; default: off-object pixels.
+        keep: (H, W, 3) the photograph as it is, kept bit for bit where nothing is
+            edited (default ``x_bg``): one with negative pixels, which ``x_bg`` holds at 0.
     Returns:
         CompositeResult; ``image`` is float32 and finite for finite inputs.
     """
@@ -138,5 +140,6 @@ def composite(x_bg, f_bg, f_comp, shading_mask, obj_mask, *, balance_region=None
     out = np.where((m > 0)[..., None], bg_term + obj_term, Rb[..., None] * xb)
     # Outside the blurred mask and the object, keep the background bit for bit.
     untouched = (w == 0) & (m == 0)
-    out = np.where(untouched[..., None], xb, out).astype(np.float32)
+    kept = xb if keep is None else np.asarray(keep, dtype=np.float32)
+    out = np.where(untouched[..., None], kept, out).astype(np.float32)
     return CompositeResult(out, R, Rb, w, C, notes)

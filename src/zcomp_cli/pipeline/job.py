@@ -279,7 +279,8 @@ def finish_job(prep: PreparedJob, out: RenderOutput, renderer_name: str, rendere
             raise NumericalError(f"renderer returned a shading mask of shape {grown.shape}, expected {(H, W)}")
         # the renderer re-shaded more (an object's long shadow): the ratio applies there too
         s = s | grown
-    res = composite(prep.scene.image, f_bg, f_comp, s, prep.object_mask, balance_region=region & ~s)
+    res = composite(prep.scene.image, f_bg, f_comp, s, prep.object_mask, balance_region=region & ~s,
+                    keep=prep.scene.photo)
     if not np.all(np.isfinite(res.image)):
         raise NumericalError("the composite has non-finite values")
     timings["compositor_s"] = time.perf_counter() - t
@@ -301,7 +302,7 @@ def finish_job(prep: PreparedJob, out: RenderOutput, renderer_name: str, rendere
     if aovs:
         from zcomp_cli.compositing.aovs import aov_layers
 
-        layers = aov_layers(prep.scene.image, f_bg, f_comp, res.ratio_blurred, prep.object_mask, res.balance,
+        layers = aov_layers(prep.scene.background, f_bg, f_comp, res.ratio_blurred, prep.object_mask, res.balance,
                             res.image)
         layers.update(check_aov_layers(out.aov_layers, (H, W), renderer_name, set(layers)))
     return JobOutput(res.image, report, dbg, layers, rdbg)

@@ -34,6 +34,15 @@ class Scene:
     light: dict | None = None  # known lighting from the manifest (pipeline/lightspec.py)
     # what the estimators measured: {"fits": {...}, "agreement": (H, W) degrees or None}
     estimated: dict | None = None
+    # the photograph as read where it has negative pixels (an EXR's, graded or denoised):
+    # kept bit for bit wherever the composite keeps the background; ``image`` (what the
+    # renderers read) has them at 0. None when there are none (then it is ``image``).
+    photo: np.ndarray | None = None
+
+    @property
+    def background(self) -> np.ndarray:
+        """The photograph the composite keeps outside the edited region."""
+        return self.image if self.photo is None else self.photo
 
 
 def _hash_files(paths: list[Path], extra: str) -> str:
@@ -150,9 +159,13 @@ def load_scene(spec: SceneSpec, resolution: tuple[int, int] | None, *, cache_dir
         maps, sources, estimated = _estimate_missing(spec, image, camera, maps, sources, cache_dir)
         timings["estimate_s"] = time.perf_counter() - t1
 
+    photo = _negative_kept(image, where)
     image, depth, normals, albedo, notes = sanitize_maps(
         image, maps["depth"], maps["normals"], maps["albedo"], where
     )
+    if photo is not None:
+        notes.append(f"{where}: {int((photo < 0).any(-1).sum())} pixels of the photograph are negative: kept as "
+                     "they are wherever the composite keeps the photograph, read as 0 by the renderer")
     if not valid_depth_mask(depth).any():
         raise InputError("the depth map has no valid pixel", where=where)
     if "normals" in spec.maps:  # (estimated normals face the camera by construction)
@@ -171,7 +184,16 @@ def load_scene(spec: SceneSpec, resolution: tuple[int, int] | None, *, cache_dir
     key = _hash_files(files, f"{size}|{camera.K.tolist()}|{sorted(spec.estimators.items())!r}"
                              + (f"|{models}" if models else ""))
     return Scene(spec.name, image, scene_maps, camera, key, sources, notes, timings,
-                 light=getattr(spec, "light", None), estimated=estimated)
+                 light=getattr(spec, "light", None), estimated=estimated, photo=photo)
+
+
+def _negative_kept(image: np.ndarray, where: str) -> np.ndarray | None:
+    """The photograph with its negative pixels (non-finite ones 0, as ``sanitize_maps``
+    makes them), or None when no pixel is negative."""
+    with np.errstate(invalid="ignore"):
+        if not (image < 0).any():
+            return None
+    return np.nan_to_num(image, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32)
 
 
 def _model_fingerprints(estimators: dict) -> str:
