@@ -330,3 +330,33 @@ def test_negative_pixels_are_kept_outside_the_edited_region(tmp_path):
     assert far[:4, :4].all()
     assert np.array_equal(comp[far], img[far])
     assert any("negative" in n for n in json.dumps(rep).split('"') if "pixels of the photograph" in n)
+
+
+# ------------------------------------------------------------------ -v
+BOOM = """
+import sys
+import zcomp_cli.renderers.naive as naive
+
+def boom(self, requests, **kw):
+    raise RuntimeError("boom in the renderer")
+
+naive.NaiveRenderer.render = boom
+from zcomp_cli.cli import main
+main(sys.argv[1:])
+"""
+
+
+@pytest.mark.parametrize("verbose", [False, True])
+def test_v_shows_a_jobs_internal_error_traceback(project, tmp_path, verbose):
+    """-v showed no traceback for a job's internal error (only -vv did), where the
+    README says -v does; without -v there is none."""
+    args = (["-v"] if verbose else []) + ["composite", str(project / "jobs.yaml"), "--out", str(tmp_path / "out")]
+    r = subprocess.run([sys.executable, "-c", BOOM, *args], capture_output=True, text=True,
+                       env=dict(os.environ, PYTHONPATH=str(SRC)), timeout=CHILD_BOUND_S)
+    assert r.returncode == 1, r.stderr
+    text = r.stdout + r.stderr
+    reasons = [j["reason"] for j in json.loads((tmp_path / "out/summary.json").read_text())["jobs"]]
+    assert reasons == ["internal error: RuntimeError: boom in the renderer"] * 2
+    assert ("Traceback" in text) is verbose, text[-2000:]
+    if verbose:
+        assert 'raise RuntimeError("boom in the renderer")' in text

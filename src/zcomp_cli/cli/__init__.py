@@ -154,8 +154,12 @@ def _available(name: str) -> bool:
 @click.pass_context
 def cli(ctx, verbose: int, quiet: bool):
     """zcomp: composite 3D objects into photographs with realistic shading and shadows."""
+    from zcomp_cli.errors import TRACEBACK_LOGGER
+
     level = logging.WARNING if quiet else (logging.DEBUG if verbose > 1 else logging.INFO)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    # -v shows the tracebacks of the errors zcomp catches to go on (a job's internal error)
+    logging.getLogger(TRACEBACK_LOGGER).setLevel(logging.DEBUG if verbose else logging.NOTSET)
     ctx.ensure_object(dict)
     ctx.obj["verbose"] = verbose
     ctx.obj["quiet"] = quiet
