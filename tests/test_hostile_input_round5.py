@@ -360,3 +360,84 @@ def test_v_shows_a_jobs_internal_error_traceback(project, tmp_path, verbose):
     assert ("Traceback" in text) is verbose, text[-2000:]
     if verbose:
         assert "in boom" in text and "RuntimeError: boom in the renderer" in text
+
+
+# ------------------------------------------------------------------ report and status on hostile OUT
+def _failed_summary(out: Path, jobs: list[tuple[str, str]]) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "summary.json").write_text(json.dumps({"jobs": [
+        {"index": i, "name": n, "status": "failed", "reason": r, "seconds": 0.1, "this_run": "failed"}
+        for i, (n, r) in enumerate(jobs)]}))
+
+
+@pytest.mark.parametrize("case", ["long-name", "non-utf8-folder", "empty-eval-csv", "huge-csv-field"])
+def test_report_and_status_survive_hostile_out_content(tmp_path, case):
+    """`report` gave tracebacks on a job name over 255 bytes, non-UTF-8 folder names, an
+    empty eval.csv and a CSV field over 128 KB."""
+    out = tmp_path / "out"
+    _failed_summary(out, [("plain", "x")] + ([("a" * 300, "too long a name")] if case == "long-name" else []))
+    if case == "non-utf8-folder":
+        bad = Path(os.fsdecode(bytes(out) + b"/job\xff"))
+        bad.mkdir()
+        (bad / "report.json").write_text('{"status": "done", "outputs": {}}')
+    if case == "empty-eval-csv":
+        (out / "eval.csv").write_text("")
+    if case == "huge-csv-field":
+        (out / "eval.csv").write_text("name,pred,ref,psnr\nplain,a,b," + "9" * 200_000 + "\n")
+    rep = _zcomp("report", out)
+    assert rep.returncode == 0, rep.stderr
+    page = (out / "report.html").read_text(encoding="utf-8")  # valid UTF-8
+    if case == "non-utf8-folder":  # shown escaped (the folder's bytes cannot be UTF-8 text)
+        assert "job\\udcff" in [r[2] for r in json.loads(re_blob(page))["rows"]]
+    if case.endswith("csv"):
+        assert "eval.csv" in page and "no metrics shown" in page
+    st = subprocess.run([sys.executable, "-m", "zcomp_cli", "status", str(out)], capture_output=True,
+                        env=dict(os.environ, PYTHONPATH=str(SRC)), timeout=CHILD_BOUND_S)
+    assert st.returncode == 1 and b"Traceback" not in st.stderr
+    st.stdout.decode("utf-8")  # (raw undecodable bytes made it invalid UTF-8)
+
+
+def test_a_huge_failure_reason_is_cut_when_shown(tmp_path):
+    """A 100 MB failure reason made a 600 MB page, and `status` printed it for minutes:
+    every displayed field is cut (here 20 MB)."""
+    out = tmp_path / "out"
+    _failed_summary(out, [("plain", "y" * 20_000_000)])
+    rep = _zcomp("report", out)
+    assert rep.returncode == 0 and (out / "report.html").stat().st_size < 200_000
+    st = _zcomp("status", out)
+    assert st.returncode == 1 and len(st.stdout) < 20_000 and "more characters" in st.stdout
+
+
+def test_a_huge_failure_reason_is_cut_when_written(project, tmp_path):
+    """A renderer's 1 MB exception message is written to the summary cut."""
+    boom = BOOM.replace('raise RuntimeError("boom in the renderer")', 'raise RuntimeError("z" * 1_000_000)')
+    r = subprocess.run([sys.executable, "-c", boom, "-q", "composite", str(project / "jobs.yaml"), "--out",
+                        str(tmp_path / "out")], capture_output=True, text=True,
+                       env=dict(os.environ, PYTHONPATH=str(SRC)), timeout=CHILD_BOUND_S)
+    assert r.returncode == 1 and len(r.stdout + r.stderr) < 50_000
+    reasons = [j["reason"] for j in json.loads((tmp_path / "out/summary.json").read_text())["jobs"]]
+    assert all(len(x) < 3000 and x.endswith("more characters)") for x in reasons), [len(x) for x in reasons]
+
+
+def test_a_job_folder_linked_outside_is_not_done(project, tmp_path):
+    """`status` and `report` counted a job folder that is a symbolic link to outside
+    as done (composite refuses it)."""
+    import shutil
+
+    out = _done(project)
+    elsewhere = tmp_path / "elsewhere"
+    shutil.move(out / "000_room_ball", elsewhere)
+    (out / "000_room_ball").symlink_to(elsewhere)
+    st = _zcomp("status", out, "--json")
+    doc = json.loads(st.stdout)
+    assert st.returncode == 1 and "000_room_ball" in doc["jobs"]["damaged"]
+    assert "symbolic link" in doc["jobs"]["damaged"]["000_room_ball"]
+    assert _zcomp("report", out).returncode == 0
+    rows = json.loads(re_blob((out / "report.html").read_text()))
+    assert "done" not in [r[6] for r in rows["rows"] if r[2] == "000_room_ball"]
+
+
+def re_blob(page: str) -> str:
+    import re
+
+    return re.search(r'<script id="zcomp-data" type="application/json">(.*?)</script>', page, re.S).group(1)

@@ -35,6 +35,11 @@ DEFAULT_MAX_YAML_NODES = 2_000_000
 MAX_NAME_LEN = 100
 # Longest value quoted back in an error message.
 MAX_SHOWN_CHARS = 80
+# Longest text zcomp writes or shows in one field of a summary, a status line or a
+# report page (a failure reason, a job name): a reason is a few hundred characters; a
+# 100 MB one (a plugin's exception) made a 600 MB page and a status that printed for
+# minutes.
+MAX_FIELD_CHARS = 2000
 
 
 def _env_int(name: str, default: int) -> int:
@@ -78,6 +83,15 @@ def printable(text) -> str:
     name) and the undecodable bytes of a non-UTF-8 path (surrogate escapes) written as
     backslash escapes, everything else kept (an accented name stays readable)."""
     return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in str(text))
+
+
+def field_text(text, limit: int = MAX_FIELD_CHARS) -> str:
+    """``text`` as a summary, a status line or a page shows it: cut to ``limit``
+    characters (saying how many more there were) before anything else reads it, and
+    each of its lines ``printable``."""
+    text = str(text)
+    more = f"... ({len(text) - limit:,} more characters)" if len(text) > limit else ""
+    return "\n".join(printable(line) for line in text[:limit].split("\n")) + more
 
 
 def shorten(value, limit: int = MAX_SHOWN_CHARS) -> str:

@@ -27,6 +27,7 @@ import time
 from abc import ABC, abstractmethod
 
 from zcomp_cli.errors import ZcompError, log_traceback
+from zcomp_cli.limits import field_text
 from zcomp_cli.pipeline.outguard import job_lock, release_job_lock
 from zcomp_cli.pipeline.outputs import JobStatus, job_report, write_job_outputs
 from zcomp_cli.pipeline.stages import BatchContext, JobWork, load_object_bundle
@@ -63,6 +64,10 @@ JOB_FAILURES = (Exception, SystemExit)
 
 
 def _failure(exc: BaseException) -> str:
+    return field_text(_failure_text(exc))
+
+
+def _failure_text(exc: BaseException) -> str:
     if isinstance(exc, ZcompError):
         return str(exc)
     if isinstance(exc, SystemExit):

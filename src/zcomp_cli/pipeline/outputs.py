@@ -33,6 +33,7 @@ import numpy as np
 
 from zcomp_cli import __version__
 from zcomp_cli.errors import UsageError
+from zcomp_cli.limits import field_text
 from zcomp_cli.safe_read import JsonFileError, read_json_file
 from zcomp_cli.pipeline.fingerprint import job_fingerprint  # noqa: F401 - re-exported
 from zcomp_cli.pipeline.manifest import JobSpec, Manifest, RendererSpec
@@ -181,6 +182,9 @@ def job_state(job_dir: Path, fingerprint: str | None = None, *, need_debug: bool
     (no hashing)."""
     from zcomp_cli.pipeline.outguard import verify_outputs
 
+    if os.path.islink(job_dir):  # composite refuses it: never done, whatever it leads to
+        return JobState("damaged", "the job folder is a symbolic link (zcomp writes only inside the output "
+                                   "folder; `zcomp composite` refuses it): remove the link", None)
     rep, note = read_report_noted(job_dir)
     if rep is None or rep.get("status") != "done":
         return JobState("unfinished", note or ("no report.json" if rep is None else "its report is not done"),
@@ -371,7 +375,8 @@ def merged_summary(out_root: Path, summary: BatchSummary, manifest: Manifest | N
         if job.name in running:
             row["reason"] = "being made"
         elif st is not None and st.status in ("done", "failed"):
-            row.update(status=st.status, reason=st.reason, seconds=st.seconds, this_run=st.status)
+            reason = None if st.reason is None else field_text(st.reason)
+            row.update(status=st.status, reason=reason, seconds=st.seconds, this_run=st.status)
         else:
             if st is not None:
                 row["this_run"] = st.status
@@ -382,7 +387,7 @@ def merged_summary(out_root: Path, summary: BatchSummary, manifest: Manifest | N
                 row.update(status="done", reason=st.reason if st is not None else "finished in an earlier run",
                            seconds=float(secs) if isinstance(secs, (int, float)) else 0.0)
             elif prev.get(job.name, {}).get("status") == "failed":
-                row.update(status="failed", reason=str(prev[job.name].get("reason") or "failed"))
+                row.update(status="failed", reason=field_text(prev[job.name].get("reason") or "failed"))
         rows.append(row)
     count = {k: sum(1 for r in rows if r["status"] == k) for k in ("done", "failed", "pending")}
     return {

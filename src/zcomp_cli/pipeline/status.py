@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from zcomp_cli.errors import UsageError
+from zcomp_cli.limits import field_text
 from zcomp_cli.pipeline.outputs import job_state
 from zcomp_cli.pipeline.selection import MAX_SHARD_COUNT
 from zcomp_cli.safe_read import JsonFileError, read_json_file
@@ -127,7 +128,7 @@ def folder_status(out, expected: list[str] | None = None, *, fingerprints: dict[
         for j in summ.get("jobs") or []:
             listed.append(j["name"])
             if j.get("status") == "failed":
-                reasons[j["name"]] = str(j.get("reason") or "failed")  # later summaries win
+                reasons[j["name"]] = field_text(j.get("reason") or "failed")  # later summaries win
             elif j.get("status") in ("done", "skipped"):
                 reasons.pop(j["name"], None)
     for n in sorted(counts):

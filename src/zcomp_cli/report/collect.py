@@ -18,7 +18,7 @@ from pathlib import Path
 
 from zcomp_cli.errors import UsageError
 from zcomp_cli.preview.run import SUBDIR as PREVIEW_DIR  # where preview-light writes its sheets
-from zcomp_cli.safe_read import read_json_file
+from zcomp_cli.safe_read import MAX_JSON_BYTES, read_json_file, read_regular_bytes
 
 # The order statuses are listed and sorted in.
 STATUS_ORDER = ("done", "failed", "damaged", "changed", "missing")
@@ -124,12 +124,12 @@ def collect(out, *, manifest=None, eval_file=None, verify: bool = False) -> Coll
     for name in sorted(status, key=_natural):
         state, reason = status[name]
         job_dir = out / name
-        rep = read_report(job_dir) if job_dir.is_dir() else None
+        rep = read_report(job_dir) if _is(job_dir, os.path.isdir) else None
         row = {"job": name, "status": state, "reason": reason, "scene": None, "object": None,
                "renderer": None, "light": None, "light_note": None, "light_uncertainty": None,
                "seconds": seconds.get(name), "composite": None, "background": None, "metrics": {}}
         comp = job_dir / "composite.png"
-        if state != "missing" and comp.is_file():
+        if state != "missing" and _is(comp, os.path.isfile):
             row["composite"] = comp
         if rep is not None:
             _from_report(row, rep, scenes, job_dir)
@@ -146,6 +146,15 @@ def collect(out, *, manifest=None, eval_file=None, verify: bool = False) -> Coll
     _join_eval(col, out, eval_file)
     col.previews = previews(out)
     return col
+
+
+def _is(path: Path, test) -> bool:
+    """``test(path)`` (``os.path.isdir``...), False where the path cannot even be asked
+    about (a job name a summary lists that is longer than a file name may be)."""
+    try:
+        return test(path)
+    except (OSError, ValueError):
+        return False
 
 
 def _natural(name: str):
@@ -411,8 +420,15 @@ def _read_eval_json(path: Path):
 
 
 def _read_eval_csv(path: Path):
-    with open(path, newline="", encoding="utf-8") as f:
-        rows = list(csv.reader(f))
+    import io
+
+    text = read_regular_bytes(path, MAX_JSON_BYTES, "CSV file").decode("utf-8")
+    try:
+        rows = list(csv.reader(io.StringIO(text, newline="")))
+    except csv.Error as exc:  # (a field over the csv module's 128 KiB)
+        raise ValueError(f"not a CSV file zcomp eval writes: {exc}") from None
+    if not rows:
+        raise ValueError("the file is empty")
     head = rows[0]
     if head[:3] != ["name", "pred", "ref"]:
         raise ValueError("its header is not name,pred,ref,<metrics>")

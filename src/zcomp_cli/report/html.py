@@ -22,7 +22,10 @@ import math
 import re
 import secrets
 
+from zcomp_cli.limits import field_text
 from zcomp_cli.report.collect import STATUS_ORDER, Collected, status_rank
+
+METRIC_NAME_CHARS = 64  # a metric's name in a column's header (eval.json may hold any text)
 
 # Metrics where higher is better (metrics.evaluate.HIGHER_IS_BETTER; copied so that the
 # page does not import the metrics package).
@@ -62,8 +65,9 @@ def columns(col: Collected) -> list[dict]:
                      "title": "uncertainty of the light's direction (degrees, RMS)"})
     for m in col.metrics:
         better = "↑" if m in _HIGHER_IS_BETTER else "↓"
-        cols.append({"key": f"m:{m}", "label": f"{m} {better}", "type": "num",
-                     "title": f"{m} ({'higher' if better == '↑' else 'lower'} is better), from zcomp eval"})
+        shown = field_text(m, METRIC_NAME_CHARS)
+        cols.append({"key": f"m:{m}", "label": f"{shown} {better}", "type": "num",
+                     "title": f"{shown} ({'higher' if better == '↑' else 'lower'} is better), from zcomp eval"})
     cols.append({"key": "seconds", "label": "time s", "type": "num", "title": "seconds the job took"})
     return cols
 
@@ -77,13 +81,15 @@ def _cell(row: dict, key: str, urls: dict):
     if key.startswith("m:"):
         return _jnum(row["metrics"].get(key[2:]))
     v = row.get(key)
+    if isinstance(v, str):  # (a failure reason of 100 MB, a name of undecodable bytes)
+        return field_text(v)
     return _jnum(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else v
 
 
 def page_data(col: Collected, page_size: int, urls: dict) -> dict:
     """The JSON document the page's script reads."""
     cols = columns(col)
-    rows = [[_cell(r, c["key"], urls) for c in cols] + [r.get(k) for k in EXTRA] for r in col.rows]
+    rows = [[_cell(r, c["key"], urls) for c in cols] + [_cell(r, k, urls) for k in EXTRA] for r in col.rows]
     statuses = sorted({r["status"] for r in col.rows} | set(STATUS_ORDER), key=status_rank)
     return {"columns": cols, "extra": list(EXTRA), "rows": rows, "pageSize": int(page_size),
             "statuses": statuses}
@@ -127,15 +133,17 @@ def render_page(col: Collected, *, title: str, page_size: int, urls: dict, url_o
         scored = f"{ev['joined']} job{'s' if ev['joined'] != 1 else ''} scored"
         if ev.get("unscored"):
             scored += f", {ev['unscored']} not scored"
-        bits = [f'Metrics from <a href="{e(url_of(ev["file"]))}">{e(ev["file"].name)}</a> ({scored})']
-        prot = ", ".join(e(str(ev[k])) for k in ("protocol", "encoding", "region") if ev.get(k))
+        bits = [f'Metrics from <a href="{e(url_of(ev["file"]))}">{e(field_text(ev["file"].name))}</a> ({scored})']
+        prot = ", ".join(e(field_text(ev[k], METRIC_NAME_CHARS)) for k in ("protocol", "encoding", "region")
+                         if ev.get(k))
         if prot:
             bits.append(f"protocol {prot}")
         means = ev.get("mean") or {}
         if any(means.get(m) is not None for m in col.metrics):
-            bits.append("means " + ", ".join(f"{e(m)} {_fmt(means.get(m))}" for m in col.metrics))
+            bits.append("means " + ", ".join(f"{e(field_text(m, METRIC_NAME_CHARS))} {_fmt(means.get(m))}"
+                                             for m in col.metrics))
         if ev.get("unavailable"):
-            bits.append("unavailable: " + ", ".join(e(str(m)) for m in ev["unavailable"]))
+            bits.append("unavailable: " + ", ".join(e(field_text(m, METRIC_NAME_CHARS)) for m in ev["unavailable"]))
         head.append(" " + "; ".join(bits) + ".")
     elif total:
         head.append(" No metrics: run <code>zcomp eval OUT</code> to add them.")
@@ -143,7 +151,7 @@ def render_page(col: Collected, *, title: str, page_size: int, urls: dict, url_o
     now = _dt.datetime.now().astimezone().strftime("%Y-%m-%d %H:%M %Z")
     head.append(f'<p class="meta">Written by <code>zcomp report</code> (zcomp {e(version)}) on {e(now)}.</p>')
     if col.notes:
-        items = "".join(f"<li>{e(n)}</li>" for n in col.notes[:200])
+        items = "".join(f"<li>{e(field_text(n))}</li>" for n in col.notes[:200])
         more = f"<li>... and {len(col.notes) - 200} more</li>" if len(col.notes) > 200 else ""
         head.append(f'<details class="notes"><summary>{len(col.notes)} note{"s" if len(col.notes) != 1 else ""}'
                     f"</summary><ul>{items}{more}</ul></details>")
@@ -154,14 +162,15 @@ def render_page(col: Collected, *, title: str, page_size: int, urls: dict, url_o
             src = e(url_of(p["image"]))
             extra = f' (<a href="{e(url_of(p["json"]))}">details</a>)' if p["json"] is not None else ""
             if p.get("light"):
-                extra += f'<br><span class="meta">{e(p["light"])}</span>'
+                extra += f'<br><span class="meta">{e(field_text(p["light"]))}</span>'
+            scene = e(field_text(p["scene"]))
             figs.append(f'<figure><a href="{src}"><img class="preview" loading="lazy" decoding="async" '
-                        f'src="{src}" alt="preview of {e(p["scene"])}"></a>'
-                        f"<figcaption>{e(p['scene'])}{extra}</figcaption></figure>")
+                        f'src="{src}" alt="preview of {scene}"></a>'
+                        f"<figcaption>{scene}{extra}</figcaption></figure>")
         previews = (f'<details id="previews" open><summary>Light preview sheets ({len(col.previews)})</summary>'
                     f'<div class="sheets">{"".join(figs)}</div></details>')
     data = script_json(page_data(col, page_size, urls))
-    return fill(_PAGE, {"TITLE": e(title), "HEAD": "".join(head), "PREVIEWS": previews, "CSS": _CSS, "JS": _JS,
+    return fill(_PAGE, {"TITLE": e(field_text(title)), "HEAD": "".join(head), "PREVIEWS": previews, "CSS": _CSS, "JS": _JS,
                         "DATA": data, "NONCE": secrets.token_urlsafe(18)})
 
 
