@@ -441,3 +441,23 @@ def re_blob(page: str) -> str:
     import re
 
     return re.search(r'<script id="zcomp-data" type="application/json">(.*?)</script>', page, re.S).group(1)
+
+
+# ------------------------------------------------------------------ ground plane
+@pytest.mark.parametrize("depth, key", [("{proxy: ground_plane, camera_height: 1.5, pitch_deg: -90}", "pitch_deg"),
+                                        ("{proxy: ground_plane, camera_height: 1.5, roll_deg: 50, pitch_deg: 5}",
+                                         "roll_deg"),
+                                        ("{proxy: ground_plane, camera_height: 1.5}", None)])
+def test_a_ground_plane_the_estimator_refuses_is_refused_at_validation(project, tmp_path, depth, key):
+    """`pitch_deg: -90` passed validation; `zcomp estimate` then aborted the whole run at
+    that scene. Now the manifest is refused with the line and the field, nothing run."""
+    text = (project / "jobs.yaml").read_text().replace("depth: scenes/depth.exr", f"depth: {depth}")
+    (project / "m.yaml").write_text(text)
+    for cmd in (["estimate", str(project / "m.yaml"), "--out", str(tmp_path / "est")],
+                ["composite", str(project / "m.yaml"), "--out", str(tmp_path / "out")]):
+        r = CliRunner().invoke(cli, cmd)
+        assert r.exit_code == 2 and "m.yaml:" in r.output and "depth" in r.output, r.output
+        if key:
+            assert key in r.output
+        assert "Traceback" not in r.output
+    assert not (tmp_path / "est").exists() and not (tmp_path / "out").exists()
