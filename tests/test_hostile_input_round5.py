@@ -461,3 +461,27 @@ def test_a_ground_plane_the_estimator_refuses_is_refused_at_validation(project, 
             assert key in r.output
         assert "Traceback" not in r.output
     assert not (tmp_path / "est").exists() and not (tmp_path / "out").exists()
+
+
+# ------------------------------------------------------------------ chrome ball
+@pytest.mark.parametrize("fmt, hdr", [("float", True), ("uint16", False), ("uint8", False)])
+def test_a_chrome_balls_range_is_decided_by_its_pixels_not_its_name(tmp_path, fmt, hdr):
+    """A chrome ball in a 32-bit float TIFF was called LDR (its suffix is not .exr):
+    its sun counted as clipped, the sheet said 8/16-bit."""
+    import numpy as np
+    import OpenImageIO as oiio
+
+    from zcomp_cli.chromeball import read_ball
+
+    img = np.full((32, 32, 3), 0.25, np.float32)
+    img[10:12, 10:12] = 40.0  # a sun, far above 1
+    p = str(tmp_path / "ball.tif")
+    out = oiio.ImageOutput.create(p)
+    kind = {"float": oiio.FLOAT, "uint16": oiio.UINT16, "uint8": oiio.UINT8}[fmt]
+    assert out.open(p, oiio.ImageSpec(32, 32, 3, kind))
+    out.write_image(img if fmt == "float" else np.clip(img, 0, 1))
+    out.close()
+    got, is_hdr = read_ball(p)
+    assert is_hdr is hdr
+    if hdr:
+        assert got.max() == pytest.approx(40.0)
