@@ -525,3 +525,24 @@ def test_a_dense_mesh_is_judged_per_pose_by_few_points(tmp_path):
             elif full is not None:
                 assert few is None or (few[0] <= full[0] and few[1] >= full[1] and few[2] <= full[2]
                                        and few[3] >= full[3])
+
+
+def test_estimate_on_a_3e38_image_prints_no_runtime_warning(tmp_path):
+    """Raw RuntimeWarnings (overflow in a cast and a divide) from `estimate` on an image
+    of 3e38."""
+    import numpy as np
+    import yaml
+
+    from zcomp_cli.imageio import write_exr
+
+    img = np.full((48, 64, 3), 3e38, np.float32)
+    img[:10] = 0.5
+    write_exr(tmp_path / "img.exr", img)
+    doc = {"version": 1, "scenes": {"s": {"image": "img.exr", "fov_deg": 50, "depth": {
+        "proxy": "ground_plane", "camera_height": 1.5, "pitch_deg": -20}}},
+        "objects": {"c": {"image": "img.exr", "mask": "img.exr"}},
+        "jobs": [{"scene": "s", "object": "c", "placement": {"pixel": [32, 40], "height": 0.2}}]}
+    (tmp_path / "jobs.yaml").write_text(yaml.safe_dump(doc))
+    r = _zcomp("estimate", tmp_path / "jobs.yaml", "--out", tmp_path / "est")
+    assert r.returncode == 0, r.stderr
+    assert "Warning" not in r.stderr, r.stderr
