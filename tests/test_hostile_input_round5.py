@@ -546,3 +546,20 @@ def test_estimate_on_a_3e38_image_prints_no_runtime_warning(tmp_path):
     r = _zcomp("estimate", tmp_path / "jobs.yaml", "--out", tmp_path / "est")
     assert r.returncode == 0, r.stderr
     assert "Warning" not in r.stderr, r.stderr
+
+
+def test_no_loading_bar_from_transformers_under_q(tiny_dpt, tmp_path):
+    """transformers' "Loading weights" bar showed under -q."""
+    import shutil
+
+    import yaml
+
+    make_project(tmp_path)
+    shutil.copytree(tiny_dpt, tmp_path / "dpt")
+    doc = yaml.safe_load((tmp_path / "jobs.yaml").read_text())
+    doc["scenes"]["room"]["depth"] = {"model": "dpt"}
+    doc["jobs"] = doc["jobs"][1:]
+    (tmp_path / "m.yaml").write_text(yaml.safe_dump(doc))
+    r = _zcomp("-q", "estimate", tmp_path / "m.yaml", "--out", tmp_path / "est")
+    assert r.returncode == 0, r.stderr
+    assert "Loading" not in r.stderr and "it/s" not in r.stderr and "%|" not in r.stderr, r.stderr
