@@ -563,3 +563,27 @@ def test_no_loading_bar_from_transformers_under_q(tiny_dpt, tmp_path):
     r = _zcomp("-q", "estimate", tmp_path / "m.yaml", "--out", tmp_path / "est")
     assert r.returncode == 0, r.stderr
     assert "Loading" not in r.stderr and "it/s" not in r.stderr and "%|" not in r.stderr, r.stderr
+
+
+# ------------------------------------------------------------------ SIGTERM's summary
+def test_sigterm_prints_what_is_on_disk(tmp_path):
+    """SIGTERM during a batch printed only "Interrupted.", where the README promises a
+    summary of what is on disk."""
+    import signal
+
+    from hostile_project import default_signals
+    from test_hostile_input_round2 import _long_batch, _wait_for_reports
+
+    m = _long_batch(tmp_path)
+    out = tmp_path / "out"
+    p = subprocess.Popen([sys.executable, "-m", "zcomp_cli", "-q", "composite", str(m), "--out", str(out)],
+                         env=dict(os.environ, PYTHONPATH=str(SRC)), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         text=True, preexec_fn=default_signals)
+    _wait_for_reports(out, 3, p)
+    p.send_signal(signal.SIGTERM)
+    _, err = p.communicate(timeout=CHILD_BOUND_S)
+    assert p.returncode == 143, err
+    doc = json.loads((out / "summary.json").read_text())
+    said = " ".join(err.split())
+    assert f"{doc['done']} done, {doc['failed']} failed, {doc['pending']} pending" in said, err
+    assert "summary.json" in said and "--resume" in said and said.count("Interrupted") == 1

@@ -129,8 +129,9 @@ class LazyGroup(click.Group):
             ctx.exit(exc.exit_code)
         except KeyboardInterrupt as exc:
             # Ctrl-C, SIGTERM, SIGHUP: the shell convention 128 + the signal, not
-            # click's "Aborted!" and 1.
-            click.echo("\nInterrupted.", err=True)
+            # click's "Aborted!" and 1 (a command that said what is on disk has said it)
+            if not getattr(exc, "zcomp_reported", False):
+                click.echo("\nInterrupted.", err=True)
             ctx.exit(exit_code_of(exc))
 
     def format_commands(self, ctx, formatter):

@@ -118,15 +118,21 @@ def run_batch(
             if shard_info is None:  # (a shard's own summary tells `zcomp status` it finished)
                 write_summary(out_root, summary, manifest, running=running)
             completed = False
+            interrupted = None
             try:
                 if to_run:
                     _run_planned(ctx, summary, to_run, executor)
                 completed = True
+            except KeyboardInterrupt as exc:
+                interrupted = exc
+                raise
             finally:  # also after an interrupt or a renderer that cannot start: the folder's true state
                 summary.statuses.sort(key=lambda s: s.job.index)
                 summary.seconds = time.perf_counter() - t_batch
                 if completed or shard_info is None:
-                    write_summary(out_root, summary, manifest)
+                    doc = write_summary(out_root, summary, manifest)
+                    if interrupted is not None:  # the CLI says what is on disk
+                        interrupted.zcomp_summary = doc
     except UsageError:
         if created:  # refused before any job: leave no empty --out behind
             with contextlib.suppress(OSError):
