@@ -50,6 +50,24 @@ def build_renderer(spec: RendererSpec):
     return renderer
 
 
+def check_renderer_budget(manifest: Manifest, scenes, renderer: str) -> None:
+    """Refuse (``UsageError`` naming the scene) one of ``scenes`` whose working size a
+    job of ``renderer`` cannot hold in the memory the pixel budget stands for
+    (``RendererEntry.kb_per_pixel``: the cycles renderer costs about 3 times the
+    physical renderer's 0.3 KB a pixel)."""
+    from zcomp_cli.limits import renderer_budget_problem
+    from zcomp_cli.renderers.registry import RENDERERS
+
+    entry = RENDERERS.get(renderer)
+    kb = float(getattr(entry, "kb_per_pixel", 0.3) or 0.3)
+    for name in dict.fromkeys(scenes):
+        sc = manifest.scenes[name]
+        w, h = manifest.defaults.resolution or (sc.width, sc.height)
+        problem = w and h and renderer_budget_problem(w, h, kb, renderer)
+        if problem:
+            raise UsageError(f"scene {name!r}: {problem}")
+
+
 def run_batch(
     manifest: Manifest,
     out_root,
@@ -92,6 +110,7 @@ def run_batch(
     executor = executor if executor is not None else LocalExecutor()
     executor.preflight()
     spec = renderer_spec or manifest.defaults.renderer
+    check_renderer_budget(manifest, (j.scene for j in jobs), spec.name)
     ctx = BatchContext.create(manifest, out_root, spec, build_renderer(spec), batch_size=batch_size,
                               debug=debug, aovs=aovs, cache_root=cache_dir, progress=progress)
 

@@ -258,6 +258,9 @@ def preview_light(manifest, out_dir, *, scenes=None, pixel_native=None, diameter
             sp = manifest.scenes[n]
             if not (0 <= x < sp.width and 0 <= y < sp.height):
                 raise UsageError(f"--pixel {x:g} {y:g} is outside scene {n!r}'s {sp.width}x{sp.height} photograph")
+    from zcomp_cli.pipeline.batch import check_renderer_budget
+
+    check_renderer_budget(manifest, names, "cycles")
     renderer = CyclesRenderer(samples=int(samples), world_map_resolution=WORLD_MAP_RESOLUTION)
     renderer.check()
     out_dir = Path(out_dir)
