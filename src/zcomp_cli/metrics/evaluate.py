@@ -17,6 +17,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import logging
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,6 +26,8 @@ import numpy as np
 
 from zcomp_cli.errors import InputError, UsageError
 from zcomp_cli.safe_read import read_json_file
+
+log = logging.getLogger(__name__)
 
 ALL_METRICS = ("psnr", "rmse", "si-rmse", "ssim", "mae", "lpips", "flip", "shadow-iou", "shadow-darkness")
 # Metrics that compare each image with the background it was composited into.
@@ -449,6 +452,8 @@ def evaluate(pairs: list[Pair], metrics: list[str], *, linear: bool = False,
         model = st.model
         if model is None:
             unavailable["lpips"] = st.reason or "unavailable"
+        for note in getattr(model, "zcomp_notes", None) or []:
+            log.warning("%s", note)
     no_bg = [p.name for p in pairs if p.background is None]
     for m in SHADOW_METRICS:
         if m in metrics and no_bg:
