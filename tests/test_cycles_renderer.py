@@ -109,7 +109,7 @@ def test_scene_mesh_arrays_keep_only_used_vertices_with_their_pixels_colour():
 
 
 @pytest.mark.parametrize("kw, words", [
-    ({"samples": 0}, "samples: at least 1"),
+    ({"samples": 0}, "samples: from 1 to 4096"),
     ({"exposure": "auto"}, "light or render"),
     ({"denoise": "yes"}, "expected bool"),
     ({"sampels": 8}, "unknown cycles renderer setting"),
