@@ -498,14 +498,21 @@ def _labelled(tile: np.ndarray, label: str) -> np.ndarray:
 
 
 def debug_grid(x_bg, f_bg, f_comp, ratio, mask, result) -> np.ndarray:
-    """2 x 3 sheet like the paper's Figure 3: background, f(i_bg), f(i_comp) /
-    R', shading mask, result. Returns sRGB-encoded [0, 1] float (H*2, W*3, 3)."""
+    """2 x 3 sheet like the paper's Figure 3, each panel named in its corner
+    (``GRID_LABELS``): background, f(i_bg), f(i_comp) / R', shading mask, result.
+    Returns sRGB-encoded [0, 1] float (H*2, W*3, 3)."""
     from zcomp_cli.conventions import linear_to_srgb
 
     def col(a):
         a = np.asarray(a, dtype=np.float32)
         return np.repeat(a[..., None], 3, -1) if a.ndim == 2 else a
 
-    top = [linear_to_srgb(col(x)) for x in (x_bg, f_bg, f_comp)]
-    bottom = [np.clip(col(ratio), 0, 1), np.clip(col(mask), 0, 1), linear_to_srgb(col(result))]
-    return np.concatenate([np.concatenate(top, 1), np.concatenate(bottom, 1)], 0)
+    tiles = [linear_to_srgb(col(x)) for x in (x_bg, f_bg, f_comp)]
+    tiles += [np.clip(col(ratio), 0, 1), np.clip(col(mask), 0, 1), linear_to_srgb(col(result))]
+    tiles = [_labelled(t, label) for t, label in zip(tiles, GRID_LABELS)]
+    return np.concatenate([np.concatenate(tiles[:3], 1), np.concatenate(tiles[3:], 1)], 0)
+
+
+# grid.png's panels, in order (top row, then bottom row)
+GRID_LABELS = ("background", "render of the background f(i_bg)", "render with the object f(i_comp)",
+               "shadow ratio R'", "shading mask", "result")

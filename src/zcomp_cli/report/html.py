@@ -51,6 +51,8 @@ def columns(col: Collected) -> list[dict]:
     field shown as the cell's tooltip)."""
     cols = [
         {"key": "composite", "label": "composite", "type": "img"},
+        {"key": "closeup", "label": "close-up", "type": "crop",
+         "title": "the composite around the object and its shadow (the region the renderer re-shaded)"},
         {"key": "background", "label": "background", "type": "img"},
         {"key": "job", "label": "job", "type": "text"},
         {"key": "scene", "label": "scene", "type": "text"},
@@ -78,6 +80,9 @@ EXTRA = ("light_note",)  # fields after the columns in each row array (tooltips)
 def _cell(row: dict, key: str, urls: dict):
     if key in ("composite", "background"):
         return urls[key].get(row["job"])
+    if key == "closeup":  # [url, x0, y0, x1, y1, W, H]: the page crops the composite itself
+        url, box = urls["composite"].get(row["job"]), row.get("closeup")
+        return [url, *box] if url and box else None
     if key.startswith("m:"):
         return _jnum(row["metrics"].get(key[2:]))
     v = row.get(key)
@@ -117,7 +122,7 @@ def _fmt(v) -> str:
         return "n/a"
     if math.isinf(v):
         return "inf" if v > 0 else "-inf"
-    return f"{v:.4g}" if abs(v) < 1e4 else f"{v:.0f}"
+    return f"{v:.3g}" if abs(v) < 1e4 else f"{v:.0f}"
 
 
 def render_page(col: Collected, *, title: str, page_size: int, urls: dict, url_of, version: str = "") -> str:
@@ -247,6 +252,8 @@ td.num { text-align: right; font-variant-numeric: tabular-nums; white-space: now
 td.wide { max-width: 26em; white-space: pre-wrap; overflow-wrap: anywhere; }
 td.img { width: 160px; padding: 2px 4px; }
 td.img img { width: 160px; max-height: 160px; height: auto; object-fit: contain; display: block; }
+td.img a.crop { display: block; position: relative; overflow: hidden; }
+td.img a.crop img { position: absolute; max-width: none; max-height: none; height: auto; }
 .none { color: var(--muted); }
 .st { font-weight: 600; }
 .st-done { color: #2a2; } .st-failed, .st-damaged { color: #d33; } .st-missing, .st-changed { color: #c80; }
@@ -274,9 +281,9 @@ _JS = r"""
   function fmt(v) {
     if (v === Infinity) return "inf";
     if (v === -Infinity) return "-inf";
-    var a = Math.abs(v);
+    var a = Math.abs(v);  // three significant digits: a metric's noise is in the fourth
     if (a !== 0 && (a < 1e-3 || a >= 1e4)) return a >= 1e4 ? v.toFixed(0) : v.toExponential(2);
-    return String(Number(v.toPrecision(4)));
+    return String(Number(v.toPrecision(3)));
   }
   // Sort keys of a column, once: numbers; strings replaced by their rank in collation
   // order, so that sorting compares numbers only; null where the value is missing.
@@ -346,10 +353,27 @@ _JS = r"""
     if (text !== undefined && text !== null) e.textContent = text;
     return e;
   }
+  // The composite's region [x0, y0, x1, y1] of its W x H pixels, shown in a box of at
+  // most 160 x 160: the image itself scaled and moved in a clipping box (no file made).
+  function closeup(v) {
+    var x0 = v[1], y0 = v[2], w = Math.max(1, v[3] - v[1]), h = Math.max(1, v[4] - v[2]);
+    var s = Math.min(160 / w, 160 / h);
+    var box = el("a", "crop"); box.href = v[0];
+    box.style.width = Math.round(w * s) + "px"; box.style.height = Math.round(h * s) + "px";
+    var img = el("img"); img.loading = "lazy"; img.decoding = "async"; img.alt = "close-up"; img.src = v[0];
+    img.style.width = Math.round(v[5] * s) + "px";
+    img.style.left = -Math.round(x0 * s) + "px"; img.style.top = -Math.round(y0 * s) + "px";
+    box.appendChild(img);
+    return box;
+  }
   function cell(row, c) {
     var col = COLS[c], v = row[c], td = document.createElement("td");
     td.setAttribute("data-key", col.key);
-    if (col.type === "img") {
+    if (col.type === "crop") {
+      td.className = "img";
+      if (v) td.appendChild(closeup(v));
+      else td.appendChild(el("span", "none", "\u2014"));
+    } else if (col.type === "img") {
       td.className = "img";
       if (v) {
         var a = el("a"); a.href = v;
