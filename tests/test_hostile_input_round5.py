@@ -587,3 +587,59 @@ def test_sigterm_prints_what_is_on_disk(tmp_path):
     said = " ".join(err.split())
     assert f"{doc['done']} done, {doc['failed']} failed, {doc['pending']} pending" in said, err
     assert "summary.json" in said and "--resume" in said and said.count("Interrupted") == 1
+
+
+# ------------------------------------------------------------------ the coffee photograph
+def _coffee(tmp_path, depth: str | None) -> Path:
+    import shutil
+
+    import numpy as np
+
+    from zcomp_cli.imageio import write_png
+
+    root = tmp_path / "coffee"
+    root.mkdir(parents=True)
+    shutil.copy(SRC.parent / "docs/coffee/coffee.png", root / "coffee.png")
+    img = np.zeros((16, 16, 3), np.float32) + np.float32([0.6, 0.2, 0.1])
+    mask = np.zeros((16, 16), np.float32)
+    mask[1:15, 4:12] = 1.0
+    write_png(root / "card.png", img)
+    write_png(root / "card_mask.png", mask, srgb_encode=False)
+    scene = "{image: coffee.png, fov_deg: 50" + (f", depth: {depth}" if depth else "") + "}"
+    (root / "jobs.yaml").write_text(
+        f"version: 1\ndefaults: {{renderer: naive}}\nscenes:\n  table: {scene}\n"
+        "objects:\n  card: {image: card.png, mask: card_mask.png}\n"
+        "jobs:\n  - {scene: table, object: card, placement: {pixel: [480, 330], height: 0.14}}\n")
+    return root / "jobs.yaml"
+
+
+def test_a_photograph_without_maps_gets_a_suggestion_that_fits_it(tmp_path):
+    """The refusal suggested {camera_height: 1.5, pitch_deg: -10} whatever the
+    photograph: on the coffee photograph (a table top seen from above) it made a 0.14 m
+    vase a speck. The suggestion now gives a ground plane per typical view, fitted to the
+    photograph and the job's object; pasted, it makes the object about a fifth of the
+    frame tall. The old line still runs, with a warning that the object is a speck."""
+    import re
+
+    from zcomp_cli.estimators.ground_suggest import TARGET_SHARE
+    from zcomp_cli.imageio import read_alpha_or_grey
+
+    r = CliRunner().invoke(cli, ["composite", str(_coffee(tmp_path, None)), "--out", str(tmp_path / "out")])
+    text = " ".join(r.output.split())
+    assert r.exit_code == 2 and "no depth" in text, r.output
+    lines = re.findall(r"depth: (\{proxy: ground_plane, camera_height: [\d.e+-]+, pitch_deg: -?[\d.]+\}) for ([a-z ]+)",
+                       text)
+    assert [w for _, w in lines] == ["a room seen standing", "a table top or floor seen from above"], text
+    for k, (line, _) in enumerate(lines):
+        m = _coffee(tmp_path / f"s{k}", line)
+        out = tmp_path / f"out{k}"
+        assert run_composite(m, out, "--debug").exit_code == 0
+        obj = read_alpha_or_grey(out / "000_table_card/debug/object_mask.exr") > 0.5
+        rows = obj.any(1).nonzero()[0]
+        assert abs((rows[-1] - rows[0] + 1) / (TARGET_SHARE * obj.shape[0]) - 1) < 0.35, (line, rows)
+        notes = json.loads((out / "000_table_card/report.json").read_text())["notes"]
+        assert not any("a speck" in n for n in notes)
+    old = _coffee(tmp_path / "old", "{proxy: ground_plane, camera_height: 1.5, pitch_deg: -10}")
+    assert run_composite(old, tmp_path / "out_old").exit_code == 0
+    notes = json.loads((tmp_path / "out_old/000_table_card/report.json").read_text())["notes"]
+    assert any("a speck" in n and "camera_height" in n for n in notes), notes

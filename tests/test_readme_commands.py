@@ -82,6 +82,8 @@ def _runnable(args: list[str], root: Path) -> bool:
     benchmark (minutes each: their scripts are checked to exist)."""
     if args[0] not in ("zcomp", "python") or (args[0] == "python" and args[1].startswith("benchmarks/")):
         return False
+    if any(re.fullmatch(r"[A-Z][A-Z0-9_]+", a) for a in args):  # a placeholder (PRED_DIR, CKPT)
+        return False
     paths = [a for a in args[1:] if ("/" in a or "." in a) and not a.startswith("-") and not re.fullmatch(
         r"[\d.,-]+", a)]
     outs = {args[i + 1] for i, a in enumerate(args[:-1]) if a == "--out"}

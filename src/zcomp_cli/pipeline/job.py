@@ -14,6 +14,8 @@ hand the renderer the passes of several jobs at once (step 5, ``Renderer.render_
 
 from __future__ import annotations
 
+import logging
+
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -37,6 +39,8 @@ from zcomp_cli.limits import type_name
 from zcomp_cli.pipeline.scene import Scene
 from zcomp_cli.maps import SceneMaps
 from zcomp_cli.renderers.base import Renderer, RenderOutput, RenderRequest
+
+log = logging.getLogger(__name__)
 
 ROI_CONTEXT_PX = 16
 # A renderer's image is linear radiance in the photograph's units: never below 0 (beyond
@@ -120,6 +124,19 @@ def lamps_inside_object(light, cam, obj_depth, obj_mask, footprint_depth) -> lis
     return notes
 
 
+def _size_note(m: np.ndarray, obj_depth: np.ndarray, scene_name: str) -> str | None:
+    """A note (also logged) when the object's size on screen is implausible
+    (``estimators.ground_suggest.object_size_note``)."""
+    from zcomp_cli.estimators.ground_suggest import object_size_note
+
+    cover = m > 0.5
+    depth = float(np.median(obj_depth[cover & (obj_depth > 0)])) if (cover & (obj_depth > 0)).any() else None
+    note = object_size_note(int(cover.sum()), m.size, depth)
+    if note:
+        log.warning("scene %s: %s", scene_name, note)
+    return note
+
+
 def prepare_job(
     scene: Scene,
     bundle: ObjectBundle,
@@ -157,6 +174,9 @@ def prepare_job(
     m = occlusion_mask(obj_mask, obj_depth, bg.depth)
     if not (m > 0).any():
         raise GeometryError("the object is fully occluded by the background")
+    size = _size_note(m, obj_depth, scene.name)
+    if size:
+        notes.append(size)
     obj_maps = SceneMaps(depth=obj_depth, normals=bundle.normals, albedo=np.clip(np.nan_to_num(bundle.albedo), 0, 1),
                          roughness=bundle.roughness, metallic=bundle.metallic)
     comp = composite_intrinsics(bg, obj_maps, m)

@@ -386,6 +386,29 @@ def _named_entries(d, parent, section: str, what: str, expected: str, probs):
             yield name, entry, where
 
 
+def _no_depth_problem(spec: SceneSpec, jobs, defaults) -> str:
+    """The refusal of a scene without depth, its suggestion fitted to the photograph
+    (its size and field of view) and to its first job that stands an object of a given
+    height at a pixel (``estimators.ground_suggest``)."""
+    from zcomp_cli.estimators.ground_suggest import ground_plane_suggestion
+
+    try:
+        from zcomp_cli.pipeline.scene import scene_camera
+
+        camera = scene_camera(spec, None)
+    except Exception:  # noqa: BLE001 - an unreadable image is reported on its own
+        return ("no depth: give a depth map file or an estimator (e.g. depth: {proxy: ground_plane, "
+                "camera_height: 1.5, pitch_deg: -10}; docs/estimation.md)")
+    for j in jobs if isinstance(jobs, list) else []:
+        pl = j.get("placement") if isinstance(j, dict) and j.get("scene") == spec.name else None
+        px, h = (pl.get("pixel"), pl.get("height")) if isinstance(pl, dict) else (None, None)
+        if (isinstance(px, list) and len(px) == 2 and all(_num(v) is not None for v in px)
+                and _num(h) is not None and 0 < h < 1e3 and 0 <= px[0] < camera.width and 0 <= px[1] < camera.height):
+            what = f"the {h:g} m object of its first placed job at pixel [{px[0]:g}, {px[1]:g}]"
+            return ground_plane_suggestion(camera, px, h, what)
+    return ground_plane_suggestion(camera)
+
+
 def _parse_scenes(d, parent, root, probs, check_files, defaults) -> dict[str, SceneSpec]:
     out: dict[str, SceneSpec] = {}
     for name, s, where in _named_entries(d, parent, "scenes", "scene", "at least 'image'", probs):
@@ -451,8 +474,7 @@ def _parse_scenes(d, parent, root, probs, check_files, defaults) -> dict[str, Sc
                     probs.add(s, m, f"{where}.{m}", f"unexpected channel count {mc}")
             spec.maps[m] = p
         if "depth" not in spec.maps and "depth" not in spec.estimators and "depth" not in s:
-            probs.add(s, None, where, "no depth: give a depth map file or an estimator "
-                      "(e.g. depth: {proxy: ground_plane, camera_height: 1.5, pitch_deg: -10})")
+            probs.add(s, None, where, _no_depth_problem(spec, parent.get("jobs"), defaults))
         if defaults.resolution is not None and image is not None and w and h:
             W, H = defaults.resolution
             if abs(W / H - w / h) > 0.01 * (w / h):
