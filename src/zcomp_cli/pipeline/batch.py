@@ -20,6 +20,7 @@ and never changed; each job travels as a :class:`~zcomp_cli.pipeline.stages.JobW
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import time
 from pathlib import Path
@@ -32,6 +33,8 @@ from zcomp_cli.pipeline.selection import select_jobs, shard_jobs
 from zcomp_cli.pipeline.stages import (BatchContext, JobWork, Progress, SceneStore, by_scene, load_object_bundle,
                                        render_objects, resolve_poses)
 
+
+log = logging.getLogger(__name__)
 
 def build_renderer(spec: RendererSpec):
     """The renderer of ``spec``, checked before any job: an unknown name or setting is
@@ -146,6 +149,7 @@ def run_batch(
                 interrupted = exc
                 raise
             finally:  # also after an interrupt or a renderer that cannot start: the folder's true state
+                _close(ctx.renderer)  # its Blender, its work folder and log: not left for exit
                 summary.statuses.sort(key=lambda s: s.job.index)
                 summary.seconds = time.perf_counter() - t_batch
                 if completed or shard_info is None:
@@ -158,6 +162,19 @@ def run_batch(
                 os.rmdir(out_root)
         raise
     return summary
+
+
+def _close(renderer) -> None:
+    """End what a renderer holds (the cycles renderer's Blender process and work
+    folder) at the end of the batch, not at the interpreter's exit: a process that runs
+    batches one after another (a library caller, a test) kept them all. A plugin's
+    ``close`` that fails does not hide the batch's own outcome."""
+    close = getattr(renderer, "close", None)
+    if callable(close):
+        try:
+            close()
+        except Exception:  # noqa: BLE001 - a plugin's bug, logged
+            log.warning("renderer %s: close() failed", getattr(renderer, "name", "?"), exc_info=True)
 
 
 def _manifest_id(manifest: Manifest) -> str:
