@@ -80,7 +80,7 @@ def _vector(value, key, where, add, *, nonzero: bool) -> list | None:
         add(value, key, f"{where}.{key}", f"expected 3 finite numbers{', not all 0' if nonzero else ''}, got {v!r}")
         return None
     if nonzero:
-        n = math.sqrt(sum(x * x for x in vals))
+        n = math.hypot(*vals)  # (a sum of squares overflowed for 1.3e154: the direction became 0)
         return [x / n for x in vals]
     return vals
 
