@@ -444,18 +444,24 @@ def _with_probe_paths(light):
 @given(light=_light, pitch=st.one_of(st.none(), _mostly(_f(-60, 10), _numbers)), renderer=st.sampled_from(["physical",
                                                                                                   "naive"]))
 def test_fuzz_lights(light_project, light, pitch, renderer, tmp_path_factory):
-    work = tmp_path_factory.mktemp("light")
-    shutil.copytree(light_project, work, dirs_exist_ok=True)
+    _light_case(light_project, _with_probe_paths(light), renderer, "lights", tmp_path_factory, pitch)
+
+
+def _light_case(project: Path, light, renderer, surface: str, tmp_path_factory, pitch=None) -> None:
+    """``zcomp composite`` of the project's manifest with the scene's ``light`` (and
+    ``pitch_deg``), on ``renderer``: the invariants of the module docstring."""
+    work = tmp_path_factory.mktemp(surface)
+    shutil.copytree(project, work, dirs_exist_ok=True)
     doc = base_manifest()
     doc["defaults"]["renderer"] = renderer
-    doc["scenes"]["room"]["light"] = _with_probe_paths(light)
+    doc["scenes"]["room"]["light"] = light
     if pitch is not None:
         doc["scenes"]["room"]["pitch_deg"] = pitch
     manifest = work / "jobs.yaml"
     manifest.write_text(yaml.safe_dump(doc, sort_keys=False, allow_unicode=True))
     out = work / "out"
     before, tmp_before = _snapshot(work, out), _tmp_zcomp_entries()
-    r = _invoke(["composite", manifest, "--out", out], "lights")
+    r = _invoke(["composite", manifest, "--out", out], surface)
     _unchanged_outside(work, out, before, tmp_before)
     _check_out(out)
     if r.exit_code == 2:
@@ -786,24 +792,10 @@ def ball_project(tmp_path_factory):
            "reflectance": _mostly(_f(0.05, 1), _numbers), "strength": _mostly(_f(0, 5), _numbers),
            "rotation_deg": _numbers}), renderer=st.sampled_from(["physical", "naive"]))
 def test_fuzz_chrome_balls(ball_project, image, center, radius, extra, renderer, tmp_path_factory):
-    work = tmp_path_factory.mktemp("ball")
-    shutil.copytree(ball_project, work, dirs_exist_ok=True)
-    doc = base_manifest()
-    doc["defaults"]["renderer"] = ({"name": "physical", "march_steps": 4, "estimate_march_steps": 4,
-                                    "n_light_candidates": 16, "cone_samples": 2, "max_fit_pixels": 500}
-                                   if renderer == "physical" else "naive")
-    doc["scenes"]["room"]["light"] = [{"type": "chrome_ball", "image": f"balls/{image}", "center": center,
-                                       "radius": radius, **extra}]
-    manifest = work / "jobs.yaml"
-    manifest.write_text(yaml.safe_dump(doc, sort_keys=False, allow_unicode=True))
-    out = work / "out"
-    before, tmp_before = _snapshot(work, out), _tmp_zcomp_entries()
-    r = _invoke(["composite", manifest, "--out", out], "balls")
-    _unchanged_outside(work, out, before, tmp_before)
-    _check_out(out)
-    if r.exit_code == 2:
-        assert not out.exists()
-    shutil.rmtree(work, ignore_errors=True)
+    cheap = {"name": "physical", "march_steps": 4, "estimate_march_steps": 4, "n_light_candidates": 16,
+             "cone_samples": 2, "max_fit_pixels": 500}
+    light = [{"type": "chrome_ball", "image": f"balls/{image}", "center": center, "radius": radius, **extra}]
+    _light_case(ball_project, light, cheap if renderer == "physical" else "naive", "balls", tmp_path_factory)
 
 
 _page_text = st.one_of(_weird_text, st.sampled_from([

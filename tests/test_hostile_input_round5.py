@@ -643,3 +643,21 @@ def test_a_photograph_without_maps_gets_a_suggestion_that_fits_it(tmp_path):
     assert run_composite(old, tmp_path / "out_old").exit_code == 0
     notes = json.loads((tmp_path / "out_old/000_table_card/report.json").read_text())["notes"]
     assert any("a speck" in n and "camera_height" in n for n in notes), notes
+
+
+def test_a_huge_sun_direction_is_normalised_not_zeroed(project, tmp_path):
+    """Found by the fuzzer: a sun `direction: [0, 0, 1.3e154]` with pitch_deg given was
+    normalised through a sum of squares that overflowed (the direction became 0) and
+    validation raised a ValueError."""
+    import yaml
+
+    doc = yaml.safe_load((project / "jobs.yaml").read_text())
+    doc["scenes"]["room"]["light"] = {"type": "sun", "direction": [0, 1.3407807929942597e154, 1.3e154]}
+    doc["scenes"]["room"]["pitch_deg"] = 0.0
+    (project / "m.yaml").write_text(yaml.safe_dump(doc))
+    r = run_composite(project / "m.yaml", tmp_path / "out")
+    assert r.exit_code == 0, r.output
+    doc["scenes"]["room"]["light"]["direction"] = [0, 0, 1.3407807929942597e154]  # straight back: below
+    (project / "m.yaml").write_text(yaml.safe_dump(doc))
+    r = run_composite(project / "m.yaml", tmp_path / "out2")
+    assert r.exit_code == 2 and "below the horizon" in " ".join(r.output.split()), r.output
