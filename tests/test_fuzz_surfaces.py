@@ -355,7 +355,8 @@ def test_fuzz_model_folders(tiny_dpt, photo_manifest, damages, tmp_path_factory)
 def _mostly(plausible, hostile):
     """Mostly values a user would write (so the fuzz reaches the renderer), sometimes
     hostile ones."""
-    return st.one_of(*[plausible] * 7, hostile)
+    # (seven distinct strategies: one_of drops repeats of the same one, which made it 1:1)
+    return st.one_of(*[plausible.map(lambda v: v) for _ in range(7)], hostile)
 
 
 def _f(lo, hi):
@@ -645,22 +646,27 @@ def _tmp_left(before: set) -> set:
     return left
 
 
-_cycles_settings = st.fixed_dictionaries({}, optional={
-    "samples": _mostly(st.integers(1, 4), _numbers), "max_bounces": _mostly(st.integers(0, 4), _numbers),
-    "denoise": _mostly(st.booleans(), _values), "threads": _mostly(st.integers(0, 2), _numbers),
-    "exposure": st.sampled_from(["light", "render", "auto", 3]), "world": st.sampled_from(["probe", "model", "x"]),
-    "sky_width": _mostly(st.integers(8, 64), _numbers), "probe_width": _mostly(st.integers(8, 64), _numbers),
-    "world_map_resolution": _mostly(st.integers(0, 64), _numbers), "margin_px": _mostly(st.integers(0, 8), _numbers),
-    "item_timeout_s": _mostly(_f(60, 600), _numbers), "light": _mostly(st.just({"march_steps": 4}), _values),
-    "bogus": _values})
+# settings a user would write (they reach Blender), or hostile ones (refused with the field)
+_cycles_plausible = st.fixed_dictionaries({}, optional={
+    "samples": st.integers(1, 4), "max_bounces": st.integers(0, 4), "denoise": st.booleans(),
+    "threads": st.integers(0, 2), "exposure": st.sampled_from(["light", "render"]),
+    "world": st.sampled_from(["probe", "model"]), "sky_width": st.integers(8, 64), "probe_width": st.integers(8, 64),
+    "world_map_resolution": st.integers(0, 64), "margin_px": st.integers(0, 8),
+    "light": st.just({"march_steps": 4, "estimate_march_steps": 4, "n_light_candidates": 16})})
+_cycles_hostile = st.fixed_dictionaries({}, optional={
+    "samples": _numbers, "max_bounces": _numbers, "denoise": _values, "threads": _numbers,
+    "exposure": st.sampled_from(["auto", 3]), "world": st.sampled_from(["x", ""]), "sky_width": _numbers,
+    "probe_width": _numbers, "world_map_resolution": _numbers, "margin_px": _numbers, "item_timeout_s": _numbers,
+    "light": _values, "bogus": _values})
+_cycles_settings = st.one_of(_cycles_plausible, _cycles_plausible, _cycles_plausible, _cycles_hostile)
 
 
 @pytest.mark.fuzz
 @pytest.mark.slow
 @pytest.mark.blender
 @_settings("cycles")
-@given(cfg=_cycles_settings, light=st.one_of(st.none(), _user_light), flag=st.one_of(st.none(), _numbers,
-                                                                                      st.integers(1, 4)))
+@given(cfg=_cycles_settings, light=st.one_of(st.none(), _user_light),
+       flag=st.one_of(st.none(), st.none(), st.integers(1, 4), _numbers))
 def test_fuzz_cycles_inputs(light_project, cfg, light, flag, tmp_path_factory):
     work = tmp_path_factory.mktemp("cycles")
     shutil.copytree(light_project, work, dirs_exist_ok=True)
@@ -754,7 +760,7 @@ def test_fuzz_preview_light(preview_project, opts, state, overwrite, depth, tmp_
     shutil.rmtree(work, ignore_errors=True)
 
 
-BALLS = ["ball_float.tif", "ball_u16.png", "ball_nan.exr", "ball_tiny.exr", "ball_ok.exr", "ball_black.png"]
+BALLS = ["ball_float.tif", "ball_u16.png", "ball_ok.exr", "ball_nan.exr", "ball_tiny.exr", "ball_black.png"]
 
 
 @pytest.fixture(scope="module")
@@ -786,15 +792,17 @@ def ball_project(tmp_path_factory):
 @pytest.mark.fuzz
 @pytest.mark.slow
 @_settings("balls")
-@given(image=st.sampled_from(BALLS), center=_mostly(st.tuples(_f(0, 64), _f(0, 64)).map(list),
+@given(image=st.sampled_from(BALLS[:3] * 3 + BALLS), center=_mostly(st.tuples(_f(26, 38), _f(26, 38)).map(list),
                                                     st.one_of(_vec(2), st.just([1e9, 0]), _values)),
-       radius=_mostly(_f(2, 40), st.one_of(_numbers, _values)), extra=st.fixed_dictionaries({}, optional={
-           "reflectance": _mostly(_f(0.05, 1), _numbers), "strength": _mostly(_f(0, 5), _numbers),
-           "rotation_deg": _numbers}), renderer=st.sampled_from(["physical", "naive"]))
-def test_fuzz_chrome_balls(ball_project, image, center, radius, extra, renderer, tmp_path_factory):
+       radius=_mostly(_f(8, 20), st.one_of(_numbers, _values)), extra=st.fixed_dictionaries({}, optional={
+           "reflectance": _mostly(_f(0.05, 1), _numbers), "strength": _mostly(_f(0.1, 5), _numbers)}),
+       unknown=st.one_of(st.just({}), st.just({}), st.just({}), st.just({"rotation_deg": 30})),
+       renderer=st.sampled_from(["physical", "naive"]))
+def test_fuzz_chrome_balls(ball_project, image, center, radius, extra, unknown, renderer, tmp_path_factory):
     cheap = {"name": "physical", "march_steps": 4, "estimate_march_steps": 4, "n_light_candidates": 16,
              "cone_samples": 2, "max_fit_pixels": 500}
-    light = [{"type": "chrome_ball", "image": f"balls/{image}", "center": center, "radius": radius, **extra}]
+    light = [{"type": "chrome_ball", "image": f"balls/{image}", "center": center, "radius": radius, **extra,
+              **unknown}]
     _light_case(ball_project, light, cheap if renderer == "physical" else "naive", "balls", tmp_path_factory)
 
 
