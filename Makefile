@@ -21,13 +21,13 @@ $(STAMP): pyproject.toml
 	    echo "Set PYTHON=/path/to/python3.11, e.g. 'make test PYTHON=~/.pyenv/versions/3.11.7/bin/python'."; exit 1; }
 	@echo "Creating $(VENV) and installing zcomp (a few minutes; pip's output only on errors)..."
 	@$(PYTHON) -m venv $(VENV)
-	@$(PIP) install -q --upgrade pip
-	@$(PIP) install -q --no-index --no-deps "$(TORCH_PIN)" 2>/dev/null || \
-	  $(PIP) install -q "$(TORCH_PIN)" $(if $(TORCH_INDEX),--index-url $(TORCH_INDEX) --extra-index-url https://pypi.org/simple)
-	@$(PIP) install -q -e ".[test,ray]"
+	@$(PIP) install -qq --upgrade pip
+	@$(PIP) install -qq --no-index --no-deps "$(TORCH_PIN)" 2>/dev/null || \
+	  $(PIP) install -qq "$(TORCH_PIN)" $(if $(TORCH_INDEX),--index-url $(TORCH_INDEX) --extra-index-url https://pypi.org/simple)
+	@$(PIP) install -qq -e ".[test,ray]"
 	@# The reference LPIPS package, for one test only. --no-deps: its torchvision
 	@# requirement would pull a CUDA build that breaks CPU torch (see README).
-	@$(PIP) install -q --no-deps lpips==0.1.4
+	@$(PIP) install -qq --no-deps lpips==0.1.4
 	@touch $@
 
 venv: $(STAMP)
