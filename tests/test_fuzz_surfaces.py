@@ -764,29 +764,28 @@ BALLS = ["ball_float.tif", "ball_u16.png", "ball_ok.exr", "ball_nan.exr", "ball_
 
 
 @pytest.fixture(scope="module")
-def ball_project(tmp_path_factory):
+def ball_project(light_project):
+    """The lights' project with chrome-ball photographs in ``balls/``: a float TIFF, a
+    16-bit PNG, an EXR, one with NaN, a 2 x 2 one, a black one."""
     import OpenImageIO as oiio
 
     from zcomp_cli.imageio import write_exr, write_png
 
-    shared = tmp_path_factory.mktemp("fuzz_balls")
-    make_project(shared)
-    b = shared / "balls"
-    b.mkdir()
+    b = light_project / "balls"
+    b.mkdir(exist_ok=True)
     yy, xx = np.mgrid[0:64, 0:64]
-    ball = np.where(((xx - 32) ** 2 + (yy - 32) ** 2 < 28 ** 2)[..., None], 0.3, 0.05).astype(np.float32) * np.ones(3)
-    ball = ball.astype(np.float32)
+    ball = (np.where(((xx - 32) ** 2 + (yy - 32) ** 2 < 28 ** 2)[..., None], 0.3, 0.05) * np.ones(3)).astype(np.float32)
     ball[20:23, 40:43] = 80.0  # a sun on the ball, far above 1
-    out = oiio.ImageOutput.create(str(b / "ball_float.tif"))
-    out.open(str(b / "ball_float.tif"), oiio.ImageSpec(64, 64, 3, oiio.FLOAT))
-    out.write_image(ball)
-    out.close()
+    tif = oiio.ImageOutput.create(str(b / "ball_float.tif"))
+    tif.open(str(b / "ball_float.tif"), oiio.ImageSpec(64, 64, 3, oiio.FLOAT))
+    tif.write_image(ball)
+    tif.close()
     write_png(b / "ball_u16.png", np.clip(ball, 0, 1), bits=16)
     write_exr(b / "ball_nan.exr", np.where(ball > 1, np.nan, ball).astype(np.float32))
     write_exr(b / "ball_tiny.exr", ball[:2, :2])
     write_exr(b / "ball_ok.exr", ball)
     write_png(b / "ball_black.png", np.zeros((64, 64, 3), np.float32))
-    return shared
+    return light_project
 
 
 @pytest.mark.fuzz
