@@ -94,8 +94,8 @@ def spearman(x, y) -> float:
 
 
 def audit_case(bench: Path, case: dict, truth: dict, settings=None) -> dict:
-    from zcomp_cli.renderers.physical.estimate import estimate_light_with_posterior
-    from zcomp_cli.renderers.physical.scene_frame import scene_up
+    from zcomp_cli.light.search import estimate_light_with_posterior
+    from zcomp_cli.scene.frame import scene_up
 
     d, n, sh, known, albedo, cam, _ = load_case_inputs(bench, case["id"])
     valid = known & (d > 0) & (np.abs(np.linalg.norm(n, axis=-1) - 1) < 0.2)

@@ -93,8 +93,8 @@ def case_posteriors(bench: Path, settings=None):
 
     from audit_light import load_case_inputs
     from run_benchmark import case_truths
-    from zcomp_cli.renderers.physical import estimate
-    from zcomp_cli.renderers.physical.scene_frame import scene_up
+    from zcomp_cli.light import search as estimate
+    from zcomp_cli.scene.frame import scene_up
     from zcomp_cli.renderers.physical.settings import DEFAULTS
 
     settings = DEFAULTS if settings is None else settings
@@ -135,7 +135,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     import dataclasses
 
-    from zcomp_cli.renderers.physical.posterior import DirectionPosterior
+    from zcomp_cli.light.posterior import DirectionPosterior
     from zcomp_cli.renderers.physical.settings import DEFAULTS, SearchConfig
 
     grid = [float(x) for x in args.grid.split(",") if x.strip()]

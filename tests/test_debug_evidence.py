@@ -25,7 +25,7 @@ from zcomp_cli.pipeline.job import check_debug_maps
 from zcomp_cli.pipeline.outputs import DEBUG_MAPS, MAPS_SHEET, foreign_entries, maps_sheet
 from zcomp_cli.renderers.base import RenderOutput, RenderRequest
 from zcomp_cli.renderers.physical import PhysicalRenderer
-from zcomp_cli.renderers.physical.evidence_maps import MAP_NAMES, LightEvidence, to_frame
+from zcomp_cli.light.evidence_maps import MAP_NAMES, LightEvidence, to_frame
 from zcomp_cli.renderers.registry import RENDERERS
 from zcomp_cli.testing import floor_scene
 

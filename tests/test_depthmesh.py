@@ -6,10 +6,10 @@ exact one."""
 import numpy as np
 import pytest
 
-from zcomp_cli.renderers.physical.depthmesh import DepthMesh, build_depth_mesh
-from zcomp_cli.renderers.physical.raycast import RayCaster
-from zcomp_cli.renderers.physical.scene_frame import scene_up
-from zcomp_cli.renderers.physical.shadowcast import BIAS_REL
+from zcomp_cli.scene.depthmesh import DepthMesh, build_depth_mesh
+from zcomp_cli.scene.raycast import RayCaster
+from zcomp_cli.scene.frame import scene_up
+from zcomp_cli.light.shadowcast import BIAS_REL
 from zcomp_cli.testing import floor_scene
 
 W, H = 160, 120
@@ -238,7 +238,7 @@ def test_the_shadow_of_a_box_seen_near_its_side_edge():
 
 
 def test_walls_beyond_the_frame_join_as_quads():
-    from zcomp_cli.renderers.physical.planes import Wall
+    from zcomp_cli.scene.planes import Wall
 
     s = floor_scene(W, H)
     m0, up = _mesh(s)

@@ -91,7 +91,7 @@ def test_degenerate_inputs_stay_finite():
 
 
 def test_a_shadowed_light_leaves_no_highlight_and_the_diffuse_keeps_the_rest():
-    from zcomp_cli.renderers.physical.lightmodel import LightModel, Sky, Sun
+    from zcomp_cli.scene.lightmodel import LightModel, Sky, Sun
     from zcomp_cli.renderers.physical.renderer import PhysicalRenderer, _direct_lights
 
     cam = Camera.from_fov(50.0, 8, 8)

@@ -224,7 +224,7 @@ def test_a_narrow_probe_is_refused_and_its_steps_are_bounded(tmp_path, examples_
     import yaml
 
     from zcomp_cli.imageio import write_exr
-    from zcomp_cli.renderers.physical.probe import load_probe
+    from zcomp_cli.scene.probe import load_probe
     from zcomp_cli.worldframe import ground_frame
 
     img = np.zeros((2000, 10, 3), np.float32)

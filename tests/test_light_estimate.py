@@ -4,9 +4,9 @@ analytic scenes ray cast with a sky the boxes hide (zcomp_cli.testing), not bran
 import numpy as np
 import pytest
 
-from zcomp_cli.renderers.physical.estimate import estimate_light
-from zcomp_cli.renderers.physical.lightmodel import ShadowKind
-from zcomp_cli.renderers.physical.scene_frame import scene_up
+from zcomp_cli.light.search import estimate_light
+from zcomp_cli.scene.lightmodel import ShadowKind
+from zcomp_cli.scene.frame import scene_up
 from zcomp_cli.testing import floor_scene
 
 
@@ -60,7 +60,7 @@ def test_a_bare_floor_hedges_with_the_widest_light_and_says_how_uncertain():
     """Nothing on a bare floor fixes the light's direction: the posterior is vague, and
     the light is drawn as wide as the widest shadow-casting light (a soft, light shadow
     from the likely side; the contact shadow stays), the report saying why."""
-    from zcomp_cli.renderers.physical.lightmodel import MAX_RADIUS_DEG, Origin
+    from zcomp_cli.scene.lightmodel import MAX_RADIUS_DEG, Origin
 
     s = floor_scene(120, 90, light_dir=(0.3, 1.0, 0.4), ambient=0.3, sky_occlusion=True)
     m = _estimate(s)
@@ -80,8 +80,8 @@ def test_the_size_is_fitted_or_forced():
     the likelihoods of its cone-averaged shadow), grown only to cover the posterior's
     spread, or the renderer's ``shadow_softness`` when it forces one (no hedge then).
     (That a 1 deg and a 10 deg light are told apart is NOT asserted.)"""
-    from zcomp_cli.lightparams import SUN_RADIUS_DEG
-    from zcomp_cli.renderers.physical.lightmodel import Origin
+    from zcomp_cli.scene.lightparams import SUN_RADIUS_DEG
+    from zcomp_cli.scene.lightmodel import Origin
     from zcomp_cli.renderers.physical.settings import DEFAULTS, PhysicalSettings
 
     s = _scene(sun_radius_deg=10.0, box_size=(0.6, 1.2, 0.6))

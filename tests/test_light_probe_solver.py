@@ -7,9 +7,9 @@ import pytest
 
 from zcomp_cli import equirect
 from zcomp_cli.errors import InputError
-from zcomp_cli.renderers.physical import sh
-from zcomp_cli.renderers.physical.probe import prefilter, read_probe, split_probe
-from zcomp_cli.renderers.physical.solver import Atom, fit, score_candidates, solve_spd
+from zcomp_cli.scene import sh
+from zcomp_cli.scene.probe import prefilter, read_probe, split_probe
+from zcomp_cli.light.solver import Atom, fit, score_candidates, solve_spd
 from zcomp_cli.worldframe import ground_frame, up_from_pitch_roll
 
 

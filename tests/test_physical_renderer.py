@@ -8,7 +8,7 @@ from zcomp_cli.renderers import get_renderer
 from zcomp_cli.maps import SceneMaps
 from zcomp_cli.renderers.base import RenderRequest
 from zcomp_cli.renderers.physical import PhysicalRenderer
-from zcomp_cli.renderers.physical.visibility import march_visibility, sample_depth
+from zcomp_cli.scene.march import march_visibility, sample_depth
 from zcomp_cli.testing import floor_scene, insert_bundle, light_context, sphere_object_bundle
 
 LIGHT = (0.7, 1.0, 0.2)  # world, toward the light: from the right, above

@@ -83,8 +83,8 @@ def test_the_whole_config_goes_into_the_report():
 def test_a_config_changes_the_estimate():
     """The configs are what the estimate reads: a different temperature spreads the
     posterior (the stated uncertainty grows)."""
-    from zcomp_cli.renderers.physical.estimate import estimate_light_with_posterior
-    from zcomp_cli.renderers.physical.scene_frame import scene_up
+    from zcomp_cli.light.search import estimate_light_with_posterior
+    from zcomp_cli.scene.frame import scene_up
     from zcomp_cli.testing import floor_scene
 
     s = floor_scene(96, 72, with_box=True, light_dir=(0.7, 1.0, 0.2), ambient=0.3, box_center=(-0.4, -3.2))
@@ -130,7 +130,7 @@ def test_the_synthesis_reads_its_configs():
     from zcomp_cli.renderers.base import RenderRequest
     from zcomp_cli.renderers.physical import PhysicalRenderer
     from zcomp_cli.renderers.physical.gloss import env_brdf
-    from zcomp_cli.renderers.physical.probe import split_probe
+    from zcomp_cli.scene.probe import split_probe
     from zcomp_cli.renderers.physical.settings import ProbeConfig
     from zcomp_cli.testing import floor_scene
     from zcomp_cli.worldframe import ground_frame

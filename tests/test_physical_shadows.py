@@ -125,7 +125,7 @@ def test_classwise_blur_is_the_per_class_normalised_blur(channels):
 
 def test_length_is_numpys_norm():
     # the same values as np.linalg.norm (the renderer's images do not change), any shape
-    from zcomp_cli.renderers.physical.sampling import length
+    from zcomp_cli.scene.sampling import length
 
     rng = np.random.default_rng(2)
     v = rng.normal(size=(400, 3)) * 10.0 ** rng.integers(-3, 5, (400, 1))
@@ -341,7 +341,7 @@ def test_mesh_occlusion_of_a_sky_weights_each_element_by_the_radiance_behind_it(
     behind it over the point's sky shading: a uniform sky gives the plain share; a sky
     brighter on one side is hidden more by an object on that side; and the sum is the
     direct one (each element's SH radiance from ``sh.basis``) to float32's precision."""
-    from zcomp_cli.renderers.physical import sh
+    from zcomp_cli.scene import sh
     from zcomp_cli.renderers.physical.meshshadow import mesh_discs, mesh_occlusion
 
     r, c = 0.5, np.array([0.0, 0.5, 0.0])
@@ -504,7 +504,7 @@ def test_radiance_weighted_mesh_occlusion_by_moments_equals_the_per_element_sum(
     import trimesh
 
     from zcomp_cli.renderers.physical import meshshadow as M
-    from zcomp_cli.renderers.physical import sh
+    from zcomp_cli.scene import sh
 
     sph = trimesh.creation.icosphere(subdivisions=4, radius=0.3)
     # a bumpy sphere: its own points see its other elements (concave dents)
@@ -547,7 +547,7 @@ def test_negative_cells_bound_the_ringing():
     """``_negative_cells`` finds every direction where a ringing sky is below 0 (a dense
     set of directions, each inside a cell found), and none for a sky positive everywhere."""
     from zcomp_cli.renderers.physical import meshshadow as M
-    from zcomp_cli.renderers.physical import sh
+    from zcomp_cli.scene import sh
 
     def cells(c):
         a, b, A = sh.quadratic_form(c)

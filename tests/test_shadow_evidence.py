@@ -7,9 +7,9 @@ reach and the lit level's basis on synthetic grids."""
 import numpy as np
 import pytest
 
-from zcomp_cli.renderers.physical.depthmesh import build_depth_mesh
-from zcomp_cli.renderers.physical.scene_frame import scene_up
-from zcomp_cli.renderers.physical.shadow_evidence import (DEFAULT, ShadowEvidence, lit_basis, shadow_evidence,
+from zcomp_cli.scene.depthmesh import build_depth_mesh
+from zcomp_cli.scene.frame import scene_up
+from zcomp_cli.light.evidence import (DEFAULT, ShadowEvidence, lit_basis, shadow_evidence,
                                                           within_reach)
 from zcomp_cli.testing import floor_scene
 

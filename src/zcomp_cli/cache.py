@@ -4,7 +4,8 @@
 ``$ZCOMP_CACHE_DIR``, else ``~/.cache/zcomp``. Below it:
 
 * ``intrinsics/``: object intrinsics bundles rendered by Blender (``blender.cache``);
-* ``estimates/``: per-scene estimated maps (``estimators.cache``).
+* ``estimates/``: per-scene estimated maps (``estimators.cache``);
+* ``lights/``: per-scene fitted lights (``light.stage``).
 
 Every command resolves its folders here, so ``render-intrinsics``, ``composite`` and
 ``estimate`` share entries.
@@ -16,7 +17,7 @@ import os
 from pathlib import Path
 
 ENV_VAR = "ZCOMP_CACHE_DIR"
-KINDS = ("intrinsics", "estimates")
+KINDS = ("intrinsics", "estimates", "lights")
 
 
 def cache_root(override: str | os.PathLike | None = None) -> Path:
@@ -29,7 +30,7 @@ def cache_root(override: str | os.PathLike | None = None) -> Path:
 
 
 def cache_dir(kind: str, root: str | os.PathLike | None = None) -> Path:
-    """The folder of one kind of entry (``intrinsics`` or ``estimates``) under
+    """The folder of one kind of entry (``intrinsics``, ``estimates`` or ``lights``) under
     :func:`cache_root` (``root`` overrides the root, as ``--cache-dir`` does)."""
     if kind not in KINDS:
         raise ValueError(f"unknown cache kind {kind!r}; known: {', '.join(KINDS)}")

@@ -29,6 +29,8 @@ __all__ = [
     "camera_normals_to_conditioning",
     "conditioning_to_camera_normals",
     "valid_depth_mask",
+    "unit_normal_mask",
+    "UNIT_NORMAL_TOL",
     "pixel_ray",
     "REC601",
     "REC709",
@@ -52,6 +54,9 @@ GAMMA = 2.2
 # (DESIGN.md section 3 and the official conditioning).
 SHADING_EPS = 1e-5
 SHADING_MAX = 1e3
+# A normal this far from unit length is not one: a map's invalid pixels hold zeros or
+# garbage, and a stored unit normal, even in half floats, is within 1e-3 of 1.
+UNIT_NORMAL_TOL = 0.2
 # ZeroComp ControlNet variants by conditioning channel count -> the maps they read, in
 # channel order (DESIGN.md section 4).
 CONDITIONING_VARIANTS = {
@@ -138,6 +143,13 @@ def valid_depth_mask(depth) -> np.ndarray:
     depth = np.asarray(depth)
     with np.errstate(invalid="ignore"):
         return np.isfinite(depth) & (depth > 0)
+
+
+def unit_normal_mask(normals) -> np.ndarray:
+    """(..., ) bool: where ``normals`` (..., 3) hold a unit vector (within
+    ``UNIT_NORMAL_TOL`` of length 1; NaN is none)."""
+    n = np.asarray(normals, np.float64)
+    return np.abs(np.sqrt(np.einsum("...c,...c->...", n, n)) - 1.0) < UNIT_NORMAL_TOL
 
 
 def blender_depth_to_z_depth(z_pass, far: float = 1e9) -> np.ndarray:

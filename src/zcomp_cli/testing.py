@@ -206,7 +206,7 @@ def floor_scene(width: int = 128, height: int = 96, *, fov_deg: float = 50.0,
         l = np.asarray(l, dtype=np.float64)
         l = l / np.linalg.norm(l)
         if sun_radius_deg > 0:
-            from zcomp_cli.renderers.physical.sampling import cone_directions
+            from zcomp_cli.scene.sampling import cone_directions
 
             cone = cone_directions(l, sun_radius_deg, SUN_SAMPLES, seed=0)
         else:

@@ -138,10 +138,14 @@ def prepare_chunk(ctx: BatchContext, chunk: list[JobWork]):
             locks[w.job.index] = job_lock(ctx.out_root, w.job.name)
             scene = ctx.scenes.get(w.job.scene)
             t_load = time.perf_counter() - t0
+            t1 = time.perf_counter()
+            fitted = ctx.lights.get(scene, w.job.seed) if ctx.lights is not None else None
+            t_light = time.perf_counter() - t1
             bundle = load_object_bundle(ctx, w, scene)
             prep = prepare_job(scene, bundle, shading_radius=w.job.shading_radius, seed=w.job.seed,
-                               debug=ctx.debug, aovs=ctx.aovs)
-            prep.timings = {"scene_load_s": t_load, **prep.timings}
+                               debug=ctx.debug, aovs=ctx.aovs, fitted_light=fitted)
+            prep.timings = {"scene_load_s": t_load, **({"light_s": t_light} if fitted is not None else {}),
+                            **prep.timings}
             prepared.append((w, scene, prep))
         except Exception as exc:  # noqa: BLE001 - reported per job
             statuses[w.job.index] = _failed(ctx, w, exc, t0)

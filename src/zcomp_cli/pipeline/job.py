@@ -128,8 +128,11 @@ def prepare_job(
     seed: int = DEFAULT_SEED,
     debug: bool = False,
     aovs: bool = False,
+    fitted_light=None,
 ) -> PreparedJob:
-    """Steps 1-4 of one job. Raises ZcompError subclasses for per-job failures."""
+    """Steps 1-4 of one job. Raises ZcompError subclasses for per-job failures.
+    ``fitted_light``: the scene's light as the light stage fitted it
+    (``light.stage.FittedLight``), handed to the renderer with the requests."""
     timings: dict[str, float] = {}
     notes: list[str] = list(scene.notes)
     cam = scene.camera
@@ -176,7 +179,7 @@ def prepare_job(
     timings["shading_s"] = time.perf_counter() - t
 
     common = dict(shading=shading, known=known, camera=cam, roi=roi, image=scene.image, scene_key=scene.key,
-                  light=getattr(scene, "light", None), debug=debug, aovs=aovs)
+                  light=getattr(scene, "light", None), fitted_light=fitted_light, debug=debug, aovs=aovs)
     # the object's occluder (its shadow, the sky it hides, its self-shadowing): the posed
     # mesh when the bundle references one; else, for a bundle of maps, its visible
     # surface extruded backwards to its footprint's far edge (``maps_occluder``); 2D image
@@ -219,6 +222,7 @@ def prepare_job(
         "roi": {"box": list(roi), "frac": (x1 - x0) * (y1 - y0) / float(H * W)},
         "occluder": occluder_kind,
         "seed": seed,
+        **({"light_stage": fitted_light.ledger()} if fitted_light is not None else {}),
     }
     dbg = {}
     if debug:

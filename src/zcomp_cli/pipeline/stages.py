@@ -4,6 +4,9 @@
   (:meth:`BatchContext.create`) when the renderer is known, and never changed after;
 * :class:`SceneStore`: the batch's scenes, each loaded on first use and freed after
   its last job (memory stays flat in the number of scenes);
+* :class:`LightStore`: the light stage (``light.stage.SceneLight``): each scene's light
+  fitted once (per seed), shared by its jobs, kept in zcomp's cache for the other
+  shards and workers, and written as ``OUT/<scene>/light.yaml``;
 * :class:`JobWork`: one job on its way through the stages;
 * the stages themselves: :func:`resolve_poses` (stage 2), :func:`render_objects`
   (stage 3: every mesh job's object intrinsics in one Blender batch) and
@@ -89,6 +92,73 @@ class SceneStore:
                 del self._scenes[n]
 
 
+class LightStore:
+    """The batch's light stage: ``get(scene, seed)`` is the scene's fitted light
+    (``light.stage.FittedLight``), fitted once per scene, tree, config and seed by the
+    renderer's light config, kept in memory and under the cache's ``lights/`` folder, and
+    written once a run as ``OUT/<scene>/light.yaml`` (``light.written``). A fit that
+    fails fails every job of that scene with its reason."""
+
+    def __init__(self, cfg, cache_dir: Path | None, out_root: Path):
+        from zcomp_cli.light.stage import SceneLight
+
+        self.stage = SceneLight(cfg, cache_dir)
+        self.out_root = Path(out_root)
+        self._written: set = set()
+        self._lock = threading.RLock()
+
+    def get(self, scene, seed: int):
+        from zcomp_cli.compositing import shading_from_image
+        from zcomp_cli.light.stage import LightInputs
+
+        with self._lock:
+            shading = shading_from_image(scene.image, scene.maps.albedo)
+            inputs = LightInputs.of(scene.maps, shading, None, scene.camera, scene.key)
+            fitted = self.stage.get(inputs, getattr(scene, "light", None), seed)
+            if (scene.name, fitted.key) not in self._written:
+                self._written.add((scene.name, fitted.key))
+                self.write(scene.name, fitted)
+            return fitted
+
+    def write(self, name: str, fitted) -> None:
+        """``OUT/<scene>/light.yaml`` (``light.written``): skipped, with a note in the log,
+        where that folder is not zcomp's to write into (a file, a link)."""
+        import logging
+
+        from zcomp_cli.light.written import write_light_yaml
+
+        folder = self.out_root / name
+        if folder.is_symlink() or (folder.exists() and not folder.is_dir()):
+            logging.getLogger(__name__).warning("not writing %s/light.yaml: %s is not a folder zcomp made", name,
+                                                folder)
+            return
+        try:
+            write_light_yaml(folder / LIGHT_FILE, fitted, name)
+        except ZcompError as exc:
+            logging.getLogger(__name__).warning("could not write %s/light.yaml: %s", name, exc)
+
+
+# the fitted light of each scene of an output folder (``OUT/<scene>/light.yaml``)
+LIGHT_FILE = "light.yaml"
+
+
+def light_config_of(spec: RendererSpec):
+    """The light stage's config a renderer spec's renderer fits with (``LightConfig``;
+    the default for one that draws no light, or cannot be built here)."""
+    from zcomp_cli.light.config import LightConfig
+    from zcomp_cli.renderers import get_renderer
+
+    try:
+        r = get_renderer(spec.name, **spec.settings)
+    except ZcompError:
+        return LightConfig()
+    cfg = r.light_config() if getattr(r, "uses_light", False) else None
+    close = getattr(r, "close", None)
+    if callable(close):
+        close()
+    return cfg if cfg is not None else LightConfig()
+
+
 @dataclass
 class JobWork:
     """One job on its way through the stages: the plan sets ``fingerprint``, stage 2
@@ -124,6 +194,7 @@ class BatchContext:
     renderer_spec: RendererSpec
     renderer: object  # a renderers.base.Renderer, built before any stage runs
     scenes: SceneStore
+    lights: LightStore | None = None  # the light stage, for a renderer that draws a light
     batch_size: int = 1
     debug: bool = False
     aovs: bool = False  # also write aovs.exr (compositing.aovs)
@@ -136,8 +207,10 @@ class BatchContext:
                progress: Progress | None = None) -> "BatchContext":
         from zcomp_cli.cache import cache_dir as cache_folder
 
+        lights = (LightStore(renderer.light_config(), cache_folder("lights", cache_root), Path(out_root))
+                  if getattr(renderer, "uses_light", False) else None)
         return cls(manifest, Path(out_root), renderer_spec, renderer,
-                   SceneStore(manifest, cache_folder("estimates", cache_root)),
+                   SceneStore(manifest, cache_folder("estimates", cache_root)), lights=lights,
                    batch_size=resolve_batch_size(batch_size, renderer), debug=debug,
                    aovs=aovs, cache_root=cache_root, progress=progress)
 

@@ -124,8 +124,9 @@ def ball_pose(scene, pixel, diameter: float | None) -> tuple[np.ndarray, float]:
 
 
 def preview_scene(manifest, scene_name: str, renderer, *, out_dir, work: Path, pixel_native=None,
-                  diameter: float | None = None, cache_dir=None) -> PreviewResult:
-    """Steps 1-5 for one scene (module docstring); raises ZcompError on failure."""
+                  diameter: float | None = None, cache_dir=None, lights=None) -> PreviewResult:
+    """Steps 1-5 for one scene (module docstring); raises ZcompError on failure.
+    ``lights``: the light stage (``pipeline.stages.LightStore``; None: one for this call)."""
     from zcomp_cli.cache import cache_dir as cache_folder
     from zcomp_cli.imageio import write_json_atomic, write_png
     from zcomp_cli.pipeline.job import finish_job, prepare_job, roi_around
@@ -146,12 +147,19 @@ def preview_scene(manifest, scene_name: str, renderer, *, out_dir, work: Path, p
         write_balls_glb(glb, d)
     bundle = ball_bundle(scene.camera, M, d, mesh_path=glb)
     seed = next((j.seed for j in manifest.jobs if j.scene == scene_name), manifest.defaults.seed)
-    prep = prepare_job(scene, bundle, shading_radius=manifest.defaults.shading_radius, seed=seed)
-    # 3.-4. the light, Blender
+    # 3. the light: the batch's light stage (its cache shared with `zcomp composite`)
+    if lights is None:
+        from zcomp_cli.pipeline.stages import LightStore
+
+        lights = LightStore(renderer.light_config(), cache_folder("lights", cache_dir), Path(out_dir))
+    fitted = lights.get(scene, seed)
+    model = fitted.model
+    prep = prepare_job(scene, bundle, shading_radius=manifest.defaults.shading_radius, seed=seed,
+                       fitted_light=fitted)
+    # 4. Blender
     t = time.perf_counter()
     out = renderer.render(prep.requests, seed=seed)
     res = finish_job(prep, out, renderer.name, renderer.settings())
-    model = renderer.light(prep.requests[0], seed)
     cover = bundle.mask > 0
     box = roi_around(cover, max(4, int(0.1 * cover.any(0).sum())))
     bh = max(1, box[3] - box[1])
@@ -206,8 +214,15 @@ def preview_light(manifest, out_dir, *, scenes=None, pixel_native=None, diameter
         there = [str(p) for n in names for p in sheet_paths(out_dir, n) if p.exists()]
         if there:
             raise UsageError(f"{there[0]} exists (and {len(there) - 1} more); give --overwrite to replace them")
-    renderer = CyclesRenderer(samples=int(samples), world_map_resolution=WORLD_MAP_RESOLUTION)
+    from zcomp_cli.cache import cache_dir as cache_folder
+    from zcomp_cli.knobs import as_dict
+    from zcomp_cli.pipeline.stages import LightStore, light_config_of
+
+    # the light the batch will fit: the manifest's renderer's light config
+    renderer = CyclesRenderer(samples=int(samples), world_map_resolution=WORLD_MAP_RESOLUTION,
+                              light=as_dict(light_config_of(manifest.defaults.renderer)))
     renderer.check()
+    lights = LightStore(renderer.light_config(), cache_folder("lights", cache_dir), Path(out_dir))
     work = Path(tempfile.mkdtemp(prefix="zcomp-preview-"))
     results = []
     try:
@@ -217,7 +232,8 @@ def preview_light(manifest, out_dir, *, scenes=None, pixel_native=None, diameter
             t = time.perf_counter()
             try:
                 results.append(preview_scene(manifest, name, renderer, out_dir=out_dir, work=work,
-                                             pixel_native=pixel_native, diameter=diameter, cache_dir=cache_dir))
+                                             pixel_native=pixel_native, diameter=diameter, cache_dir=cache_dir,
+                                             lights=lights))
             except ZcompError as exc:
                 results.append(PreviewResult(name, seconds=time.perf_counter() - t, error=str(exc)))
         if progress:

@@ -60,7 +60,7 @@ def sky_image(sky, width: int) -> tuple[np.ndarray, np.ndarray]:
     convention (rotation 0) and its ``world_rows``. Above the horizon the sky's SH
     radiance (clamped at 0: order 2 rings behind a bright region), below it the
     support's radiance (``Sky.ground``): what an object sees past the mesh's edge."""
-    from zcomp_cli.renderers.physical import sh
+    from zcomp_cli.scene import sh
 
     frame = ground_frame(sky.up)
     h, w = max(1, int(width) // 2), int(width)
@@ -76,8 +76,8 @@ def probe_image(probe_params, up, scale: float, max_width: int) -> tuple[np.ndar
     it: non-finite and negative values 0, at most ``max_width`` wide) times ``scale``
     (its strength times the fitted exposure), and the ``world_rows`` of its convention
     and yaw."""
-    from zcomp_cli.renderers.physical.probe import probe_radiance
-    from zcomp_cli.renderers.physical.settings import ProbeConfig
+    from zcomp_cli.scene.probe import probe_radiance
+    from zcomp_cli.scene.config import ProbeConfig
 
     frame = ground_frame(up)
     img, convention, rotation = probe_radiance(probe_params, frame, ProbeConfig(max_width=int(max_width)))
@@ -95,7 +95,7 @@ def lamps_of(model, *, skip_probe_sources: bool) -> list[dict]:
     """Blender lamps of a ``LightModel``'s suns and lamps (``scene`` module docstring's
     units). ``skip_probe_sources``: leave out the suns measured on the probe (the probe,
     given as the world, holds them)."""
-    from zcomp_cli.lightparams import Origin
+    from zcomp_cli.scene.lightparams import Origin
 
     out = []
     for s in model.suns:
@@ -132,7 +132,7 @@ def fill_behind(depth, normals, albedo, valid, hidden, camera, up):
     """
     from scipy import ndimage
 
-    from zcomp_cli.renderers.physical.depthmesh import support_mask
+    from zcomp_cli.scene.depthmesh import support_mask
 
     d = np.array(depth, np.float64)
     n = np.array(normals, np.float64)
