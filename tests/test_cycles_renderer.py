@@ -109,10 +109,15 @@ def test_scene_mesh_arrays_keep_only_used_vertices_with_their_pixels_colour():
 
 
 @pytest.mark.parametrize("kw, words", [
-    ({"samples": 0}, "samples: at least 1"),
-    ({"exposure": "auto"}, "light or render"),
-    ({"denoise": "yes"}, "expected bool"),
+    ({"samples": 0}, "samples: expected a positive integer"),
+    ({"samples": float("inf")}, "samples: expected a positive integer"),
+    ({"samples": 1e30}, r"samples: expected a positive integer \(at most 4096\)"),
+    ({"max_bounces": float("inf")}, "max_bounces: expected an integer"),
+    ({"sky_width": 8192}, "sky_width: expected an integer in"),
+    ({"exposure": "auto"}, "expected one of light, render"),
+    ({"denoise": "yes"}, "expected true or false"),
     ({"sampels": 8}, "unknown cycles renderer setting"),
+    ({"light": {"march_steps": 4}}, "cycles renderer setting light: unknown field"),
 ])
 def test_bad_settings_are_usage_errors(kw, words):
     with pytest.raises(UsageError, match=words):

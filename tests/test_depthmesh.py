@@ -9,7 +9,7 @@ import pytest
 from zcomp_cli.scene.depthmesh import DepthMesh, build_depth_mesh
 from zcomp_cli.scene.raycast import RayCaster
 from zcomp_cli.scene.frame import scene_up
-from zcomp_cli.light.shadowcast import BIAS_REL
+from zcomp_cli.light.config import DEFAULT_LIGHT
 from zcomp_cli.testing import floor_scene
 
 W, H = 160, 120
@@ -34,7 +34,7 @@ def _iou(a, b) -> float:
 def _support_shadow(m: DepthMesh, caster: RayCaster, light) -> np.ndarray:
     """(h, w) the support pixels whose biased ray toward ``light`` is occluded."""
     P = m.points[m.support]
-    O = P + m.up[None] * (BIAS_REL * np.maximum(-P[:, 2], 1e-6))[:, None]
+    O = P + m.up[None] * (DEFAULT_LIGHT.search.bias_rel * np.maximum(-P[:, 2], 1e-6))[:, None]
     out = np.zeros(m.shape, bool)
     out[m.support] = caster.occluded(O, light)
     return out

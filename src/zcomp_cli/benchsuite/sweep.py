@@ -127,12 +127,14 @@ def scaled_resolution(native: tuple[int, int], fraction: float) -> tuple[int, in
 
 
 def physical_defaults() -> dict:
-    """The physical renderer's default settings (without its name)."""
+    """The physical renderer's default settings (without its name), its light stage's
+    own beside them (as the renderer takes them: ``n_light_candidates=64``)."""
     from zcomp_cli.renderers.physical.renderer import PhysicalRenderer
 
     s = PhysicalRenderer().settings()
     s.pop("name", None)
-    return s
+    light = s.get("light", {})
+    return {**{k: v for k, v in light.items() if not isinstance(v, dict)}, **s}
 
 
 def zerocomp_weights() -> tuple[dict | None, str]:

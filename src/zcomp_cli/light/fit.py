@@ -132,10 +132,6 @@ class Term:
         (9, 3) camera frame or None)."""
         raise NotImplementedError
 
-    @property
-    def free_strength(self) -> bool:
-        return any(c.absolute is None and c.kind == "light" for c in self.cols)
-
 
 def _rgb(v, color=(1.0, 1.0, 1.0)) -> np.ndarray:
     return np.broadcast_to(np.asarray(v, np.float64), (3,)) * np.asarray(color, np.float64)
@@ -250,8 +246,8 @@ class SunTerm(_DirectTerm):
             r, r_from = float(cfg.shadow_softness), Origin.MANIFEST
         elif rp.frozen:
             r, r_from = float(rp.value), rp.origin
-        elif self.node.irradiance.frozen or self.share is not None or not ctx.fitting:
-            r, r_from = SUN_RADIUS_DEG, Origin.DEFAULT  # nothing is fitted to choose its size by
+        elif not ctx.fitting:
+            r, r_from = SUN_RADIUS_DEG, Origin.DEFAULT  # too few pixels to choose its size by
         else:
             r, r_from = None, Origin.FIT
         col = sr.sun_column(fp, d, r, cfg, ctx.seed) if r is not None else np.zeros(len(fp))

@@ -295,23 +295,6 @@ class LightParams:
                 or self.sky.radiance_sh.frozen)
 
     @property
-    def free_values(self) -> int:
-        """How many of the tree's values are left to fit (0: the tree is frozen whole)."""
-        n = sum(not p.frozen for s in self.suns for p in (s.radius_deg, s.irradiance)
-                if not (p is s.irradiance and s.share is not None))
-        n += sum(not s.direction_given for s in self.suns) + sum(s.share is not None for s in self.suns)
-        n += sum(not p.frozen for lp in self.lamps for p in (lp.radius_m, lp.power))
-        n += 0 if (self.probe is not None or self.sky.radiance_sh.frozen) else 1
-        return n + (0 if self.exposure.frozen else int(self.has_physical_strengths))
-
-    @property
-    def has_physical_strengths(self) -> bool:
-        """Whether a light is given in physical units (a probe, an irradiance, a power, a
-        frozen sky): their one weight is the photograph's exposure."""
-        return (self.probe is not None or self.sky.radiance_sh.frozen or any(s.irradiance.frozen for s in self.suns)
-                or any(lp.power.frozen for lp in self.lamps))
-
-    @property
     def tilt(self) -> dict:
         """``{"pitch_deg", "roll_deg"}`` when the pitch is given, else empty."""
         if self.pitch_deg is None:

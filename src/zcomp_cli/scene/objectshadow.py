@@ -151,14 +151,16 @@ def _samples(mesh: PosedMesh, ext: float, cell: float, cfg: ObjectShadowConfig):
 
 
 def mesh_shadow(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, light_dir, *,
-                bias_rel: float, cfg: ObjectShadowConfig, cell: float | None = None):
+                bias_rel: float | None = None, cfg: ObjectShadowConfig | None = None, cell: float | None = None):
     """Visibility of camera-frame ``points`` (N, 3) toward ``light_dir`` past the mesh
     (``cell`` None: the extent over ``cfg.mesh_shadow_cells``; ``bias_rel`` the bias's
-    share of the point's depth, ``MarchConfig.march_bias_rel``).
+    share of the point's depth, ``MarchConfig.march_bias_rel``; each None: the
+    defaults).
 
     Returns:
         (vis (N,) in {0, 1}, t_hit (N,) distance to the occluder, inf where lit).
     """
+    cfg, bias_rel = _defaults(cfg, bias_rel)
     l = np.asarray(light_dir, np.float64)
     l = l / np.linalg.norm(l)
     u, v = orthonormal(l)
@@ -186,7 +188,7 @@ def mesh_shadow(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, light_
 
 
 def mesh_shadow_point(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, position, *,
-                      bias_rel: float, cfg: ObjectShadowConfig):
+                      bias_rel: float | None = None, cfg: ObjectShadowConfig | None = None):
     """Visibility of camera-frame ``points`` (N, 3) toward a lamp at ``position`` (3,)
     past the mesh: a perspective shadow map from the lamp (the mesh's samples splatted
     by their direction from it, keeping the nearest to it per cell; ``cfg`` as for
@@ -195,6 +197,7 @@ def mesh_shadow_point(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, 
     Returns:
         (vis (N,) in {0, 1}, t_hit (N,) distance to the occluder, inf where lit).
     """
+    cfg, bias_rel = _defaults(cfg, bias_rel)
     q = np.asarray(position, np.float64)
     P = np.asarray(points, np.float64)
     _, _, area, _ = area_triangles(mesh)
@@ -235,6 +238,15 @@ def mesh_shadow_point(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, 
     vis = (~blocked).astype(np.float64)
     t_hit = np.where(blocked, r + occ, np.inf)
     return vis, t_hit
+
+
+def _defaults(cfg, bias_rel):
+    """The shadow map's config and bias, each None: the defaults (a caller with a light
+    config passes its own)."""
+    from zcomp_cli.scene.config import MarchConfig
+
+    return (ObjectShadowConfig() if cfg is None else cfg,
+            MarchConfig().march_bias_rel if bias_rel is None else bias_rel)
 
 
 def light_shadow(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, light, *, bias_rel: float,
