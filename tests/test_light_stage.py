@@ -82,7 +82,7 @@ def test_a_fit_that_fails_fails_every_ask_with_its_reason():
 def test_a_batch_of_two_scenes_over_two_shards_fits_each_light_once(tmp_path):
     """8 jobs on 2 scenes, split over 2 shards (each its own process's stage, sharing the
     cache): each scene's light is fitted once, counted through the cache and the jobs'
-    ledgers; each scene's fitted light is written as OUT/<scene>/light.yaml."""
+    ledgers; each scene's fitted light is written as OUT/lights/<scene>.yaml."""
     from zcomp_cli.pipeline.batch import run_batch
     from zcomp_cli.pipeline.manifest import load_manifest
 
@@ -99,7 +99,7 @@ def test_a_batch_of_two_scenes_over_two_shards_fits_each_light_once(tmp_path):
     assert sum(led["status"] == "run" for led in ledgers) == 2
     assert len({led["key"] for led in ledgers}) == 2
     for name in ("s0", "s1"):
-        assert (out / name / "light.yaml").is_file()
+        assert (out / "lights" / f"{name}.yaml").is_file()
     # a second run of the same batch fits nothing: every light from the cache
     summary = run_batch(m, tmp_path / "out2", cache_dir=cache)
     again = [json.loads(p.read_text())["light_stage"] for p in sorted((tmp_path / "out2").glob("*/report.json"))]
@@ -139,7 +139,7 @@ def test_the_fitted_light_given_back_frozen_reproduces_the_composite(tmp_path):
 
     first = _manifest(tmp_path / "a", "")
     run_batch(load_manifest(first), tmp_path / "out_a", cache_dir=tmp_path / "cache")
-    light = tmp_path / "out_a" / "s0" / "light.yaml"
+    light = tmp_path / "out_a" / "lights" / "s0.yaml"
     doc = yaml.safe_load(light.read_text())
     assert {"pitch_deg", "roll_deg", "exposure", "light"} <= set(doc)
     kinds = [x["type"] for x in doc["light"]]

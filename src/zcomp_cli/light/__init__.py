@@ -10,7 +10,7 @@ the model, the filled tree, the posterior, the evidence), kept per scene. Inside
   the sun/sky split; ``posterior``: that posterior;
 * ``atoms``, ``solver``: the columns a light adds to the shading, and the robust NNLS;
 * ``fit``: the tree traversed, solved and filled; ``written``: the filled tree as the
-  manifest's ``light:`` (``OUT/<scene>/light.yaml``);
+  manifest's ``light:`` (``OUT/lights/<scene>.yaml``);
 * ``evidence_maps``: the evidence as debug maps; ``config``: the stage's configs.
 
 Imports ``scene`` below it, nothing above (no renderer, no pipeline).

@@ -270,15 +270,12 @@ class SunTerm(_DirectTerm):
                               radius_m=Param(value=float(fl.radius), origin=fl.radius_from),
                               power=Param(value=_physical(e, LAMP_SHADING_PER_WATT, exposure), origin=s_from))
             return node, suns, lamps, None
+        n = self.node
         node = dataclasses.replace(
-            self.node,
-            direction=self.node.direction.filled(tuple(fl.param), self.origin) if not self.node.direction.frozen
-            else self.node.direction,
-            radius_deg=self.node.radius_deg if self.node.radius_deg.frozen else
-            self.node.radius_deg.filled(float(fl.radius), fl.radius_from),
-            irradiance=self.node.irradiance if self.node.irradiance.frozen else
-            self.node.irradiance.filled(_physical(e, SUN_SHADING_PER_IRRADIANCE, exposure), s_from),
-            color=(1.0, 1.0, 1.0) if not self.node.irradiance.frozen else self.node.color)
+            n, direction=n.direction.fill(tuple(fl.param), self.origin),
+            radius_deg=n.radius_deg.fill(float(fl.radius), fl.radius_from),
+            irradiance=n.irradiance.fill(_physical(e, SUN_SHADING_PER_IRRADIANCE, exposure), s_from),
+            color=n.color if n.irradiance.frozen else (1.0, 1.0, 1.0))  # (a fitted strength is RGB)
         return node, suns, lamps, None
 
 
@@ -320,14 +317,11 @@ class LampTerm(_DirectTerm):
     def fill(self, ctx, exposure):
         e = self.cols[0].strength
         suns, lamps = self.model_light(e, self.strength_origin)
-        fl = self.light
+        fl, n = self.light, self.node
         node = dataclasses.replace(
-            self.node,
-            radius_m=self.node.radius_m if self.node.radius_m.frozen else
-            self.node.radius_m.filled(float(fl.radius), fl.radius_from),
-            power=self.node.power if self.node.power.frozen else
-            self.node.power.filled(_physical(e, LAMP_SHADING_PER_WATT, exposure), self.strength_origin),
-            color=(1.0, 1.0, 1.0) if not self.node.power.frozen else self.node.color)
+            n, radius_m=n.radius_m.fill(float(fl.radius), fl.radius_from),
+            power=n.power.fill(_physical(e, LAMP_SHADING_PER_WATT, exposure), self.strength_origin),
+            color=n.color if n.power.frozen else (1.0, 1.0, 1.0))  # (a fitted strength is RGB)
         return node, suns, lamps, None
 
 
@@ -637,7 +631,7 @@ def _filled(ctx: Context, params: LightParams, terms: list[Term], exposure: floa
                 else Origin.FIT if ctx.fitting else Origin.PRIOR)
     ground = (np.asarray(sky_node.ground.value, np.float64) if sky_node.ground.frozen else pp.ground)
     sky = Sky(radiance_sh=sky_sh, ground=ground, up=ctx.up, strength_from=sky_from)
-    filled_sky = _filled_sky(sky_node, sky_sh, ground, ctx, sky_from)
+    filled_sky = _filled_sky(sky_node, sky_sh, ground, ctx, sky_from, ex)
     filled = dataclasses.replace(params, suns=tuple(node_suns), lamps=tuple(node_lamps),
                                  sky=filled_sky,
                                  exposure=params.exposure if params.exposure.frozen or not math.isfinite(exposure)
@@ -647,14 +641,16 @@ def _filled(ctx: Context, params: LightParams, terms: list[Term], exposure: floa
                     diagnostics=ctx.diagnostics)
 
 
-def _filled_sky(node: SkyParams, sky_sh: np.ndarray, ground: np.ndarray, ctx: Context, origin: Origin) -> SkyParams:
+def _filled_sky(node: SkyParams, sky_sh: np.ndarray, ground: np.ndarray, ctx: Context, origin: Origin,
+                exposure: float) -> SkyParams:
     """The sky node with its values: the radiance in the ground frame (module
-    docstring of ``lightparams``), the support's radiance."""
+    docstring of ``lightparams``) in physical units at the photograph's ``exposure``
+    (as every filled strength: ``_physical``), the support's radiance."""
     from zcomp_cli.worldframe import ground_frame
 
     rad = node.radiance_sh if node.radiance_sh.frozen else node.radiance_sh.filled(
-        sh_camera_to_world(sky_sh, ground_frame(ctx.up)), origin)
-    gr = node.ground if node.ground.frozen else node.ground.filled(ground, Origin.FIT)
+        sh_camera_to_world(sky_sh / (exposure if exposure > 0 else 1.0), ground_frame(ctx.up)), origin)
+    gr = node.ground.fill(ground, Origin.FIT)
     return SkyParams(radiance_sh=rad, ground=gr)
 
 

@@ -8,7 +8,7 @@ sky's SH in the ground frame), each light with where its values came from (``fro
 Every strength is written in the lights' physical units at exposure 1 (the photograph's
 exposure folded in), so the file stands alone. ``light_yaml`` is that document as YAML
 text (JSON flow: every float written exactly), ``write_light_yaml`` writes it
-atomically. Given back -- ``light: OUT/<scene>/light.yaml`` in the scene, or its keys
+atomically. Given back -- ``light: OUT/lights/<scene>.yaml`` in the scene, or its keys
 pasted in -- with everything frozen, it reproduces the composite to within float
 rounding; edited (a sun turned by 30 deg), the composite follows.
 """
@@ -112,7 +112,7 @@ def light_document(params: LightParams, up, up_from: Origin, *, relative_to: Pat
     return doc
 
 
-def light_yaml(doc: dict, scene: str, path: str = "OUT/<scene>/light.yaml") -> str:
+def light_yaml(doc: dict, scene: str, path: str = "OUT/lights/<scene>.yaml") -> str:
     """The document as YAML text: JSON flow values (every float exactly), a comment on
     world up's origin."""
     from zcomp_cli import __version__

@@ -29,12 +29,12 @@
             power: 60                    # watts (Blender's point lamp Power), or auto
             # facing: [0, -1, 0]         # a one-sided panel (Blender's area lamp) facing there
             # color: [1.0, 0.9, 0.8]     # linear RGB multiplier of a sun's or lamp's strength
-          # - type: sky                  # the sky itself (zcomp writes it: OUT/<scene>/light.yaml):
+          # - type: sky                  # the sky itself (zcomp writes it: OUT/lights/<scene>.yaml):
           #   radiance_sh: [[r, g, b], ...]  # its radiance's order-2 SH, 9 rows, in the ground
           #   ground: [r, g, b]          # frame (x right, y up, z forward); the support's radiance
         exposure: 1.0         # optional: the photograph's exposure against the lights given in
                               # physical units (default auto: fitted)
-        # light: OUT/kitchen/light.yaml  # or a file holding these keys (light, pitch_deg,
+        # light: OUT/lights/kitchen.yaml  # or a file holding these keys (light, pitch_deg,
                                          # roll_deg, exposure): a light zcomp wrote, given back
 
 Each light may say where its values came from (``from: {direction: shadows,
@@ -69,7 +69,7 @@ SKY_KEYS = {"type", "radiance_sh", "ground", "from"}
 # what ``from`` may name, per kind of light (the values it says where they came from)
 FROM_FIELDS = {"sun": ("direction", "angular_radius_deg", "irradiance"), "lamp": ("position", "radius_m", "power"),
                "sky": ("radiance_sh", "ground")}
-# the keys of a light file (``light: OUT/<scene>/light.yaml``), a scene's own
+# the keys of a light file (``light: OUT/lights/<scene>.yaml``), a scene's own
 LIGHT_FILE_KEYS = {"light", "pitch_deg", "roll_deg", "exposure"}
 # a sky's radiance: beyond this it is no photograph's (and its square overflows float32)
 MAX_SKY_RADIANCE = 1e9

@@ -49,8 +49,8 @@ MAX_SEED = 2**32 - 1  # numpy and torch generators both take [0, 2**32)
 # Files zcomp writes at the top of an output folder: no job may be named like them
 # (summary.json and every shard's summary.shard-I-of-N.json: summary*.json).
 # what zcomp writes at the top of an output folder (eval's tables, `zcomp report`'s page,
-# `zcomp preview-light`'s sheets): no job folder may take these names
-RESERVED_OUTPUT_NAMES = {"summary.json", "eval.csv", "eval.json", "report.html", "report_thumbs", "preview"}
+# `zcomp preview-light`'s sheets, each scene's fitted light): no job folder may take these names
+RESERVED_OUTPUT_NAMES = {"summary.json", "eval.csv", "eval.json", "report.html", "report_thumbs", "preview", "lights"}
 RESERVED_OUTPUT_RE = re.compile(r"summary.*\.json", re.I)
 # Blender renders no image smaller than this on a side (mesh objects are rendered at
 # the scene's working size).

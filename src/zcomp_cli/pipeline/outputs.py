@@ -107,8 +107,7 @@ def read_report_noted(out_dir: Path) -> tuple[dict | None, str | None]:
 
 # What zcomp writes in a job folder (and its debug/ folder): a folder holding anything
 # else is not a job folder, and a run refuses to write into it.
-JOB_FILES = {REPORT, "composite.png", "composite.exr", AOVS, "grid.png", "shading_mask.png", MAPS_SHEET, "debug",
-             "light.yaml"}  # (light.yaml: a scene's fitted light, where a job takes its scene's name)
+JOB_FILES = {REPORT, "composite.png", "composite.exr", AOVS, "grid.png", "shading_mask.png", MAPS_SHEET, "debug"}
 DEBUG_FILES = {f"{n}.exr" for n in DEBUG_MAPS}
 
 

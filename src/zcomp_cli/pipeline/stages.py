@@ -6,7 +6,7 @@
   its last job (memory stays flat in the number of scenes);
 * :class:`LightStore`: the light stage (``light.stage.SceneLight``): each scene's light
   fitted once (per seed), shared by its jobs, kept in zcomp's cache for the other
-  shards and workers, and written as ``OUT/<scene>/light.yaml``;
+  shards and workers, and written as ``OUT/lights/<scene>.yaml``;
 * :class:`JobWork`: one job on its way through the stages;
 * the stages themselves: :func:`resolve_poses` (stage 2), :func:`render_objects`
   (stage 3: every mesh job's object intrinsics in one Blender batch) and
@@ -96,14 +96,15 @@ class LightStore:
     """The batch's light stage: ``get(scene, seed)`` is the scene's fitted light
     (``light.stage.FittedLight``), fitted once per scene, tree, config and seed by the
     renderer's light config, kept in memory and under the cache's ``lights/`` folder, and
-    written once a run as ``OUT/<scene>/light.yaml`` (``light.written``). A fit that
-    fails fails every job of that scene with its reason."""
+    written once a run in the manifest's ``light:`` syntax (``light.written``) at
+    ``path_of(scene)`` (default ``OUT/lights/<scene>.yaml``). A fit that fails fails
+    every job of that scene with its reason."""
 
-    def __init__(self, cfg, cache_dir: Path | None, out_root: Path):
+    def __init__(self, cfg, cache_dir: Path | None, out_root: Path, path_of=None):
         from zcomp_cli.light.stage import SceneLight
 
         self.stage = SceneLight(cfg, cache_dir)
-        self.out_root = Path(out_root)
+        self.path_of = path_of or (lambda name: Path(out_root) / LIGHTS_DIR / f"{name}.yaml")
         self._written: set = set()
         self._lock = threading.RLock()
 
@@ -121,25 +122,25 @@ class LightStore:
             return fitted
 
     def write(self, name: str, fitted) -> None:
-        """``OUT/<scene>/light.yaml`` (``light.written``): skipped, with a note in the log,
-        where that folder is not zcomp's to write into (a file, a link)."""
+        """The fitted light at ``path_of(name)`` (``light.written``); skipped, with a
+        warning, where its folder is not zcomp's to write into (a file, a link)."""
         import logging
 
         from zcomp_cli.light.written import write_light_yaml
 
-        folder = self.out_root / name
+        path = self.path_of(name)
+        folder = path.parent
         if folder.is_symlink() or (folder.exists() and not folder.is_dir()):
-            logging.getLogger(__name__).warning("not writing %s/light.yaml: %s is not a folder zcomp made", name,
-                                                folder)
+            logging.getLogger(__name__).warning("not writing %s: %s is not a folder zcomp made", path, folder)
             return
         try:
-            write_light_yaml(folder / LIGHT_FILE, fitted, name)
+            write_light_yaml(path, fitted, name)
         except ZcompError as exc:
-            logging.getLogger(__name__).warning("could not write %s/light.yaml: %s", name, exc)
+            logging.getLogger(__name__).warning("could not write %s: %s", path, exc)
 
 
-# the fitted light of each scene of an output folder (``OUT/<scene>/light.yaml``)
-LIGHT_FILE = "light.yaml"
+# the folder of an output folder holding each scene's fitted light (``<scene>.yaml``)
+LIGHTS_DIR = "lights"
 
 
 def light_config_of(spec: RendererSpec):

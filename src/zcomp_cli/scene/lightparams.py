@@ -90,6 +90,10 @@ class Param:
         origin ``origin`` (None: kept)."""
         return Param(value=_plain(value), frozen=self.frozen, origin=self.origin if origin is None else origin)
 
+    def fill(self, value, origin: Origin | None = None) -> "Param":
+        """A free parameter ``filled`` with the fit's value; a frozen one as it is."""
+        return self if self.frozen else self.filled(value, origin)
+
     def to_dict(self) -> dict:
         return {"value": _listed(self.value), "frozen": self.frozen, "origin": self.origin.name}
 

@@ -14,7 +14,7 @@ Steps of ``render``:
    each sun and lamp with its soft shadow, the scene's albedo offset, and on the object
    its glossy reflection where the bundle has roughness and metallic maps.
 
-With ``--debug`` (``RenderRequest.debug``), a job whose light's direction was searched
+With ``--debug`` (``RenderRequest.debug``), a job whose light's fit read the photograph's shadows
 also returns the evidence the fit read, at the job's resolution, as
 ``RenderOutput.debug_maps`` (``light.evidence_maps``: the soft cast-shadow mask, its
 confidence, the support's shadow ratio, the casters and the support).
