@@ -50,7 +50,7 @@ from zcomp_cli.light import atoms as at
 from zcomp_cli.light import search as sr
 from zcomp_cli.light.config import LightConfig
 from zcomp_cli.light.posterior import DirectionPosterior
-from zcomp_cli.light.prepare import Prepared, prepare
+from zcomp_cli.light.prepare import Prepared, prepare, reads_shadows
 from zcomp_cli.light.solver import Atom, fit
 from zcomp_cli.scene import sh
 from zcomp_cli.scene.lightmodel import FitSummary, Lamp, LightModel, ProbeRef, ShadowKind, Sky, Sun
@@ -540,7 +540,7 @@ def fit_light(params: LightParams | None, depth, normals, shading, known, albedo
     """
     params = LightParams.estimate() if params is None else params
     up = np.asarray(up, np.float64)
-    pp = prepare(depth, normals, shading, known, albedo, camera, up, cfg)
+    pp = prepare(depth, normals, shading, known, albedo, camera, up, cfg, shadows=reads_shadows(params, cfg))
     ctx = Context(pp=pp, cfg=cfg, seed=seed, up=up, up_from=up_from)
     if pp.grid is not None:
         ctx.diagnostics["mesh"] = pp.grid.mesh
