@@ -90,7 +90,7 @@ def reads_shadows(params, settings: LightConfig) -> bool:
 
 
 def prepare(depth, normals, shading, known, albedo, camera: Camera, up, settings: LightConfig, *,
-            shadows: bool = True) -> Prepared:
+            shadows: bool = True, steps: dict | None = None) -> Prepared:
     """Step 1 (module docstring).
 
     Args:
@@ -100,7 +100,10 @@ def prepare(depth, normals, shading, known, albedo, camera: Camera, up, settings
         settings: the light stage's config.
         shadows: build the depth mesh, its ray tracer and the shadow grid
             (``reads_shadows``); False: the fit pixels' rays are marched, ``grid`` is None.
+        steps: where the seconds of the mesh and its tracer go (``shadows``; the job's
+            ledger, ``light.ledger``), None: not recorded.
     """
+    from zcomp_cli.light.ledger import timed
     from zcomp_cli.scene.depthmesh import build_depth_mesh
     from zcomp_cli.scene.planes import find_walls
     from zcomp_cli.worldframe import ground_frame
@@ -120,8 +123,9 @@ def prepare(depth, normals, shading, known, albedo, camera: Camera, up, settings
                         frame=frame, lobe_columns=np.zeros((0, len(at.sky_lobes(frame)))))
     mesh = caster = None
     if shadows:
-        mesh = build_depth_mesh(d2, n2, cam2, up, walls=walls, cfg=settings.mesh)
-        caster = mesh.caster()
+        with timed({} if steps is None else steps, "shadows"):
+            mesh = build_depth_mesh(d2, n2, cam2, up, walls=walls, cfg=settings.mesh)
+            caster = mesh.caster()
         fp = dataclasses.replace(fp, caster=caster)
     ground = at.ground_radiance(fp, S)
     vis = at.sky_visibility(fp)

@@ -231,4 +231,4 @@ def _estimate_missing(spec, image, camera, maps, sources, cache_dir):
         if name not in out and getattr(est, name, None) is not None:
             out[name] = getattr(est, name)
             sources[name] = est.sources.get(name, "estimated")
-    return out, sources, {"fits": dict(est.fits), "agreement": est.agreement}
+    return out, sources, {"fits": dict(est.fits), "agreement": est.agreement, "timings": dict(est.timings)}

@@ -18,7 +18,7 @@
 from __future__ import annotations
 
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
@@ -201,6 +201,9 @@ class JobWork:
     pose: object | None = None
     bundle_dir: Path | None = None
     error: str | None = None
+    # what the job's ledger needs to know of the stages before it (``pipeline.ledger``):
+    # ``object`` ({"cached", "seconds"} of its Blender passes), ``scene_loaded``, ``glossy``
+    facts: dict = field(default_factory=dict)
 
 
 def resolve_batch_size(requested: int | None, renderer) -> int:
@@ -317,6 +320,7 @@ def render_objects(ctx: BatchContext, works: list[JobWork], *, session=None) -> 
     results = render_object_intrinsics(requests, cache_dir=ctx.cache_root, samples=ctx.samples, progress=_cb,
                                        session=session)
     for w, res in zip(owners, results):
+        w.facts["object"] = {"cached": bool(getattr(res, "cached", False)), "seconds": float(getattr(res, "seconds", 0))}
         if res.ok:
             w.bundle_dir = res.bundle_dir
         else:
