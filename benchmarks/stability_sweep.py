@@ -100,6 +100,7 @@ class Case:
     k: float = 1.0
     ci: bool = False
     renderers: tuple | None = None
+    settings: dict = field(default_factory=dict)  # the renderer's settings for this case
 
 
 def _cases() -> list[Case]:
@@ -132,6 +133,8 @@ def _cases() -> list[Case]:
         Case("geometry", "depth steps and holes", {"depth": "steps"}, ci=True),
         Case("stiff", "sun at the zenith", {"light_dir": (0.0, 1.0, 0.0)}, ci=True),
         Case("stiff", "lamp far away (1 km)", {"lamp_far": True}, renderers=("physical", "cycles")),
+        Case("range", "depths x 1e5 in fp16 (past 65504)", {"scale": 1e5}, ref="none", ci=True,
+             renderers=("zerocomp",), settings={"dtype": "fp16"}),
     ]
     return c
 
@@ -245,6 +248,38 @@ class CellTimeout(Exception):
     pass
 
 
+class PeakMemory:
+    """The memory a block added at its peak, in MB: the larger of the Python heap's peak
+    (``tracemalloc``: numpy's arrays included) and the process's resident high-water
+    mark above its start (Linux: ``/proc/self/status`` VmHWM, reset through
+    ``clear_refs``; torch's tensors are only seen there). Blender's process is not counted."""
+
+    def __enter__(self):
+        self.rss0 = _rss("VmRSS")
+        with contextlib.suppress(OSError):
+            Path("/proc/self/clear_refs").write_text("5")  # resets VmHWM to the current RSS
+        tracemalloc.start()
+        return self
+
+    def __exit__(self, *exc):
+        heap = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        hwm = _rss("VmHWM")
+        self.mb = max(heap, (hwm - self.rss0) if (hwm and self.rss0) else 0) / 2 ** 20
+        return False
+
+
+def _rss(field_name: str) -> int | None:
+    """A ``/proc/self/status`` memory field in bytes (None where there is none)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith(field_name + ":"):
+                return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return None
+
+
 @contextlib.contextmanager
 def time_limit(seconds: float | None):
     """Raise ``CellTimeout`` in the main thread after ``seconds`` (None: no limit)."""
@@ -337,13 +372,12 @@ def run_cell(case: Case, renderer: str, work: Path, *, weights=None, limit_s=Non
     (composite, roi) per renderer, the reference of the scaled cases (filled on first use)."""
     cell = Cell(renderer, case.family, case.name)
     folder = work / f"{renderer}-{_slug(case.name)}"
-    manifest = build_scene(case, folder, renderer_spec(renderer, False, weights))
-    tracemalloc.start()
-    t0 = time.perf_counter()
-    res, img = composite_of(folder, manifest, limit_s)
-    cell.seconds = time.perf_counter() - t0
-    cell.peak_mb = tracemalloc.get_traced_memory()[1] / 2 ** 20
-    tracemalloc.stop()
+    manifest = build_scene(case, folder, {**renderer_spec(renderer, False, weights), **case.settings})
+    with PeakMemory() as mem:
+        t0 = time.perf_counter()
+        res, img = composite_of(folder, manifest, limit_s)
+        cell.seconds = time.perf_counter() - t0
+    cell.peak_mb = mem.mb
     if img is None:
         cell.outcome, cell.message = res["outcome"], res["message"]
         return cell
@@ -362,7 +396,7 @@ def run_cell(case: Case, renderer: str, work: Path, *, weights=None, limit_s=Non
         if ref is not None:
             k = case.k if case.ref == "scaled" else 1.0
             cell.err, cell.ref = rel_err(img / k, ref, box), ("x k" if case.ref == "scaled" else "= nominal")
-    elif reference and renderer != "naive":
+    elif reference and renderer != "naive" and case.ref == "converged":
         f2 = work / f"{renderer}-{_slug(case.name)}-ref"
         _, ref_img = composite_of(f2, build_scene(case, f2, renderer_spec(renderer, True, weights)), None)
         if ref_img is not None:
@@ -374,7 +408,281 @@ def _slug(name: str) -> str:
     return "".join(ch if ch.isalnum() else "_" for ch in name)[:60]
 
 
-__all__ = ["CASES", "Case", "Cell", "build_scene", "run_cell", "case_named"]
+# -- the sweep --------------------------------------------------------------------------------
+RENDERERS = ("physical", "naive", "zerocomp", "cycles")
+# the cases the cycles renderer runs (each starts Blender's render of two passes: the few
+# that say most about a path tracer fed zcomp's maps and light)
+CYCLES_CASES = ("nominal", "radiance x 1e-06", "radiance x 1e+06", "sun 1e5 x sky", "probe: sun in one texel",
+                "field of view 170 deg", "depths x 10000 (10 km scale)", "degenerate normals (0, NaN, flipped, x5)",
+                "lamp far away (1 km)")
+
+
+def scene_cells(work: Path, renderers, *, quick: bool, limit_s: float | None, names=None, families=FAMILIES,
+                progress=print) -> list[Cell]:
+    """Every scene case (``--quick``: those marked ``ci``) of ``families`` on each renderer
+    that runs it."""
+    weights = tiny_weights(work / "weights") if "zerocomp" in renderers else None
+    cells = []
+    for r in renderers:
+        nominal: dict = {}
+        for case in CASES:
+            if (quick and not case.ci) or (names and case.name not in names) or case.family not in families:
+                continue
+            if (case.renderers and r not in case.renderers) or (r == "cycles" and not quick
+                                                                and case.name not in CYCLES_CASES):
+                continue
+            cell = run_cell(case, r, work, weights=weights, limit_s=limit_s, reference=not quick, nominal=nominal)
+            cells.append(cell)
+            progress(_line(cell))
+    return cells
+
+
+def _line(c: Cell) -> str:
+    err = "" if not math.isfinite(c.err) else f"{c.err:.3g}"
+    return (f"{c.renderer:16s} {c.family:9s} {c.case:44s} {c.outcome:8s} {err:>9s} {c.ref:14s} {c.seconds:7.2f} s "
+            f"{c.peak_mb:7.1f} MB  {c.message[:120]}")
+
+
+DEFECTS = ("NaN", "black", "crash", "timeout")
+
+
+def markdown(cells: list[Cell], *, quick: bool, seconds: float) -> str:
+    """``docs/stability.md``'s tables: per renderer, the solver's and the sampler's."""
+    lines = [HEADER.format(mode="--quick (the CI slice)" if quick else "the full sweep", seconds=seconds), ""]
+    bad = [c for c in cells if c.outcome in DEFECTS]
+    lines.append(f"**{len(cells)} cells: {sum(c.outcome == 'finite' for c in cells)} finite, "
+                 f"{sum(c.outcome == 'error' for c in cells)} clear errors, {len(bad)} defects.**")
+    lines.append("")
+    for r in dict.fromkeys(c.renderer for c in cells):
+        rows = [c for c in cells if c.renderer == r]
+        lines += [f"### {r}", "", "| family | case | outcome | err | reference | time (s) | peak MB | what it says |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+        for c in rows:
+            err = "" if not math.isfinite(c.err) else f"{c.err:.2g}"
+            msg = c.message or "; ".join(n for n in c.extra.get("notes", []) if not n.startswith("colour balance"))
+            lines.append(f"| {c.family} | {c.case} | {c.outcome} | {err} | {c.ref} | {c.seconds:.2f} | "
+                         f"{c.peak_mb:.0f} | {_cell_text(msg)} |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def _cell_text(s: str, n: int = 220) -> str:
+    s = s.replace("|", "/").replace("\n", " ")
+    return s if len(s) <= n else s[: n - 1] + "…"
+
+
+HEADER = """<!-- written by benchmarks/stability_sweep.py ({mode}, {seconds:.0f} s); the prose around the tables is in
+docs/stability-notes.md -->
+## The sweep's tables ({mode})"""
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="the CI slice: the cases marked ci, no converged reference")
+    ap.add_argument("--renderers", default=",".join(RENDERERS))
+    ap.add_argument("--families", default="range,geometry,stiff")
+    ap.add_argument("--cases", default="", help="only these scene cases (names, '|'-separated)")
+    ap.add_argument("--no-sampler", action="store_true")
+    ap.add_argument("--out", type=Path, default=None, help="the cells as JSON (OUT/stability.json)")
+    ap.add_argument("--doc", type=Path, default=None, help="write the tables as markdown (docs/stability.md)")
+    ap.add_argument("--limit-s", type=float, default=600.0, help="a cell longer than this is 'timeout'")
+    a = ap.parse_args(argv)
+    _quiet()
+    renderers = [r for r in a.renderers.split(",") if r]
+    families = set(a.families.split(","))
+    names = set(a.cases.split("|")) if a.cases else None
+    t0 = time.perf_counter()
+    work = Path(tempfile.mkdtemp(prefix="zcomp-stability-"))
+    cells = []
+    try:
+        cells += scene_cells(work, renderers, quick=a.quick, limit_s=a.limit_s, names=names, families=families)
+        if "stiff" in families and not names:
+            for c in solver_cells():
+                print(_line(c))
+                cells.append(c)
+            if "zerocomp" in renderers and not a.no_sampler:
+                steps = (1, 2, 5, 20) if a.quick else SAMPLER_STEPS
+                for c in sampler_cells(work, steps=steps, ref_steps=50 if a.quick else 200):
+                    print(_line(c))
+                    cells.append(c)
+    finally:
+        import shutil
+
+        shutil.rmtree(work, ignore_errors=True)
+    seconds = time.perf_counter() - t0
+    if a.out is not None:
+        a.out.mkdir(parents=True, exist_ok=True)
+        (a.out / "stability.json").write_text(json.dumps([c.row() for c in cells], indent=1, default=str))
+    text = markdown(cells, quick=a.quick, seconds=seconds)
+    if a.doc is not None:
+        a.doc.write_text(text + "\n")
+    print(f"{len(cells)} cells in {seconds:.0f} s; defects: {[c.case for c in cells if c.outcome in DEFECTS]}")
+    return 1 if any(c.outcome in DEFECTS for c in cells) else 0
+
+
+__all__ = ["CASES", "Case", "Cell", "build_scene", "run_cell", "case_named", "scene_cells", "solver_cells",
+           "sampler_cells", "main"]
+
+
+if __name__ == "__main__":
+    sys.exit(main())
+
+
+# -- the light fit's stiff least squares ----------------------------------------------------
+SOLVER_NOISE = 0.01
+SOLVER_CASES = ("sun at 45 deg (control)", "sun at the zenith", "lamp 1 km away", "lamp 1 km away, unit scale",
+                "sun at the zenith, bare floor")
+
+
+def solver_cells(names=SOLVER_CASES) -> list[Cell]:
+    """The light fit's robust NNLS (``light.solver.fit``) on nearly collinear columns:
+    a floor's fit pixels (``light.prepare``), the sky's lobes and one light -- a sun at
+    45 deg (well posed), at the zenith (its column is the uniform lobe's on a floor), a
+    lamp 1 km above (its column is ~1e-6 of the others', and as flat) -- with shading made
+    from known weights and 1 % noise. Per cell: the columns' condition number (each scaled to unit
+    norm), the shading's and the weights' relative errors, and the reweighting's
+    convergence (the weights after the solver's iterations against 50 more)."""
+    import dataclasses as dc
+
+    from zcomp_cli.light import atoms as at
+    from zcomp_cli.light.config import LightConfig
+    from zcomp_cli.light.prepare import prepare
+    from zcomp_cli.light.solver import Atom, fit
+    from zcomp_cli.testing import floor_scene
+
+    cfg = LightConfig()
+    out = []
+    for name in names:
+        cell = Cell("light fit", "stiff", name, ref="known weights")
+        t0 = time.perf_counter()
+        # a box (its faces and its shadow tell lights apart), or a bare floor (nothing does)
+        s = floor_scene(*SIZE, with_box="bare" not in name, box_center=(0.8, -3.5))
+        pp = prepare(s.depth, s.normals, s.shading, s.depth > 0, s.albedo, s.camera, s.up_cam, cfg, shadows=False)
+        fp, up, lobes = pp.fp, s.up_cam, pp.lobe_columns
+        if name.startswith("sun"):
+            d = up if "zenith" in name else (up + np.cross(up, [1.0, 0, 0]) / np.linalg.norm(np.cross(up, [1.0, 0, 0])))
+            col = at.sun_column(fp, d / np.linalg.norm(d), 0.265, steps=cfg.estimate_march_steps,
+                                cone_samples=cfg.cone_samples)
+            w_light = 1.0
+        else:
+            q = pp.anchor + up * 1000.0
+            col = at.lamp_columns(fp, q[None], steps=cfg.estimate_march_steps)[:, 0]
+            w_light = 1.0 / max(float(np.median(col)), 1e-300)  # lights the floor as a unit sun does
+            if "unit scale" in name:  # the column in the solver's units: what scaling would buy
+                col, w_light = col * w_light, 1.0
+        X = np.concatenate([col[:, None], lobes], 1)
+        w_true = np.zeros(X.shape[1])
+        w_true[0], w_true[1] = w_light, 0.3 / max(float(np.median(lobes[:, 0])), 1e-12)
+        clean_y = X @ w_true
+        # 1 % noise (a render's, a photograph's grain): what an ill-conditioned split amplifies
+        y = clean_y * (1.0 + SOLVER_NOISE * np.random.default_rng(0).standard_normal(len(clean_y)))
+        atoms_ = [Atom(f"c{i}", X[:, i], direct=(i == 0)) for i in range(X.shape[1])]
+        try:
+            r4 = fit(atoms_, y, train=fp.train, cfg=cfg.solver)
+            r50 = fit(atoms_, y, train=fp.train, cfg=dc.replace(cfg.solver, irls_iters=cfg.solver.irls_iters + 50))
+        except Exception as exc:  # noqa: BLE001 - reported as the cell's crash
+            cell.outcome, cell.message = "crash", f"{type(exc).__name__}: {exc}"
+            out.append(cell)
+            continue
+        w4 = np.array([w[0] for w in r4.weights])
+        w50 = np.array([w[0] for w in r50.weights])
+        norms = np.linalg.norm(X, axis=0)
+        cond = float(np.linalg.cond(X / np.maximum(norms, 1e-300)))
+        cell.seconds = time.perf_counter() - t0
+        finite = np.all(np.isfinite(w4))
+        cell.outcome = "finite" if finite else "NaN"
+        cell.err = float(np.linalg.norm(X @ w4 - clean_y) / np.linalg.norm(clean_y))
+        light_err = abs(w4[0] - w_true[0]) / w_true[0]
+        step = float(np.linalg.norm(w4 - w50) / max(np.linalg.norm(w50), 1e-300))
+        # how far the light's column lies from the sky's span (sin of the angle): 0 = collinear
+        proj = lobes @ np.linalg.lstsq(lobes, col, rcond=None)[0]
+        sep = float(np.linalg.norm(col - proj) / max(np.linalg.norm(col), 1e-300))
+        cell.extra.update(cond=cond, light_weight_err=float(light_err), irls_step=step, separation=sep)
+        cell.message = (f"cond {cond:.3g}; the light off the sky's span by {sep:.2g}; its weight "
+                        f"{100 * light_err:.3g} % off; {cfg.solver.irls_iters} iterations against "
+                        f"{cfg.solver.irls_iters + 50}: {step:.2g}")
+        out.append(cell)
+    return out
+
+
+# -- the zerocomp sampler ---------------------------------------------------------------------
+def sampler_cells(work: Path, steps=SAMPLER_STEPS, dtypes=SAMPLER_DTYPES, ref_steps: int = 200) -> list[Cell]:
+    """The zerocomp sampler (``renderers.zerocomp.pipeline.run_pipeline``: DDIM, trailing
+    spacing, v-prediction) on tiny random weights on the CPU, one job's two passes, from
+    1 to 200 steps in each dtype: its final latent against the fp32, ``ref_steps``-step
+    one (relative RMS); a dtype the CPU cannot run, or an overflow, is the clear error
+    the renderer gives (``NumericalError`` names the step and the dtype)."""
+    import torch
+
+    from zcomp_cli.errors import ZcompError
+    from zcomp_cli.renderers.zerocomp.conditioning import build_conditioning
+    from zcomp_cli.renderers.zerocomp.loading import load_models
+    from zcomp_cli.renderers.zerocomp.pipeline import run_pipeline
+
+    _quiet()
+    torch.set_num_threads(1)  # (two threads on a shared 2-core machine ran 60 times slower)
+    ck, base = tiny_weights(work / "weights")
+    req = _zerocomp_request()
+    cond = np.stack([build_conditioning(req, 11, 32)] * 2)
+    types = {"fp32": torch.float32, "bf16": torch.bfloat16, "fp16": torch.float16}
+    models32 = load_models(ck, base, device="cpu", dtype=torch.float32)
+    ref = run_pipeline(models32, cond, steps=ref_steps, seed=469, device="cpu", dtype=torch.float32).latents
+    out = []
+    for dt in dtypes:
+        models = models32 if dt == "fp32" else load_models(ck, base, device="cpu", dtype=types[dt])
+        for n in steps:
+            cell = Cell("zerocomp sampler", "stiff", f"{n} steps, {dt}", ref=f"fp32, {ref_steps} steps")
+            with PeakMemory() as mem:
+                t0 = time.perf_counter()
+                try:
+                    lat = run_pipeline(models, cond, steps=n, seed=469, device="cpu", dtype=types[dt]).latents
+                    cell.outcome = "finite" if np.all(np.isfinite(lat)) else "NaN"
+                    cell.err = float(np.sqrt(np.mean((lat - ref) ** 2)) / np.sqrt(np.mean(ref ** 2)))
+                except ZcompError as exc:
+                    cell.outcome, cell.message = "error", f"{type(exc).__name__}: {exc}"
+                except Exception as exc:  # noqa: BLE001
+                    cell.outcome, cell.message = "crash", f"{type(exc).__name__}: {exc}"
+                cell.seconds = time.perf_counter() - t0
+            cell.peak_mb = mem.mb
+            out.append(cell)
+    return out
+
+
+def _zerocomp_request():
+    """A floor scene's composite request (the nominal case's maps, its shading masked
+    around the sphere) at SIZE."""
+    from zcomp_cli.maps import SceneMaps
+    from zcomp_cli.renderers.base import RenderRequest
+    from zcomp_cli.testing import floor_scene, insert_bundle, sphere_object_bundle
+
+    s = floor_scene(*SIZE, with_box=True, box_center=(0.8, -3.5))
+    b = sphere_object_bundle(s.camera, s.world_to_camera([0.0, 0.25, -3.0]), 0.25, albedo=(0.7, 0.2, 0.2),
+                             floor_normal=s.up_cam)
+    d, n, a, sel = insert_bundle(s.depth, s.normals, s.albedo, b)
+    known = ~sel
+    known[18:40, 20:44] = False
+    return RenderRequest(SceneMaps(d, n, a), s.shading, known, s.camera, roi=(16, 14, 48, 44), image=s.image)
+
+
+def _quiet() -> None:
+    """diffusers' and transformers' progress bars and advice off (the table is the output)."""
+    import logging
+    import os
+
+    os.environ.setdefault("HF_HUB_DISABLE_PROGRESS_BARS", "1")
+    for name in ("diffusers", "transformers", "huggingface_hub"):
+        logging.getLogger(name).setLevel(logging.ERROR)
+    try:
+        from diffusers.utils import logging as dl
+
+        dl.set_verbosity_error()
+        dl.disable_progress_bar()
+        from transformers.utils import logging as tl
+
+        tl.set_verbosity_error()
+        tl.disable_progress_bar()
+    except Exception:  # noqa: BLE001 - only noise
+        pass
 
 
 def tiny_weights(folder: Path) -> tuple[Path, Path]:

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from zcomp_cli.renderers.zerocomp.dtype import check_finite
+from zcomp_cli.renderers.zerocomp.dtype import check_conditioning, check_finite
 
 # SD 2.1's (OpenCLIP-derived) tokenizer on "": <|startoftext|>=49406, <|endoftext|>=49407,
 # then padding with pad_token "!" whose id is 0 (SD 1.x pads with 49407 instead).
@@ -24,6 +24,7 @@ def empty_prompt_ids(max_len: int = MAX_LEN):
 @dataclass
 class PipelineOutput:
     images: np.ndarray  # B x R x R x 3 float32, gamma-2.2 encoded [0, 1]
+    latents: np.ndarray | None = None  # B x 4 x R/f x R/f float32, the denoised latents (before decoding)
 
 
 def vae_scale(vae) -> int:
@@ -93,6 +94,7 @@ def run_pipeline(models, cond: np.ndarray, *, steps: int, seed, device: str, dty
         by_seed = {v: initial_noise(v, shape) for v in set(seeds)}
         noise = torch.cat([by_seed[v] for v in seeds])
         latents = (noise * sched.init_noise_sigma).to(device, dtype)
+        check_conditioning(cond, dtype)  # (fp16: a depth past 65 km would be Inf)
         c = torch.from_numpy(cond).to(device, dtype, non_blocking=True)
         # 4. denoising loop
         for t in sched.timesteps:
@@ -110,4 +112,4 @@ def run_pipeline(models, cond: np.ndarray, *, steps: int, seed, device: str, dty
             img = models.vae.decode(lat.to(dtype), return_dict=False)[0]
             check_finite(img, "VAE decode")
             imgs.append((img.float() / 2 + 0.5).clamp(0, 1).permute(0, 2, 3, 1).cpu())
-    return PipelineOutput(torch.cat(imgs).numpy().astype(np.float32))
+    return PipelineOutput(torch.cat(imgs).numpy().astype(np.float32), latents.float().cpu().numpy())
