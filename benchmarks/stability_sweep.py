@@ -170,9 +170,10 @@ def build_scene(case: Case, folder: Path, renderer: dict) -> Path:
     kw = {"camera_height": 1.2, "pitch_deg": -25.0, **p}
     if lamp_far:
         kw.update(light_intensity=0.0, lamp=((0.0, 1000.0, -3.0), 1e6))
-    s = floor_scene(*SIZE, with_box=True, box_center=(bx * k, bz * k), box_size=(0.6 * k, 0.8 * k, 0.6 * k),
-                    **{**kw, "camera_height": kw["camera_height"] * k})
-    image, depth, normals, albedo = s.image * radiance, s.depth.copy(), s.normals.copy(), s.albedo.copy()
+    # (a scene k times larger is the nominal one's depths times k: floor_scene's own shadow
+    # rays start 1e-4 m off their surface, which is not the same scene at every scale)
+    s = floor_scene(*SIZE, with_box=True, box_center=(bx, bz), **kw)
+    image, depth, normals, albedo = s.image * radiance, s.depth * k, s.normals.copy(), s.albedo.copy()
     if normals_kind == "degenerate":
         normals[30:36, 20:30] = 0.0
         normals[36:40, 30:40] = np.nan
@@ -185,8 +186,11 @@ def build_scene(case: Case, folder: Path, renderer: dict) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     for name, arr in (("image", image), ("depth", depth), ("normals", normals), ("albedo", albedo)):
         write_exr(folder / f"{name}.exr", np.asarray(arr, np.float32))
-    center = s.world_to_camera(np.array([ox * k, radius * k, oz * k]))
-    b = sphere_object_bundle(s.camera, center, radius * k, albedo=obj_albedo, floor_normal=s.up_cam)
+    center = s.world_to_camera(np.array([ox, radius, oz]))
+    b = sphere_object_bundle(s.camera, center, radius, albedo=obj_albedo, floor_normal=s.up_cam)
+    if k != 1.0:
+        b = dataclasses.replace(b, depth=b.depth * k, footprint_depth=b.footprint_depth * k,
+                                meta={**b.meta, "object_height_m": b.meta["object_height_m"] * k})
     b.save(folder / "sphere")
     scene = {"image": "image.exr", "K": s.camera.K.tolist(), "depth": "depth.exr", "normals": "normals.exr",
              "albedo": "albedo.exr"}
