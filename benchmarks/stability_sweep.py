@@ -480,9 +480,23 @@ def _cell_text(s: str, n: int = 220) -> str:
     return s if len(s) <= n else s[: n - 1] + "…"
 
 
-HEADER = """<!-- written by benchmarks/stability_sweep.py ({mode}, {seconds:.0f} s); the prose around the tables is in
-docs/stability-notes.md -->
-## The sweep's tables ({mode})"""
+HEADER = """## The tables ({mode}, {seconds:.0f} s)
+
+Written by `python benchmarks/stability_sweep.py --doc docs/stability.md` between the
+markers below; the prose around them is kept."""
+BEGIN, END = "<!-- stability tables: begin -->", "<!-- stability tables: end -->"
+
+
+def write_doc(path: Path, tables: str) -> None:
+    """``tables`` into ``path`` between ``BEGIN`` and ``END`` (the rest of the page is
+    kept; a page without the markers gets them at its end)."""
+    old = path.read_text() if path.exists() else ""
+    block = f"{BEGIN}\n{tables}\n{END}"
+    if BEGIN in old and END in old:
+        new = old[: old.index(BEGIN)] + block + old[old.index(END) + len(END):]
+    else:
+        new = old.rstrip("\n") + ("\n\n" if old else "") + block + "\n"
+    path.write_text(new)
 
 
 def main(argv=None) -> int:
@@ -524,7 +538,7 @@ def main(argv=None) -> int:
         (a.out / "stability.json").write_text(json.dumps([c.row() for c in cells], indent=1, default=str))
     text = markdown(cells, quick=a.quick, seconds=seconds)
     if a.doc is not None:
-        a.doc.write_text(text + "\n")
+        write_doc(a.doc, text)
     print(f"{len(cells)} cells in {seconds:.0f} s; defects: {[c.case for c in cells if c.outcome in DEFECTS]}")
     return 1 if any(c.outcome in DEFECTS for c in cells) else 0
 
