@@ -499,6 +499,29 @@ def write_doc(path: Path, tables: str) -> None:
     path.write_text(new)
 
 
+def sampler_figure(cells: list[Cell], path: Path) -> None:
+    """The sampler's final latent against its reference, per dtype, over the steps (log-log)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 3.6), dpi=120)
+    for dt, marker in zip(SAMPLER_DTYPES, "osd"):
+        pts = sorted((int(c.case.split()[0]), c.err) for c in cells
+                     if c.renderer == "zerocomp sampler" and c.case.endswith(dt) and math.isfinite(c.err))
+        if pts:
+            ax.loglog(*zip(*pts), marker=marker, label=dt)
+    ax.set_xlabel("DDIM steps")
+    ax.set_ylabel("final latent, relative RMS\nagainst fp32 at 200 steps")
+    ax.set_title("zerocomp's sampler (tiny random weights, CPU)", fontsize=9)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="the CI slice: the cases marked ci, no converged reference")
@@ -509,7 +532,18 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=None, help="the cells as JSON (OUT/stability.json)")
     ap.add_argument("--doc", type=Path, default=None, help="write the tables as markdown (docs/stability.md)")
     ap.add_argument("--limit-s", type=float, default=600.0, help="a cell longer than this is 'timeout'")
+    ap.add_argument("--figure", type=Path, default=None, help="the sampler's error over its steps (a PNG)")
+    ap.add_argument("--from-json", type=Path, default=None,
+                    help="no run: the doc and figure of a sweep's stability.json (with its seconds: --seconds)")
+    ap.add_argument("--seconds", type=float, default=float("nan"))
     a = ap.parse_args(argv)
+    if a.from_json is not None:
+        cells = [Cell(**row) for row in json.loads(a.from_json.read_text())]
+        if a.doc is not None:
+            write_doc(a.doc, markdown(cells, quick=a.quick, seconds=a.seconds))
+        if a.figure is not None:
+            sampler_figure(cells, a.figure)
+        return 0
     _quiet()
     renderers = [r for r in a.renderers.split(",") if r]
     families = set(a.families.split(","))
@@ -539,6 +573,8 @@ def main(argv=None) -> int:
     text = markdown(cells, quick=a.quick, seconds=seconds)
     if a.doc is not None:
         write_doc(a.doc, text)
+    if a.figure is not None and any(c.renderer == "zerocomp sampler" for c in cells):
+        sampler_figure(cells, a.figure)
     print(f"{len(cells)} cells in {seconds:.0f} s; defects: {[c.case for c in cells if c.outcome in DEFECTS]}")
     return 1 if any(c.outcome in DEFECTS for c in cells) else 0
 
