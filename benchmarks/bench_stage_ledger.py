@@ -17,7 +17,7 @@ Three runs into fresh output folders, one cache (a temporary ``--cache-dir``):
 ``--cycles`` adds job 4 under the ``cycles`` renderer (16 samples): the light given is
 not searched, and no glossy prefilter is built (the path tracer reads the probe itself).
 Prints each job's ledger (``report.json``'s ``stages``) and the light stage's share of
-the job; ``--doc`` writes the tables as markdown.
+the job; ``--doc`` writes the tables into a markdown page (between its markers).
 """
 
 from __future__ import annotations
@@ -104,8 +104,10 @@ def main(argv=None) -> int:
         lines += ledger_table(cyc[GIVEN], "light given, the cycles renderer")
     text = "\n".join(lines)
     print(text)
-    if a.doc is not None:
-        a.doc.write_text(text + "\n")
+    if a.doc is not None:  # (between its markers: the page's prose is kept)
+        from stability_sweep import write_doc
+
+        write_doc(a.doc, text, "stage ledger tables")
     return 0
 
 

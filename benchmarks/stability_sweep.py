@@ -484,12 +484,11 @@ HEADER = """## The tables ({mode}, {seconds:.0f} s)
 
 Written by `python benchmarks/stability_sweep.py --doc docs/stability.md` between the
 markers below; the prose around them is kept."""
-BEGIN, END = "<!-- stability tables: begin -->", "<!-- stability tables: end -->"
-
-
-def write_doc(path: Path, tables: str) -> None:
-    """``tables`` into ``path`` between ``BEGIN`` and ``END`` (the rest of the page is
-    kept; a page without the markers gets them at its end)."""
+def write_doc(path: Path, tables: str, what: str = "stability tables") -> None:
+    """``tables`` into ``path`` between the markers ``<!-- {what}: begin -->`` and
+    ``<!-- {what}: end -->`` (the rest of the page is kept; a page without them gets them
+    at its end)."""
+    BEGIN, END = f"<!-- {what}: begin -->", f"<!-- {what}: end -->"
     old = path.read_text() if path.exists() else ""
     block = f"{BEGIN}\n{tables}\n{END}"
     if BEGIN in old and END in old:
