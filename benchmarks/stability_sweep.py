@@ -69,11 +69,13 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 SIZE = (64, 48)  # every scene's working size: small enough for CI, large enough for a shadow
-# The light estimate's small settings for the sweep's cells (the shipped defaults at 64x48
-# work on fewer pixels than max_resolution anyway; fewer candidates keep CI under 3 min).
-PHYSICAL = {"n_light_candidates": 64}
-# "more samples": the physical renderer's converged reference
-PHYSICAL_CONVERGED = {"n_light_candidates": 256, "march_steps": 128, "cone_samples": 32, "estimate_march_steps": 64}
+# The physical renderer's settings: the CI slice's fewer light candidates (at 64x48 the
+# other defaults work on every pixel anyway; 64 candidates keep CI under 3 min), the full
+# sweep's shipped defaults, and its "more samples" reference: 4x the light candidates,
+# the march steps (of the synthesis and of the fit) and the cone samples.
+PHYSICAL_QUICK = {"n_light_candidates": 64}
+PHYSICAL = {}
+PHYSICAL_CONVERGED = {"n_light_candidates": 1024, "march_steps": 128, "cone_samples": 32, "estimate_march_steps": 64}
 CYCLES = {"samples": 8}
 CYCLES_CONVERGED = {"samples": 128}
 ZEROCOMP = {"steps": 2, "resolution": 32, "device": "cpu", "dtype": "fp32"}
@@ -303,10 +305,11 @@ def time_limit(seconds: float | None):
         signal.signal(signal.SIGALRM, old)
 
 
-def renderer_spec(name: str, converged: bool, weights: tuple | None = None) -> dict:
-    """The manifest's ``renderer:`` of a cell (or of its converged reference)."""
+def renderer_spec(name: str, converged: bool, weights: tuple | None = None, quick: bool = True) -> dict:
+    """The manifest's ``renderer:`` of a cell (or of its converged reference; ``quick``:
+    the CI slice's)."""
     if name == "physical":
-        return {"name": "physical", **(PHYSICAL_CONVERGED if converged else PHYSICAL)}
+        return {"name": "physical", **(PHYSICAL_CONVERGED if converged else PHYSICAL_QUICK if quick else PHYSICAL)}
     if name == "cycles":
         return {"name": "cycles", **(CYCLES_CONVERGED if converged else CYCLES)}
     if name == "zerocomp":
@@ -373,10 +376,13 @@ def rel_err(a: np.ndarray, b: np.ndarray, box) -> float:
 def run_cell(case: Case, renderer: str, work: Path, *, weights=None, limit_s=None, reference=True,
              nominal: dict | None = None) -> Cell:
     """One renderer on one case (module docstring). ``nominal``: the nominal case's
-    (composite, roi) per renderer, the reference of the scaled cases (filled on first use)."""
+    composite per renderer, the reference of the scaled cases (filled on first use);
+    ``reference``: the full sweep (the shipped settings, a converged reference), else the
+    CI slice's."""
     cell = Cell(renderer, case.family, case.name)
     folder = work / f"{renderer}-{_slug(case.name)}"
-    manifest = build_scene(case, folder, {**renderer_spec(renderer, False, weights), **case.settings})
+    spec = renderer_spec(renderer, False, weights, quick=not reference)
+    manifest = build_scene(case, folder, {**spec, **case.settings})
     with PeakMemory() as mem:
         t0 = time.perf_counter()
         res, img = composite_of(folder, manifest, limit_s)
@@ -395,7 +401,7 @@ def run_cell(case: Case, renderer: str, work: Path, *, weights=None, limit_s=Non
         if ref is None:
             nom = Case(case.family, "nominal")
             f2 = work / f"{renderer}-nominal-ref"
-            _, ref_img = composite_of(f2, build_scene(nom, f2, renderer_spec(renderer, False, weights)), limit_s)
+            _, ref_img = composite_of(f2, build_scene(nom, f2, spec), limit_s)
             ref = nominal[renderer] = ref_img
         if ref is not None:
             k = case.k if case.ref == "scaled" else 1.0
@@ -469,8 +475,9 @@ def markdown(cells: list[Cell], *, quick: bool, seconds: float) -> str:
         for c in rows:
             err = "" if not math.isfinite(c.err) else f"{c.err:.2g}"
             msg = c.message or "; ".join(n for n in c.extra.get("notes", []) if not n.startswith("colour balance"))
+            mb = f"{c.peak_mb:.0f}" if math.isfinite(c.peak_mb) else "-"
             lines.append(f"| {c.family} | {c.case} | {c.outcome} | {err} | {c.ref} | {c.seconds:.2f} | "
-                         f"{c.peak_mb:.0f} | {_cell_text(msg)} |")
+                         f"{mb} | {_cell_text(msg)} |")
         lines.append("")
     return "\n".join(lines)
 
