@@ -202,7 +202,8 @@ class JobWork:
     bundle_dir: Path | None = None
     error: str | None = None
     # what the job's ledger needs to know of the stages before it (``pipeline.ledger``):
-    # ``object`` ({"cached", "seconds"} of its Blender passes), ``scene_loaded``, ``glossy``
+    # ``object`` ({"cached", "seconds"} of its Blender passes), ``scene_loaded``, ``glossy``,
+    # ``light`` (the light stage's entries, ``light.ledger.light_entries``)
     facts: dict = field(default_factory=dict)
 
 
