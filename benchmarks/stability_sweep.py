@@ -330,7 +330,8 @@ def composite_of(folder: Path, manifest: Path, limit_s: float | None = None) -> 
     out = folder / "out"
     try:
         with time_limit(limit_s):
-            summary = run_batch(load_manifest(manifest), out, overwrite=True)
+            # (one cache for the sweep, beside its cells: a scene's light is fitted once)
+            summary = run_batch(load_manifest(manifest), out, overwrite=True, cache_dir=folder.parent / "cache")
     except CellTimeout as exc:
         return {"outcome": "timeout", "message": str(exc)}, None
     except ZcompError as exc:  # refused before any job ran: a clear error
