@@ -71,18 +71,23 @@ def test_the_light_fits_stiff_least_squares(stability_sweep):
     assert cells["sun at the zenith"].extra["separation"] < cells["sun at 45 deg (control)"].extra["separation"]
 
 
-def test_the_sampler_from_1_to_20_steps_in_three_dtypes(stability_sweep, tmp_path):
-    cells = stability_sweep.sampler_cells(tmp_path, steps=(1, 5, 20), ref_steps=50)
+def test_the_sampler_from_1_to_50_steps_in_three_dtypes(stability_sweep, tmp_path):
+    """The probability-flow ODE converges with the steps (stiff at few), in every dtype;
+    at the reference's own 50 steps bf16 and fp16 stay within 1 % of fp32's latent. Before
+    the sampler's state was kept in fp32, bf16 rounded the latent at every step: 2.5 % off
+    at 50 steps, 5.7 % at 200 (and growing with the steps)."""
+    cells = stability_sweep.sampler_cells(tmp_path, steps=(1, 5, 20, 50), ref_steps=50)
     by = {c.case: c for c in cells}
     for c in cells:
         assert c.outcome in ("finite", "error"), (c.case, c.message)
         if c.outcome == "finite":
             assert math.isfinite(c.err)
     for dt in ("fp32", "bf16", "fp16"):
-        if by[f"1 steps, {dt}"].outcome == "finite" and by[f"20 steps, {dt}"].outcome == "finite":
-            # the probability-flow ODE converges with the steps (stiff at few)
-            assert by[f"20 steps, {dt}"].err < by[f"5 steps, {dt}"].err < by[f"1 steps, {dt}"].err, dt
-    assert by["20 steps, fp32"].err < 0.1
+        if all(by[f"{n} steps, {dt}"].outcome == "finite" for n in (1, 5, 20, 50)):
+            errs = [by[f"{n} steps, {dt}"].err for n in (1, 5, 20, 50)]
+            assert errs == sorted(errs, reverse=True), (dt, errs)
+            assert errs[-1] < 0.01, (dt, errs)
+    assert by["50 steps, fp32"].err == 0.0
 
 
 # -- the defects the sweep found -----------------------------------------------------------
