@@ -49,8 +49,9 @@ def test_cycles_cells_are_finite_and_linear_in_the_photographs_radiance(stabilit
     bad = [f"{c.case}: {c.outcome}: {c.message}" for c in cells if c.outcome != "finite"]
     assert not bad, bad
     # (Cycles' own noise at 8 samples is the same path for the same seed: linear up to
-    # rounding; a scene 1e4 times larger the same scene: 8.8 % off before the support's
-    # plane beyond the frame was sized by the camera's height)
+    # rounding; a scene 1e4 times larger the same scene: 8.8 % off before the camera's
+    # clipping followed the depths and the support's plane beyond the frame the camera's
+    # height)
     for c in cells:
         if c.case != "nominal":
             assert c.err < 1e-2, (c.case, c.err)
@@ -125,6 +126,17 @@ def test_the_path_tracers_support_beyond_the_frame_is_sized_by_the_cameras_heigh
         half = np.linalg.norm(V - V.mean(0), axis=1).max() / np.sqrt(2)  # (the corners: L sqrt 2)
         seen = np.linalg.norm(arr["vertices"].astype(np.float64) - V.mean(0), axis=1).max()
         assert half >= max(sc.GROUND_HALF_M, 40 * 1.2 * k) and half > seen, (k, half, seen)
+
+
+def test_the_path_tracers_camera_clips_nothing_the_depth_map_holds():
+    """Blender's camera clipped at a fixed 10 km: a scene deeper than that was clipped
+    away, and Cycles drew the world where its floor was."""
+    from zcomp_cli.renderers.cycles.renderer import CLIP_RANGE_M, clip_range
+
+    assert clip_range(np.zeros((4, 4))) == list(CLIP_RANGE_M)
+    assert clip_range(np.full((4, 4), 3.0)) == list(CLIP_RANGE_M)
+    lo, hi = clip_range(np.array([[2e-4, np.nan], [3.5e4, 0.0]]))
+    assert lo <= 1e-4 and hi >= 3.5e4 * 11.5  # a ray 85 deg off the axis in a 170 deg view
 
 
 def test_the_albedos_offset_is_not_scored_without_pixels_of_any_albedo():

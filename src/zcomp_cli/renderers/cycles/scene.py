@@ -184,8 +184,9 @@ def walls_behind(walls) -> tuple:
 # object 2 m above it, the plane beyond 100 m is under 1.2 deg of its horizon), and at
 # least GROUND_HALF_HEIGHTS times the camera's height above the support: in metres
 # alone, a scene seen from 100 m up (or measured in centimetres) had a floor smaller than
-# the one in view, and its objects saw the world below the horizon (8.8 % of the
-# composite at 10 km scale: the stability sweep, issue 49). From the camera's own height
+# the one in view, and its objects saw the world below the horizon (with the camera's
+# clipping, ``renderer.clip_range``, the 8.8 % of the composite the stability sweep saw at
+# 10 km scale: issue 49). From the camera's own height
 # the plane beyond 50 heights is under 1.2 deg of the horizon, as above.
 GROUND_HALF_M = 100.0
 GROUND_HALF_HEIGHTS = 50.0
