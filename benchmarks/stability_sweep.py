@@ -516,7 +516,8 @@ def sampler_figure(cells: list[Cell], path: Path) -> None:
     fig, ax = plt.subplots(figsize=(5.5, 3.6), dpi=120)
     for dt, marker in zip(SAMPLER_DTYPES, "osd"):
         pts = sorted((int(c.case.split()[0]), c.err) for c in cells
-                     if c.renderer == "zerocomp sampler" and c.case.endswith(dt) and math.isfinite(c.err))
+                     if c.renderer == "zerocomp sampler" and c.case.endswith(dt) and math.isfinite(c.err)
+                     and c.err > 0)  # (the reference itself: 0 on a log axis)
         if pts:
             ax.loglog(*zip(*pts), marker=marker, label=dt)
     ax.set_xlabel("DDIM steps")
