@@ -4,7 +4,7 @@ estimate's posterior at the **true** light and at the chosen one.
     PYTHONPATH=src python benchmarks/audit_light.py BENCH [BENCH ...] [--cases 0,3-5] [--json OUT.json]
 
 (Another version is audited with its own tree first on ``PYTHONPATH``; it needs an
-``estimate.estimate_light_with_posterior`` returning its model and a
+``light.fit.fit_light`` (``zcomp_cli.testing.estimate_light``) returning its model and a
 ``posterior.DirectionPosterior`` -- the version before this one's, its tempered
 likelihood over its coarse suns, was given one for the closing note's table.)
 
@@ -94,15 +94,15 @@ def spearman(x, y) -> float:
 
 
 def audit_case(bench: Path, case: dict, truth: dict, settings=None) -> dict:
-    from zcomp_cli.renderers.physical.estimate import estimate_light_with_posterior
-    from zcomp_cli.renderers.physical.scene_frame import scene_up
+    from zcomp_cli.scene.frame import scene_up
+    from zcomp_cli.testing import estimate_light
 
     d, n, sh, known, albedo, cam, _ = load_case_inputs(bench, case["id"])
     valid = known & (d > 0) & (np.abs(np.linalg.norm(n, axis=-1) - 1) < 0.2)
     up, up_from = scene_up(None, n, valid)
     t0 = time.perf_counter()
-    kw = {} if settings is None else {"settings": settings}
-    model, post = estimate_light_with_posterior(d, n, sh, known, albedo, cam, up=up, up_from=up_from, **kw)
+    res = estimate_light(d, n, sh, known, albedo, cam, up=up, up_from=up_from, cfg=settings, with_fit=True)
+    model, post = res.model, res.posterior
     secs = time.perf_counter() - t0
     row = {"case": case["id"], "seconds": secs, "shadow": getattr(model.shadows, "value", str(model.shadows)),
            "spread_deg": float(model.fit.uncertainty_deg),

@@ -93,9 +93,10 @@ def case_posteriors(bench: Path, settings=None):
 
     from audit_light import load_case_inputs
     from run_benchmark import case_truths
-    from zcomp_cli.renderers.physical import estimate
-    from zcomp_cli.renderers.physical.scene_frame import scene_up
-    from zcomp_cli.renderers.physical.settings import DEFAULTS
+    from zcomp_cli.light import search as estimate
+    from zcomp_cli.light.config import DEFAULT_LIGHT as DEFAULTS
+    from zcomp_cli.light.prepare import prepare
+    from zcomp_cli.scene.frame import scene_up
 
     settings = DEFAULTS if settings is None else settings
     truths = case_truths(bench)
@@ -104,7 +105,7 @@ def case_posteriors(bench: Path, settings=None):
         d, n, sh, known, albedo, cam, _ = load_case_inputs(bench, case["id"])
         valid = known & (d > 0) & (np.abs(np.linalg.norm(n, axis=-1) - 1) < 0.2)
         up, _ = scene_up(None, n, valid)
-        pp = estimate.prepare(d, n, sh, known, albedo, cam, up, settings)
+        pp = prepare(d, n, sh, known, albedo, cam, up, settings)
         if len(pp.fp) < settings.search.few_pixels:
             continue
         s, _ = estimate.search(pp, settings)
@@ -135,8 +136,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     import dataclasses
 
-    from zcomp_cli.renderers.physical.posterior import DirectionPosterior
-    from zcomp_cli.renderers.physical.settings import DEFAULTS, SearchConfig
+    from zcomp_cli.light.posterior import DirectionPosterior
+    from zcomp_cli.light.config import DEFAULT_LIGHT as DEFAULTS, SearchConfig
 
     grid = [float(x) for x in args.grid.split(",") if x.strip()]
     photo_grid = [float(x) for x in args.photo_grid.split(",") if x.strip()]

@@ -329,7 +329,7 @@ def _probe_spec(case: dict) -> tuple[dict, dict]:
 
 
 def _hdr_sources(case: dict):
-    from zcomp_cli.renderers.physical.probe import load_probe
+    from zcomp_cli.scene.probe import load_probe
     from zcomp_cli.worldframe import ground_frame, up_from_pitch_roll
 
     probe, tilt = _probe_spec(case)

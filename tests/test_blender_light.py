@@ -119,7 +119,7 @@ def test_cycles_light_units_are_zcomps(tmp_path):
             out[kind] = float(a[12:20, 12:20, 0].mean())
         json.dump(out, open(OUT_JSON, "w"))
     ''')
-    from zcomp_cli.renderers.physical.lightfit import LAMP_SHADING_PER_WATT, SUN_SHADING_PER_IRRADIANCE
+    from zcomp_cli.light.fit import LAMP_SHADING_PER_WATT, SUN_SHADING_PER_IRRADIANCE
 
     assert res["world"] == pytest.approx(1.0, rel=0.03)
     assert res["sun"] == pytest.approx(SUN_SHADING_PER_IRRADIANCE, rel=0.03)

@@ -235,8 +235,8 @@ def test_a_ball_rendered_by_blender_under_a_probe_gives_back_the_probes_sun(tmp_
     probe is (``probe.load_given_probe``), its strongest source lies within 3 deg of the
     probe's own -- for a sun toward the camera and one to the side."""
     from zcomp_cli.imageio import read_image, write_exr
-    from zcomp_cli.lightparams import ProbeParams
-    from zcomp_cli.renderers.physical.probe import load_given_probe
+    from zcomp_cli.scene.lightparams import ProbeParams
+    from zcomp_cli.scene.probe import load_given_probe
 
     size, ortho = 240, 2.4  # the ball: radius 100 px about the image's centre
     ph, pw = 256, 512

@@ -22,7 +22,7 @@ def test_naive_batch_outputs_resume_overwrite(tmp_path, small_example):
     out = tmp_path / "out"
     r = _run("composite", str(manifest), "--out", str(out), "--renderer", "naive", "--debug")
     assert r.exit_code == 0, r.output
-    jobs = sorted(p.name for p in out.iterdir() if p.is_dir())
+    jobs = sorted(p.name for p in out.iterdir() if (p / "report.json").is_file())
     assert len(jobs) == 2
     for name in jobs:
         d = out / name
@@ -90,7 +90,7 @@ def test_physical_example_casts_shadow_far_pixels_unchanged(tmp_path, small_exam
     out = tmp_path / "out"
     r = _run("composite", str(manifest), "--out", str(out), "--debug")
     assert r.exit_code == 0, r.output
-    job = next(p for p in out.iterdir() if p.is_dir())
+    job = next(p for p in out.iterdir() if (p / "report.json").is_file())
     img = read_image(job / "composite.exr")
     rep = json.loads((job / "report.json").read_text())
     from zcomp_cli.pipeline.manifest import load_manifest
@@ -117,7 +117,7 @@ def test_physical_example_casts_shadow_far_pixels_unchanged(tmp_path, small_exam
         key = info["light"]["lights"][0]
         assert fit["note"]
         if key["kind"] == "sun":
-            assert key["angular_radius_deg"] == pytest.approx(DEFAULTS.search.max_radius_deg)
+            assert key["angular_radius_deg"] == pytest.approx(DEFAULTS.light.search.max_radius_deg)
     x0, y0, x1, y1 = rep["roi"]["box"]
     far = np.ones(m.shape, bool)
     far[y0:y1, x0:x1] = False

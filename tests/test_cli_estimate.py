@@ -81,7 +81,7 @@ def test_composite_from_photo_casts_a_floor_shadow(tmp_path, photo_manifest):
 
     from zcomp_cli.imageio import read_map
 
-    job = next((tmp_path / "out").glob("*/"))
+    job = next(p for p in (tmp_path / "out").glob("*/") if (p / "report.json").is_file())
     m = read_map(job / "debug" / "object_mask.exr") > 0
     lum = lambda x: x @ np.array([0.299, 0.587, 0.114])  # noqa: E731
     ratio = lum(out) / np.maximum(lum(bg), 1e-4)

@@ -9,8 +9,6 @@ import tracemalloc
 from types import SimpleNamespace
 
 import numpy as np
-import pytest
-from click.testing import CliRunner
 
 from zcomp_cli.renderers.cycles import scene as sc
 from zcomp_cli.testing import floor_scene
@@ -21,7 +19,7 @@ def _model(up):
 
 
 def _arrays(s, box):
-    from zcomp_cli.renderers.physical.depthmesh import has_geometry
+    from zcomp_cli.scene.depthmesh import has_geometry
 
     valid = has_geometry(s.depth.astype(np.float64), s.normals.astype(np.float64))
     tracemalloc.start()

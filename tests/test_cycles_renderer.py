@@ -34,8 +34,8 @@ def test_world_rows_make_blenders_lookup_read_the_pixel_zcomp_names(convention, 
 
 
 def test_the_sky_world_holds_the_sh_radiance_above_and_the_ground_below():
-    from zcomp_cli.renderers.physical import sh
-    from zcomp_cli.renderers.physical.lightmodel import Sky
+    from zcomp_cli.scene import sh
+    from zcomp_cli.scene.lightmodel import Sky
 
     up = up_from_pitch_roll(-20.0, 0.0)
     L = 0.7 * np.ones(3)
@@ -49,9 +49,9 @@ def test_the_sky_world_holds_the_sh_radiance_above_and_the_ground_below():
 
 
 def test_lamps_in_blenders_units_and_probe_sources_left_to_the_world():
-    from zcomp_cli.lightparams import Origin
-    from zcomp_cli.renderers.physical.lightmodel import Lamp, LightModel, Sky, Sun
-    from zcomp_cli.renderers.physical import sh
+    from zcomp_cli.scene.lightparams import Origin
+    from zcomp_cli.scene.lightmodel import Lamp, LightModel, Sky, Sun
+    from zcomp_cli.scene import sh
 
     up = np.array([0.0, 1.0, 0.0])
     sky = Sky(radiance_sh=np.zeros((sh.N_COEFFS, 3)), ground=np.zeros(3), up=up)
@@ -93,7 +93,7 @@ def test_fill_behind_puts_the_support_plane_under_the_object():
 
 
 def test_scene_mesh_arrays_keep_only_used_vertices_with_their_pixels_colour():
-    from zcomp_cli.renderers.physical.depthmesh import build_depth_mesh
+    from zcomp_cli.scene.depthmesh import build_depth_mesh
     from zcomp_cli.testing import floor_scene
 
     s = floor_scene(32, 24, with_box=True, box_center=(0.0, -3.0))
@@ -109,10 +109,15 @@ def test_scene_mesh_arrays_keep_only_used_vertices_with_their_pixels_colour():
 
 
 @pytest.mark.parametrize("kw, words", [
-    ({"samples": 0}, "samples: from 1 to 4096"),
-    ({"exposure": "auto"}, "light or render"),
-    ({"denoise": "yes"}, "expected bool"),
+    ({"samples": 0}, "samples: expected a positive integer"),
+    ({"samples": float("inf")}, "samples: expected a positive integer"),
+    ({"samples": 1e30}, r"samples: expected a positive integer \(at most 4096\)"),
+    ({"max_bounces": float("inf")}, "max_bounces: expected an integer"),
+    ({"sky_width": 8192}, "sky_width: expected an integer in"),
+    ({"exposure": "auto"}, "expected one of light, render"),
+    ({"denoise": "yes"}, "expected true or false"),
     ({"sampels": 8}, "unknown cycles renderer setting"),
+    ({"light": {"march_steps": 4}}, "cycles renderer setting light: unknown field"),
 ])
 def test_bad_settings_are_usage_errors(kw, words):
     with pytest.raises(UsageError, match=words):
@@ -289,7 +294,7 @@ def test_a_renderers_aov_layers_are_checked():
 
 
 def test_the_support_continues_beyond_the_frame_just_below_the_floor():
-    from zcomp_cli.renderers.physical.depthmesh import build_depth_mesh
+    from zcomp_cli.scene.depthmesh import build_depth_mesh
     from zcomp_cli.testing import floor_scene
 
     s = floor_scene(32, 24)

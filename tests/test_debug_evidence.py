@@ -25,7 +25,7 @@ from zcomp_cli.pipeline.job import check_debug_maps
 from zcomp_cli.pipeline.outputs import DEBUG_MAPS, MAPS_SHEET, foreign_entries, maps_sheet
 from zcomp_cli.renderers.base import RenderOutput, RenderRequest
 from zcomp_cli.renderers.physical import PhysicalRenderer
-from zcomp_cli.renderers.physical.evidence_maps import MAP_NAMES, LightEvidence, to_frame
+from zcomp_cli.light.evidence_maps import MAP_NAMES, LightEvidence, to_frame
 from zcomp_cli.renderers.registry import RENDERERS
 from zcomp_cli.testing import floor_scene
 
@@ -279,21 +279,24 @@ def test_the_physical_renderer_returns_the_light_evidence(boxed):
     assert r.render(_requests(boxed, debug=True), seed=3).debug_maps.keys() == maps.keys()
 
 
-def test_the_renderer_reads_the_evidence_it_keeps_per_scene(boxed):
-    """The hook: what ``light_and_evidence`` caches per scene (``_evidence``) is what
-    ``render`` returns; a fit that says nothing (a given light) gives no maps."""
+def test_the_renderer_reads_the_evidence_of_the_fitted_light(boxed):
+    """The hook: the evidence the request's fitted light holds (``FittedLight.evidence``,
+    the light stage's) is what ``render`` returns; a fit that says nothing (a given
+    light) gives no maps."""
+    import dataclasses
+
     r = PhysicalRenderer(n_light_candidates=32)
     reqs = _requests(boxed, debug=True, key="kept")
-    model, evidence = r.light_and_evidence(reqs[0], 3)
-    assert evidence is not None
-    (key,) = list(r._cache)
+    fitted = r.fitted_light(reqs[0], 3)
+    assert fitted.evidence is not None
     ev, mesh = _fake_fit(42, 56)
-    r._evidence[key] = LightEvidence.from_fit(ev, mesh)
-    maps = r.render(reqs, seed=3).debug_maps
+    swapped = [dataclasses.replace(q, fitted_light=dataclasses.replace(fitted, evidence=LightEvidence.from_fit(ev, mesh)))
+               for q in reqs]
+    maps = r.render(swapped, seed=3).debug_maps
     assert list(maps) == list(MAP_NAMES) and maps["casters"].shape == (84, 112)
     assert np.allclose(maps["casters"][:2], [[0, 0, 1, 1, 1, 1] + [0] * 106] * 2)
-    r._evidence[key] = None
-    assert r.render(reqs, seed=3).debug_maps == {}
+    none = [dataclasses.replace(q, fitted_light=dataclasses.replace(fitted, evidence=None)) for q in reqs]
+    assert r.render(none, seed=3).debug_maps == {}
 
 
 def test_a_composite_with_debug_writes_the_light_evidence(tmp_path):

@@ -6,10 +6,10 @@ exact one."""
 import numpy as np
 import pytest
 
-from zcomp_cli.renderers.physical.depthmesh import DepthMesh, build_depth_mesh
-from zcomp_cli.renderers.physical.raycast import RayCaster
-from zcomp_cli.renderers.physical.scene_frame import scene_up
-from zcomp_cli.renderers.physical.shadowcast import BIAS_REL
+from zcomp_cli.scene.depthmesh import DepthMesh, build_depth_mesh
+from zcomp_cli.scene.raycast import RayCaster
+from zcomp_cli.scene.frame import scene_up
+from zcomp_cli.light.config import DEFAULT_LIGHT
 from zcomp_cli.testing import floor_scene
 
 W, H = 160, 120
@@ -34,7 +34,7 @@ def _iou(a, b) -> float:
 def _support_shadow(m: DepthMesh, caster: RayCaster, light) -> np.ndarray:
     """(h, w) the support pixels whose biased ray toward ``light`` is occluded."""
     P = m.points[m.support]
-    O = P + m.up[None] * (BIAS_REL * np.maximum(-P[:, 2], 1e-6))[:, None]
+    O = P + m.up[None] * (DEFAULT_LIGHT.search.bias_rel * np.maximum(-P[:, 2], 1e-6))[:, None]
     out = np.zeros(m.shape, bool)
     out[m.support] = caster.occluded(O, light)
     return out
@@ -238,7 +238,7 @@ def test_the_shadow_of_a_box_seen_near_its_side_edge():
 
 
 def test_walls_beyond_the_frame_join_as_quads():
-    from zcomp_cli.renderers.physical.planes import Wall
+    from zcomp_cli.scene.planes import Wall
 
     s = floor_scene(W, H)
     m0, up = _mesh(s)

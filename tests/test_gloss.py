@@ -91,8 +91,8 @@ def test_degenerate_inputs_stay_finite():
 
 
 def test_a_shadowed_light_leaves_no_highlight_and_the_diffuse_keeps_the_rest():
-    from zcomp_cli.renderers.physical.lightmodel import LightModel, Sky, Sun
-    from zcomp_cli.renderers.physical.renderer import PhysicalRenderer, _direct_lights
+    from zcomp_cli.scene.lightmodel import LightModel, Sky, Sun
+    from zcomp_cli.renderers.physical.renderer import PhysicalRenderer
 
     cam = Camera.from_fov(50.0, 8, 8)
     up = np.array([0.0, 1.0, 0.0])
@@ -105,7 +105,7 @@ def test_a_shadowed_light_leaves_no_highlight_and_the_diffuse_keeps_the_rest():
     P = cam.ray(xs + 0.5, ys + 0.5) * 2.0
     v = -P[0] / np.linalg.norm(P[0])
     nv = (v + sun_dir) / np.linalg.norm(v + sun_dir)
-    light = _direct_lights(model)[0]
+    light = model.suns[0]
     L, _, E = light.toward(P)
     r = PhysicalRenderer()
     args = (model, cam, d, nv[None], ys, xs, np.ones(1), np.full((8, 8, 3), 0.5),

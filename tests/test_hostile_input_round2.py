@@ -131,7 +131,7 @@ def test_fingerprint_hashes_the_light_and_scene_settings_generically(project):
 
     import dataclasses
 
-    from zcomp_cli.lightparams import LampParams, Param
+    from zcomp_cli.scene.lightparams import LampParams, Param
 
     base = fp()
     room = m.scenes["room"]

@@ -11,7 +11,7 @@ from zcomp_cli.imageio import write_exr
 from zcomp_cli.maps import SceneMaps
 from zcomp_cli.renderers.base import RenderRequest
 from zcomp_cli.renderers.physical import PhysicalRenderer
-from zcomp_cli.renderers.physical.lightmodel import Origin, ShadowKind
+from zcomp_cli.scene.lightmodel import Origin, ShadowKind
 from zcomp_cli.testing import floor_scene, insert_bundle, light_context, sphere_object_bundle
 from zcomp_cli.worldframe import ground_frame, up_from_pitch_roll
 
@@ -226,6 +226,6 @@ def test_physical_strengths_share_one_exposure():
     b = PhysicalRenderer().light(RenderRequest(bg.maps, 5.0 * bg.shading, bg.known, bg.camera, light=ctx))
     assert np.isclose(b.fit.exposure, 5.0 * a.fit.exposure, rtol=1e-3)
     ratio = a.lamps[0].intensity / a.suns[0].irradiance
-    from zcomp_cli.renderers.physical.lightfit import LAMP_SHADING_PER_WATT, SUN_SHADING_PER_IRRADIANCE
+    from zcomp_cli.light.fit import LAMP_SHADING_PER_WATT, SUN_SHADING_PER_IRRADIANCE
 
     assert np.allclose(ratio, 100.0 * LAMP_SHADING_PER_WATT / (3.0 * SUN_SHADING_PER_IRRADIANCE))

@@ -1,5 +1,5 @@
 """A lamp near or inside the object (issue 50, defect 2): the lamp's shadow map
-(``meshshadow.mesh_shadow_point``) sized its grid from the samples' gnomonic tangents,
+(``scene.objectshadow.mesh_shadow_point``) sized its grid from the samples' gnomonic tangents,
 which reach ~1e5 on triangles crossing the lamp's plane (a lamp 1 cm beside a 0.3 m box
 peaked at 11 GB, 5 cm beside it asked for 907 GiB). The grid now covers only the field
 the receivers need, samples at or behind the lamp's plane are dropped, and its cells are
@@ -16,7 +16,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 SRC = Path(__file__).resolve().parents[1] / "src"
@@ -24,10 +23,9 @@ LIMIT_BYTES = 3 << 30  # the child's address space: far above a bounded grid, fa
 
 CHILD = r"""
 import json, sys, tracemalloc
-import numpy as np
 import trimesh
 from zcomp_cli.posed_mesh import PosedMesh
-from zcomp_cli.renderers.physical import meshshadow
+from zcomp_cli.scene import objectshadow as meshshadow
 
 case = json.loads(sys.argv[1])
 box = trimesh.creation.box(extents=[0.3, 0.3, 0.3])

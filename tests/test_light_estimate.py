@@ -1,13 +1,12 @@
-"""The light fitted to the photograph (renderers/physical/estimate.py): invariants on
+"""The light fitted to the photograph (light/search.py, light/fit.py): invariants on
 analytic scenes ray cast with a sky the boxes hide (zcomp_cli.testing), not branches."""
 
 import numpy as np
 import pytest
 
-from zcomp_cli.renderers.physical.estimate import estimate_light
-from zcomp_cli.renderers.physical.lightmodel import ShadowKind
-from zcomp_cli.renderers.physical.scene_frame import scene_up
-from zcomp_cli.testing import floor_scene
+from zcomp_cli.scene.lightmodel import ShadowKind
+from zcomp_cli.scene.frame import scene_up
+from zcomp_cli.testing import estimate_light, floor_scene
 
 
 def _angle(a, b):
@@ -60,12 +59,13 @@ def test_a_bare_floor_hedges_with_the_widest_light_and_says_how_uncertain():
     """Nothing on a bare floor fixes the light's direction: the posterior is vague, and
     the light is drawn as wide as the widest shadow-casting light (a soft, light shadow
     from the likely side; the contact shadow stays), the report saying why."""
-    from zcomp_cli.renderers.physical.lightmodel import MAX_RADIUS_DEG, Origin
+    from zcomp_cli.light.config import DEFAULT_LIGHT
+    from zcomp_cli.scene.lightmodel import Origin
 
     s = floor_scene(120, 90, light_dir=(0.3, 1.0, 0.4), ambient=0.3, sky_occlusion=True)
     m = _estimate(s)
     assert m.shadows is ShadowKind.CAST and len(m.suns) == 1 and not m.lamps
-    assert m.suns[0].radius_deg == MAX_RADIUS_DEG and m.suns[0].radius_from is Origin.PRIOR
+    assert m.suns[0].radius_deg == DEFAULT_LIGHT.search.max_radius_deg and m.suns[0].radius_from is Origin.PRIOR
     assert m.fit.uncertainty_deg > 30.0 and "within" in m.fit.note
     # the support's level is still explained
     lit = float(s.shading[s.depth > 0].mean())
@@ -80,9 +80,9 @@ def test_the_size_is_fitted_or_forced():
     the likelihoods of its cone-averaged shadow), grown only to cover the posterior's
     spread, or the renderer's ``shadow_softness`` when it forces one (no hedge then).
     (That a 1 deg and a 10 deg light are told apart is NOT asserted.)"""
-    from zcomp_cli.lightparams import SUN_RADIUS_DEG
-    from zcomp_cli.renderers.physical.lightmodel import Origin
-    from zcomp_cli.renderers.physical.settings import DEFAULTS, PhysicalSettings
+    from zcomp_cli.scene.lightparams import SUN_RADIUS_DEG
+    from zcomp_cli.scene.lightmodel import Origin
+    from zcomp_cli.light.config import DEFAULT_LIGHT as DEFAULTS, LightConfig
 
     s = _scene(sun_radius_deg=10.0, box_size=(0.6, 1.2, 0.6))
     m = _estimate(s)
@@ -92,7 +92,7 @@ def test_the_size_is_fitted_or_forced():
     grown = sun.radius_from is Origin.PRIOR and sun.radius_deg == pytest.approx(
         min(DEFAULTS.search.cone_per_rms * m.fit.uncertainty_deg, DEFAULTS.search.max_radius_deg))
     assert chosen or grown, sun
-    f = _estimate(s, settings=PhysicalSettings(shadow_softness=3.0))
+    f = _estimate(s, cfg=LightConfig(shadow_softness=3.0))
     assert f.suns[0].radius_deg == 3.0 and f.suns[0].radius_from is Origin.MANIFEST
 
 
@@ -147,7 +147,7 @@ def test_a_confident_shadow_is_drawn_crisp_and_a_vague_one_soft():
     """The hedge: the drawn light's angular radius covers the posterior's spread, so it
     grows from a crisp light where a cast shadow fixes the direction to the widest one
     on a bare floor."""
-    from zcomp_cli.renderers.physical.settings import DEFAULTS
+    from zcomp_cli.light.config import DEFAULT_LIGHT as DEFAULTS
 
     crisp = _estimate(_scene())
     bare = _estimate(floor_scene(120, 90, light_dir=(0.7, 1.0, 0.2), ambient=0.3, sky_occlusion=True))

@@ -7,10 +7,15 @@ import pytest
 
 from zcomp_cli import equirect
 from zcomp_cli.errors import InputError
-from zcomp_cli.renderers.physical import sh
-from zcomp_cli.renderers.physical.probe import prefilter, read_probe, split_probe
-from zcomp_cli.renderers.physical.solver import Atom, fit, score_candidates, solve_spd
+from zcomp_cli.scene import sh
+from zcomp_cli.renderers.physical.gloss import prefilter
+from zcomp_cli.renderers.physical.settings import GlossConfig
+from zcomp_cli.scene.probe import read_probe, split_probe
+from zcomp_cli.light.config import SolverConfig
+from zcomp_cli.light.solver import Atom, fit, score_candidates, solve_spd
 from zcomp_cli.worldframe import ground_frame, up_from_pitch_roll
+
+SOLVER = SolverConfig()
 
 
 def _probe(H=256, sun_dir=None, sun_radius_deg=2.0, sun_radiance=2000.0, sky=0.5, frame=None):
@@ -69,7 +74,7 @@ def test_probe_without_a_source_and_exposure_invariance():
 
 def test_prefilter_preserves_a_uniform_sky_and_blurs_with_roughness():
     img, frame = _probe(64, None, sky=0.5)
-    pf = prefilter(img, frame)
+    pf = prefilter(img, frame, cfg=GlossConfig())
     r = np.array([[0, 1.0, 0], [0.7, 0.7, 0]])
     r /= np.linalg.norm(r, axis=1, keepdims=True)
     for rough in (0.05, 0.5, 1.0):
@@ -82,7 +87,7 @@ def test_prefilter_preserves_a_uniform_sky_and_blurs_with_roughness():
                                                   0.5, atol=0.02)
     sun = np.array([0.0, 0.8, -0.6])
     img2, _ = _probe(64, sun, sun_radius_deg=6.0, frame=frame)
-    pf2 = prefilter(img2, frame)
+    pf2 = prefilter(img2, frame, cfg=GlossConfig())
     sharp, broad = (pf2.lookup(sun[None], np.array([x]))[0].mean() for x in (0.05, 1.0))
     assert sharp > 3 * broad
 
@@ -111,13 +116,13 @@ def test_nnls_known_values_outliers_and_exposure_invariance():
     y_out = y.copy()
     y_out[:40] *= 0.2  # shadows nothing explains
     train = np.arange(N) % 2 == 0
-    r = fit([Atom("a", a), Atom("b", b)], y_out, train=train)
-    assert np.allclose([r.weights["a"][0], r.weights["b"][0]], [0.3, 1.2], atol=0.03)
-    r2 = fit([Atom("a", a), Atom("b", b)], 1e-4 * y_out, train=train)
-    assert np.allclose(r2.weights["a"], 1e-4 * r.weights["a"], rtol=1e-6)
+    r = fit([Atom("a", a), Atom("b", b)], y_out, train=train, cfg=SOLVER)
+    assert np.allclose([r.weights[0][0], r.weights[1][0]], [0.3, 1.2], atol=0.03)
+    r2 = fit([Atom("a", a), Atom("b", b)], 1e-4 * y_out, train=train, cfg=SOLVER)
+    assert np.allclose(r2.weights[0], 1e-4 * r.weights[0], rtol=1e-6)
     # a negative weight is refused: the best non-negative fit
-    r3 = fit([Atom("a", a), Atom("b", b)], 1.0 * a - 0.5 * b, train=train)
-    assert r3.weights["b"][0] == 0.0
+    r3 = fit([Atom("a", a), Atom("b", b)], 1.0 * a - 0.5 * b, train=train, cfg=SOLVER)
+    assert r3.weights[1][0] == 0.0
 
 
 def test_prior_decides_only_what_the_pixels_cannot():
@@ -125,13 +130,13 @@ def test_prior_decides_only_what_the_pixels_cannot():
     a = np.ones(N)
     y = np.full(N, 2.0)
     # two identical columns: the data fix their sum, the prior their split
-    r = fit([Atom("sky", a), Atom("sun", a.copy())], y, prior={"sky": 1.5, "sun": 0.5}, ridge=1e-5)
-    assert np.isclose(r.weights["sky"][0] + r.weights["sun"][0], 2.0, atol=1e-3)
-    assert np.isclose(r.weights["sky"][0], 1.5, atol=0.05)
+    r = fit([Atom("sky", a, prior=1.5), Atom("sun", a.copy(), prior=0.5)], y, ridge=1e-5, cfg=SOLVER)
+    assert np.isclose(r.weights[0][0] + r.weights[1][0], 2.0, atol=1e-3)
+    assert np.isclose(r.weights[0][0], 1.5, atol=0.05)
     # distinct columns: the pixels decide, whatever the prior says
     b = np.linspace(0, 1, N)
-    r = fit([Atom("sky", a), Atom("sun", b)], 0.3 + 1.1 * b, prior={"sky": 5.0, "sun": 0.0}, ridge=1e-5)
-    assert np.isclose(r.weights["sky"][0], 0.3, atol=0.02) and np.isclose(r.weights["sun"][0], 1.1, atol=0.02)
+    r = fit([Atom("sky", a, prior=5.0), Atom("sun", b, prior=0.0)], 0.3 + 1.1 * b, ridge=1e-5, cfg=SOLVER)
+    assert np.isclose(r.weights[0][0], 0.3, atol=0.02) and np.isclose(r.weights[1][0], 1.1, atol=0.02)
 
 
 def test_coloured_and_grey_atoms_and_batched_scores():
@@ -141,9 +146,9 @@ def test_coloured_and_grey_atoms_and_batched_scores():
     col = np.stack([t, 0.5 * t, 0.25 * t], 1)  # a light of known colour
     grey = rng.uniform(0, 1, N)
     y = 2.0 * col + grey[:, None] * np.array([0.1, 0.2, 0.3])[None]
-    r = fit([Atom("fixed", col), Atom("g", grey)], y)
-    assert np.allclose(r.weights["fixed"], 2.0, atol=1e-3)
-    assert np.allclose(r.weights["g"], [0.1, 0.2, 0.3], atol=1e-3)
+    r = fit([Atom("fixed", col), Atom("g", grey)], y, cfg=SOLVER)
+    assert np.allclose(r.weights[0], 2.0, atol=1e-3)
+    assert np.allclose(r.weights[1], [0.1, 0.2, 0.3], atol=1e-3)
     base = np.ones((N, 1))
     cands = np.stack([t, grey, rng.uniform(0, 1, N)], 1)
     lh, lt = score_candidates(base, cands, 0.2 + 0.9 * t, np.arange(N) % 2 == 0)

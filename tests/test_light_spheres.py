@@ -18,7 +18,7 @@ from zcomp_cli.metrics.light_spheres import (
     si_rmse,
     sphere_geometry,
 )
-from zcomp_cli.renderers.physical import sh
+from zcomp_cli.scene import sh
 
 SIZE = 64
 
@@ -187,7 +187,7 @@ def test_opposite_light_scores_large():
 
 def test_real_report_light_round_trips():
     """A light as LightModel.to_info writes it scores 0 against itself."""
-    from zcomp_cli.renderers.physical.lightmodel import Lamp, LightModel, Sky, Sun
+    from zcomp_cli.scene.lightmodel import Lamp, LightModel, Sky, Sun
 
     c = np.zeros((9, 3))
     c[0] = 0.5

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from zcomp_cli.lightparams import (LAMP_RADIUS_M, SUN_RADIUS_DEG, WHITE, LampParams, LightParams, Origin, Param,
+from zcomp_cli.scene.lightparams import (LAMP_RADIUS_M, SUN_RADIUS_DEG, WHITE, LampParams, LightParams, Origin, Param,
                                    ProbeParams, SunParams)
 from zcomp_cli.pipeline.lightspec import parse_light, scene_light, to_params
 from zcomp_cli.worldframe import direction_from_angles

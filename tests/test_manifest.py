@@ -5,7 +5,7 @@ import pytest
 
 from zcomp_cli.errors import ManifestError
 from zcomp_cli.imageio import write_exr, write_png
-from zcomp_cli.lightparams import Param
+from zcomp_cli.scene.lightparams import Param
 from zcomp_cli.pipeline.manifest import load_manifest
 
 

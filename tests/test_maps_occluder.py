@@ -44,7 +44,7 @@ def _iou(a, b):
 def test_the_extruded_sphere_is_a_closed_solid_holding_the_sphere(sphere):
     import trimesh
 
-    from zcomp_cli.renderers.physical.meshshadow import mesh_silhouette
+    from zcomp_cli.scene.objectshadow import mesh_silhouette
 
     s, c, b, occ = sphere
     assert isinstance(occ, PosedMesh) and occ.faces.dtype.kind == "i"
@@ -73,7 +73,7 @@ def test_the_extruded_sphere_is_a_closed_solid_holding_the_sphere(sphere):
 def test_its_cast_shadow_is_the_real_spheres(sphere, light):
     """Shadow maps of the extruded occluder (as the renderer casts them) against the
     analytic sphere's shadow on the floor."""
-    from zcomp_cli.renderers.physical.meshshadow import mesh_shadow
+    from zcomp_cli.scene.objectshadow import mesh_shadow
 
     s, c, b, occ = sphere
     P = s.camera.unproject(s.depth).astype(np.float64)
@@ -90,7 +90,7 @@ def test_its_cast_shadow_is_the_real_spheres(sphere, light):
 
 
 def test_the_front_shell_alone_loses_the_side_lights_shadow(sphere):
-    from zcomp_cli.renderers.physical.meshshadow import mesh_shadow
+    from zcomp_cli.scene.objectshadow import mesh_shadow
 
     s, c, b, occ = sphere
     P = s.camera.unproject(s.depth).astype(np.float64)

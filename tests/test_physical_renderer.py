@@ -8,7 +8,8 @@ from zcomp_cli.renderers import get_renderer
 from zcomp_cli.maps import SceneMaps
 from zcomp_cli.renderers.base import RenderRequest
 from zcomp_cli.renderers.physical import PhysicalRenderer
-from zcomp_cli.renderers.physical.visibility import march_visibility, sample_depth
+from zcomp_cli.scene.config import MarchConfig
+from zcomp_cli.scene.march import march_visibility, sample_depth
 from zcomp_cli.testing import floor_scene, insert_bundle, light_context, sphere_object_bundle
 
 LIGHT = (0.7, 1.0, 0.2)  # world, toward the light: from the right, above
@@ -170,7 +171,7 @@ def test_settings_and_errors():
     with pytest.raises(UsageError):
         PhysicalRenderer(march_steps=0)
     r = get_renderer("physical", shadow_softness=5.0)
-    assert r.settings()["shadow_softness"] == 5.0 and r.settings()["name"] == "physical"
+    assert r.settings()["light"]["shadow_softness"] == 5.0 and r.settings()["name"] == "physical"
     s = floor_scene(20, 16)
     bad = RenderRequest(SceneMaps(s.depth[:5], s.normals, s.albedo), s.shading,
                         np.ones((16, 20), bool), s.camera)
@@ -184,7 +185,7 @@ def test_visibility_primitives():
     d[:, :5] = 0
     assert sample_depth(d, np.array([2.0]), np.array([5.0]))[0] == 0
     assert len(march_visibility(np.zeros((0, 3)), np.zeros((0, 3)), np.array([0, 1.0, 0]),
-                                d, floor_scene(10, 10).camera)) == 0
+                                d, floor_scene(10, 10).camera, cfg=MarchConfig(), steps=8)) == 0
 
 
 def test_long_shadow_grows_the_shading_mask():

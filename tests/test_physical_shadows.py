@@ -125,7 +125,7 @@ def test_classwise_blur_is_the_per_class_normalised_blur(channels):
 
 def test_length_is_numpys_norm():
     # the same values as np.linalg.norm (the renderer's images do not change), any shape
-    from zcomp_cli.renderers.physical.sampling import length
+    from zcomp_cli.scene.sampling import length
 
     rng = np.random.default_rng(2)
     v = rng.normal(size=(400, 3)) * 10.0 ** rng.integers(-3, 5, (400, 1))
@@ -138,7 +138,7 @@ def test_length_is_numpys_norm():
 def test_triangle_samples_are_stratified_by_area():
     # each triangle gets the floor or the ceiling of its expected count: no clumps and
     # no gaps on a surface a shadow map must cover
-    from zcomp_cli.renderers.physical.meshshadow import _sample_triangles
+    from zcomp_cli.scene.objectshadow import sample_triangles as _sample_triangles
 
     rng = np.random.default_rng(5)
     tri = rng.random((300, 3, 3))
@@ -194,7 +194,7 @@ def test_mesh_shadow_from_posed_mesh(tmp_path):
     import trimesh
 
     from zcomp_cli.posed_mesh import load_posed_mesh
-    from zcomp_cli.renderers.physical.meshshadow import mesh_shadow
+    from zcomp_cli.scene.objectshadow import mesh_shadow
 
     trimesh.creation.box(extents=(0.2, 1.0, 0.2)).export(tmp_path / "pole.glb")
     M = np.eye(4)
@@ -227,7 +227,7 @@ def _sphere_mesh(centre_cam, radius):
 
 
 def test_mesh_silhouette_covers_the_object_pixels():
-    from zcomp_cli.renderers.physical.meshshadow import mesh_silhouette
+    from zcomp_cli.scene.objectshadow import mesh_silhouette
 
     s = floor_scene(112, 84)
     c = s.world_to_camera([0.2, 0.15, -2.4])
@@ -255,7 +255,7 @@ def test_a_dense_meshs_silhouette_is_the_object_and_one_ring_at_most():
     import cv2
     import trimesh
 
-    from zcomp_cli.renderers.physical.meshshadow import PosedMesh, mesh_silhouette
+    from zcomp_cli.scene.objectshadow import PosedMesh, mesh_silhouette
 
     s = floor_scene(112, 84)
     c = s.world_to_camera([0.2, 0.15, -2.4])
@@ -341,7 +341,7 @@ def test_mesh_occlusion_of_a_sky_weights_each_element_by_the_radiance_behind_it(
     behind it over the point's sky shading: a uniform sky gives the plain share; a sky
     brighter on one side is hidden more by an object on that side; and the sum is the
     direct one (each element's SH radiance from ``sh.basis``) to float32's precision."""
-    from zcomp_cli.renderers.physical import sh
+    from zcomp_cli.scene import sh
     from zcomp_cli.renderers.physical.meshshadow import mesh_discs, mesh_occlusion
 
     r, c = 0.5, np.array([0.0, 0.5, 0.0])
@@ -376,8 +376,10 @@ def test_a_dense_meshs_near_field_is_simplified_and_keeps_its_values():
     # 20480-face sphere's); by the contact it still gives the sphere's known occlusion
     import trimesh
 
-    from zcomp_cli.renderers.physical.meshshadow import (NEAR_SPACINGS, PosedMesh, _near_field_mesh,
-                                                         mesh_discs, mesh_occlusion)
+    from zcomp_cli.renderers.physical.meshshadow import PosedMesh, _near_field_mesh, mesh_discs, mesh_occlusion
+    from zcomp_cli.renderers.physical.settings import TransportConfig
+
+    NEAR_SPACINGS = TransportConfig().near_field_spacings
 
     r, c = 0.5, np.array([0.0, 0.5, 0.0])
     m = trimesh.creation.icosphere(subdivisions=6, radius=r)
@@ -451,7 +453,7 @@ def test_mesh_silhouette_has_no_holes_where_faces_overlap(shape):
     import cv2
     import trimesh
 
-    from zcomp_cli.renderers.physical.meshshadow import PosedMesh, mesh_silhouette
+    from zcomp_cli.scene.objectshadow import PosedMesh, mesh_silhouette
 
     s = floor_scene(112, 84)
     m = trimesh.creation.box((0.3, 0.4, 0.25)) if shape == "box" else trimesh.creation.capsule(0.35, 0.15)
@@ -504,7 +506,7 @@ def test_radiance_weighted_mesh_occlusion_by_moments_equals_the_per_element_sum(
     import trimesh
 
     from zcomp_cli.renderers.physical import meshshadow as M
-    from zcomp_cli.renderers.physical import sh
+    from zcomp_cli.scene import sh
 
     sph = trimesh.creation.icosphere(subdivisions=4, radius=0.3)
     # a bumpy sphere: its own points see its other elements (concave dents)
@@ -547,7 +549,7 @@ def test_negative_cells_bound_the_ringing():
     """``_negative_cells`` finds every direction where a ringing sky is below 0 (a dense
     set of directions, each inside a cell found), and none for a sky positive everywhere."""
     from zcomp_cli.renderers.physical import meshshadow as M
-    from zcomp_cli.renderers.physical import sh
+    from zcomp_cli.scene import sh
 
     def cells(c):
         a, b, A = sh.quadratic_form(c)
@@ -571,12 +573,13 @@ def test_a_meshs_triangle_areas_are_kept_for_its_arrays_only():
     # kept on the mesh for its uses in one render, read-only; new vertex arrays (a new
     # pose) are measured again
     from zcomp_cli.renderers.physical import meshshadow as M
+    from zcomp_cli.scene.objectshadow import area_triangles as _area_triangles
 
     mesh = M.PosedMesh(np.array([[0.0, 0, -3], [1, 0, -3], [0, 1, -3], [0, 0, -4]]), np.array([[0, 1, 2], [0, 1, 3]]))
-    tri, cr, area, _ = M._area_triangles(mesh)
-    assert M._area_triangles(mesh)[2] is area
+    tri, cr, area, _ = _area_triangles(mesh)
+    assert _area_triangles(mesh)[2] is area
     np.testing.assert_allclose(area, [0.5, 0.5])
     with pytest.raises(ValueError):
         area[0] = 2.0
     mesh.vertices = mesh.vertices * 2.0
-    np.testing.assert_allclose(M._area_triangles(mesh)[2], [2.0, 2.0])
+    np.testing.assert_allclose(_area_triangles(mesh)[2], [2.0, 2.0])

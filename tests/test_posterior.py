@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from zcomp_cli.renderers.physical.posterior import DirectionPosterior, hemisphere_solid_angles
-from zcomp_cli.renderers.physical.sampling import fibonacci_sphere, hemisphere
+from zcomp_cli.light.posterior import DirectionPosterior, hemisphere_solid_angles
+from zcomp_cli.scene.sampling import fibonacci_sphere, hemisphere
 
 UP = np.array([0.0, 0.9, 0.42])
 UP = UP / np.linalg.norm(UP)

@@ -162,8 +162,10 @@ def test_the_sheet_of_the_shipped_example_shows_the_given_sun(tmp_path, examples
     assert shift @ np.array([x1 - x0, y1 - y0]) > 0, (shift, (x1 - x0, y1 - y0))
     # the balls are drawn: the composite differs from the photograph on them
     assert np.abs(comp[balls] - photo[balls]).mean() > 0.02
-    # nothing else written; a re-run refuses to overwrite, --overwrite replaces
-    assert sorted(p.name for p in out.rglob("*") if p.is_file()) == ["room_lit.json", "room_lit.png"]
+    # nothing else written but the scene's fitted light (the manifest's syntax); a
+    # re-run refuses to overwrite, --overwrite replaces
+    assert sorted(p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file()) == [
+        "lights/room_lit.yaml", "preview/room_lit.json", "preview/room_lit.png"]
     r = CliRunner().invoke(cli, args)
     assert r.exit_code == 2 and "--overwrite" in r.output
     r = CliRunner().invoke(cli, args + ["--overwrite"])

@@ -7,7 +7,7 @@ import sys
 import numpy as np
 import pytest
 
-from zcomp_cli.renderers.physical.raycast import RayCaster, embree_available
+from zcomp_cli.scene.raycast import RayCaster, embree_available
 
 
 def _has_rtree() -> bool:
@@ -197,7 +197,7 @@ def test_embree_and_trimesh_agree_on_random_rays(monkeypatch):
 
 
 def test_chunking_does_not_change_the_answers(cube, monkeypatch):
-    from zcomp_cli.renderers.physical import raycast
+    from zcomp_cli.scene import raycast
 
     rng = np.random.default_rng(3)
     o = rng.uniform(-2, 2, size=(300, 3))

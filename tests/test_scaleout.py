@@ -26,7 +26,7 @@ def _outputs(out: Path) -> dict[str, bytes]:
     """Every job's composite.png and composite.exr bytes (EXRs carry no write time, so
     whole files match across runs)."""
     got = {}
-    for d in sorted(p for p in out.iterdir() if p.is_dir()):
+    for d in sorted(p for p in out.iterdir() if (p / "report.json").is_file()):
         if (d / "composite.png").exists():
             got[f"{d.name}/composite.png"] = (d / "composite.png").read_bytes()
         if (d / "composite.exr").exists():

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from zcomp_cli.renderers.physical import sh
+from zcomp_cli.scene import sh
 
 
 def test_the_quadratic_form_is_the_basis_expansion():

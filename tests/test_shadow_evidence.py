@@ -7,9 +7,10 @@ reach and the lit level's basis on synthetic grids."""
 import numpy as np
 import pytest
 
-from zcomp_cli.renderers.physical.depthmesh import build_depth_mesh
-from zcomp_cli.renderers.physical.scene_frame import scene_up
-from zcomp_cli.renderers.physical.shadow_evidence import (DEFAULT, ShadowEvidence, lit_basis, shadow_evidence,
+from zcomp_cli.scene.depthmesh import build_depth_mesh
+from zcomp_cli.scene.frame import scene_up
+from zcomp_cli.light.config import EvidenceConfig
+from zcomp_cli.light.evidence import (ShadowEvidence, lit_basis, shadow_evidence,
                                                           within_reach)
 from zcomp_cli.testing import floor_scene
 
@@ -195,9 +196,9 @@ def test_within_reach_is_four_heights_along_the_ground():
     reach = within_reach(P, casters, up, support)
     C = P[casters][:, [0, 2]]
     d = np.min(np.linalg.norm(P[..., None, [0, 2]] - C[None, None], axis=-1), axis=-1)
-    want = support & (d <= DEFAULT.reach_heights * 0.5)
+    want = support & (d <= EvidenceConfig().reach_heights * 0.5)
     # within a hair of the bound either way
-    edge = np.abs(d - DEFAULT.reach_heights * 0.5) < 1e-6
+    edge = np.abs(d - EvidenceConfig().reach_heights * 0.5) < 1e-6
     assert np.array_equal(reach & ~edge, want & ~edge) and want.sum() > 50 and (support & ~want).sum() > 1000
     # twice as high: twice as far
     P2 = P.copy()
@@ -235,7 +236,7 @@ def test_lit_basis_columns():
     h, w = P.shape[:2]
     up = np.array([0.0, 1.0, 0.0])
     ok = np.ones((h, w), bool)
-    X = lit_basis(P, up, ok, degree=2)
+    X = lit_basis(P, up, ok, degree=2, albedo_spread=EvidenceConfig().albedo_spread)
     assert X.shape == (h, w, 6)
     np.testing.assert_allclose(X[..., 0], 1.0)
     np.testing.assert_allclose(X[ok][:, 1:3].mean(0), 0.0, atol=1e-9)
@@ -243,11 +244,11 @@ def test_lit_basis_columns():
     np.testing.assert_allclose(X[..., 3], X[..., 1] ** 2)
     np.testing.assert_allclose(X[..., 4], X[..., 1] * X[..., 2])
     # every monomial up to the degree: (d + 1)(d + 2) / 2 of them
-    assert lit_basis(P, up, ok, degree=3).shape == (h, w, 10)
+    assert lit_basis(P, up, ok, degree=3, albedo_spread=EvidenceConfig().albedo_spread).shape == (h, w, 10)
     # a constant albedo adds nothing, a varying one its log and the log's square
-    assert lit_basis(P, up, ok, np.full((h, w), 0.5), degree=2).shape == (h, w, 6)
+    assert lit_basis(P, up, ok, np.full((h, w), 0.5), degree=2, albedo_spread=EvidenceConfig().albedo_spread).shape == (h, w, 6)
     a = np.where(np.arange(w)[None, :] < w // 2, 0.2, 0.8) * np.ones((h, 1))
-    Xa = lit_basis(P, up, ok, a, degree=2)
+    Xa = lit_basis(P, up, ok, a, degree=2, albedo_spread=EvidenceConfig().albedo_spread)
     assert Xa.shape == (h, w, 8)
     np.testing.assert_allclose(Xa[ok][:, 6].mean(), 0.0, atol=1e-9)
     np.testing.assert_allclose(Xa[..., 7], Xa[..., 6] ** 2)

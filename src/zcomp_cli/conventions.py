@@ -32,6 +32,8 @@ __all__ = [
     "facing_problem",
     "MIN_FACING_FRACTION",
     "valid_depth_mask",
+    "unit_normal_mask",
+    "UNIT_NORMAL_TOL",
     "pixel_ray",
     "REC601",
     "REC709",
@@ -39,6 +41,9 @@ __all__ = [
     "GAMMA",
     "SHADING_EPS",
     "SHADING_MAX",
+    "WORKING_LEVEL_RANGE",
+    "WORKING_LEVEL",
+    "working_scale",
     "CONDITIONING_VARIANTS",
 ]
 
@@ -55,6 +60,22 @@ GAMMA = 2.2
 # (DESIGN.md section 3 and the official conditioning).
 SHADING_EPS = 1e-5
 SHADING_MAX = 1e3
+# The photograph's working level (issue 49). The shading's clamp above and the
+# compositor's ratio epsilon (1e-4) are absolute: a photograph whose radiance sits far
+# from 1 -- an EXR in absolute units, 1e-6 or 1e6 -- lost its light to the clamp (its
+# object drawn 1000 times too dark) or its shadow to the epsilon. A photograph whose
+# median luminance lies outside WORKING_LEVEL_RANGE is worked at WORKING_LEVEL instead
+# (divided by a power of two, exact in floating point) and every output is multiplied
+# back (``working_scale``). The range is where neither bites: at a median luminance of
+# 2^-6 the epsilon moves a shadow's ratio of 1/3 by 0.6 %, and at 2^4 a surface of
+# albedo 0.02 (asphalt) shades at 800, under the clamp; the level is an LDR
+# photograph's (an 18 % grey card exposed as a camera meters it). Photographs inside the
+# range are worked at their own level, as before.
+WORKING_LEVEL_RANGE = (2.0 ** -6, 2.0 ** 4)
+WORKING_LEVEL = 0.18
+# A normal this far from unit length is not one: a map's invalid pixels hold zeros or
+# garbage, and a stored unit normal, even in half floats, is within 1e-3 of 1.
+UNIT_NORMAL_TOL = 0.2
 # ZeroComp ControlNet variants by conditioning channel count -> the maps they read, in
 # channel order (DESIGN.md section 4).
 CONDITIONING_VARIANTS = {
@@ -141,6 +162,13 @@ def valid_depth_mask(depth) -> np.ndarray:
     depth = np.asarray(depth)
     with np.errstate(invalid="ignore"):
         return np.isfinite(depth) & (depth > 0)
+
+
+def unit_normal_mask(normals) -> np.ndarray:
+    """(..., ) bool: where ``normals`` (..., 3) hold a unit vector (within
+    ``UNIT_NORMAL_TOL`` of length 1; NaN is none)."""
+    n = np.asarray(normals, np.float64)
+    return np.abs(np.sqrt(np.einsum("...c,...c->...", n, n)) - 1.0) < UNIT_NORMAL_TOL
 
 
 def blender_depth_to_z_depth(z_pass, far: float = 1e9) -> np.ndarray:
@@ -292,3 +320,22 @@ def facing_problem(normals, K, select=None) -> str | None:
             "frame than zcomp's (OpenGL camera frame: x right, y up, z toward the viewer, so a surface facing "
             "the camera has n = (0, 0, 1)); a map with z forward (Blender's shader camera space) needs its z "
             "negated, one in OpenCV's frame (y down, z forward) its y and z")
+def working_scale(image) -> float:
+    """The power of two a photograph is divided by to be worked at ``WORKING_LEVEL``
+    (the comment of ``WORKING_LEVEL_RANGE``): 1.0 when the median luminance of its
+    finite positive pixels lies in ``WORKING_LEVEL_RANGE`` (or none is positive), else
+    ``2 ** round(log2(median / WORKING_LEVEL))``.
+
+    Args:
+        image: (H, W, 3) linear RGB.
+    """
+    img = np.asarray(image, np.float64)
+    lum = img.reshape(-1, 3) @ REC601.astype(np.float64)
+    lum = lum[np.isfinite(lum) & (lum > 0)]
+    if lum.size == 0:
+        return 1.0
+    level = float(np.median(lum))
+    lo, hi = WORKING_LEVEL_RANGE
+    if lo <= level <= hi:
+        return 1.0
+    return float(2.0 ** round(np.log2(level / WORKING_LEVEL)))

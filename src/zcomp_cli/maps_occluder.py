@@ -71,6 +71,7 @@ import math
 import numpy as np
 
 from zcomp_cli.camera import Camera
+from zcomp_cli.conventions import unit_normal_mask
 from zcomp_cli.posed_mesh import PosedMesh
 
 # Depth continuity between neighbouring pixels (renderers/physical/depthmesh.py's rule):
@@ -272,7 +273,7 @@ def occluder_from_maps(depth, mask, footprint_depth, camera: Camera, *, normals=
         else:
             N = N[YY, XX]
             nn = np.linalg.norm(N, axis=-1)
-            good = np.abs(nn - 1.0) < 0.2
+            good = unit_normal_mask(N)
             N = np.where(good[..., None], N / np.maximum(nn, 1e-12)[..., None], 0.0)
     if N is None or not (np.linalg.norm(N, axis=-1)[ok] > 0.5).any():
         N = _normals_from_points(P, ok)

@@ -23,7 +23,7 @@ from zcomp_cli.bundle import ObjectBundle
 from zcomp_cli.camera import Camera
 from zcomp_cli.errors import InputError
 
-__all__ = ["SyntheticScene", "floor_scene", "sphere_object_bundle", "insert_bundle", "write_floor_batch"]
+__all__ = ["SyntheticScene", "floor_scene", "sphere_object_bundle", "insert_bundle", "write_floor_batch", "estimate_light"]
 
 
 @dataclass
@@ -206,7 +206,7 @@ def floor_scene(width: int = 128, height: int = 96, *, fov_deg: float = 50.0,
         l = np.asarray(l, dtype=np.float64)
         l = l / np.linalg.norm(l)
         if sun_radius_deg > 0:
-            from zcomp_cli.renderers.physical.sampling import cone_directions
+            from zcomp_cli.scene.sampling import cone_directions
 
             cone = cone_directions(l, sun_radius_deg, SUN_SAMPLES, seed=0)
         else:
@@ -394,3 +394,19 @@ def light_context(*lights, pitch_deg=None, roll_deg=None):
         raise InputError("; ".join(probs))
     tilt = {} if pitch_deg is None else {"pitch_deg": float(pitch_deg), "roll_deg": float(roll_deg or 0.0)}
     return scene_light(out, tilt)
+
+
+def estimate_light(depth, normals, shading, known, albedo, camera, *, up, up_from=None, cfg=None, seed: int = 0,
+                   params=None, with_fit: bool = False):
+    """The light of an analytic scene's known shading, as the light stage fits it
+    (``light.fit.fit_light``; ``params`` None: estimated; ``cfg`` None: the defaults):
+    its ``LightModel``, or with ``with_fit`` the whole ``LightFit`` (the filled tree, the
+    posterior, the diagnostics). For tests and calibration scripts."""
+    from zcomp_cli.light.config import LightConfig
+    from zcomp_cli.light.fit import fit_light
+    from zcomp_cli.scene.lightparams import Origin
+
+    res = fit_light(params, depth, normals, shading, known, albedo, camera, up=up,
+                    up_from=Origin.SUPPORT if up_from is None else up_from,
+                    cfg=LightConfig() if cfg is None else cfg, seed=seed)
+    return res if with_fit else res.model

@@ -56,7 +56,7 @@ HASHES = "cache-hashes.json"
 
 
 def _file_hashes(folder: Path) -> dict[str, str]:
-    from zcomp_cli.pipeline.outguard import sha256_file
+    from zcomp_cli.filedigest import sha256_file
 
     return {p.name: sha256_file(p) for p in sorted(Path(folder).iterdir()) if p.is_file() and p.name != HASHES}
 

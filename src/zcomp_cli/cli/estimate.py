@@ -4,8 +4,10 @@ Writes, per scene, ``OUT/<scene>/{depth,normals,albedo,shading}.exr`` (and
 ``roughness.exr``/``metallic.exr`` when an appearance model predicted them,
 ``agreement.exr`` — degrees between the normals and the depth's normals — when they come
 from different sources), ``sources.json`` (which map came from where, the fits, the
-model runs) and ``preview.png`` (the maps side by side). Estimates land in the cache
-shared with ``zcomp composite``.
+model runs), ``preview.png`` (the maps side by side) and ``light.yaml`` (the scene's
+light as the light stage fits it for the manifest's renderer, in the manifest's own
+``light:`` syntax: ``docs/lights.md``). Estimates and lights land in the cache shared
+with ``zcomp composite``.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from zcomp_cli.cli.options import cache_dir_opt, out_dir_opt, overwrite_opt
 # What estimate writes per scene (an existing one is replaced only with --overwrite).
 OUTPUTS = ("depth.exr", "normals.exr", "albedo.exr", "shading.exr", "preview.png", "sources.json")
 # ... and when the maps exist (a scene folder holding anything else is not estimate's)
-OPTIONAL_OUTPUTS = ("roughness.exr", "metallic.exr", "agreement.exr")
+OPTIONAL_OUTPUTS = ("roughness.exr", "metallic.exr", "agreement.exr", "light.yaml")
 
 
 def foreign_files(folder) -> list[str]:
@@ -94,7 +96,7 @@ def estimate(ctx, manifest, out_dir, scene_names, native, overwrite, cache_dir):
 
     from zcomp_cli.cache import cache_dir as cache_folder
     from zcomp_cli.compositing.shading import shading_from_image
-    from zcomp_cli.errors import UsageError
+    from zcomp_cli.errors import UsageError, ZcompError
     from zcomp_cli.imageio import write_exr, write_json_atomic, write_png
     from zcomp_cli.pipeline.manifest import load_manifest
     from zcomp_cli.pipeline.scene import load_scene
@@ -130,6 +132,11 @@ def estimate(ctx, manifest, out_dir, scene_names, native, overwrite, cache_dir):
         raise UsageError(f"estimates already exist for scene(s) {', '.join(existing[:5])}"
                          f"{' ...' if len(existing) > 5 else ''} in {out}; pass --overwrite to replace them")
     quiet = bool(ctx.obj and ctx.obj.get("quiet"))
+    from zcomp_cli.pipeline.stages import LightStore, light_config_of
+
+    lights = LightStore(light_config_of(m.defaults.renderer), cache_folder("lights", cache_dir), out,
+                        path_of=lambda name: out / name / "light.yaml")  # (beside the scene's maps)
+    seed_of = {j.scene: j.seed for j in reversed(m.jobs)}  # (a scene's first job's seed, as composite fits it)
     for name in names:
         spec = m.scenes[name]
         scene = load_scene(spec, None if native else m.defaults.resolution, cache_dir=cache)
@@ -149,6 +156,10 @@ def estimate(ctx, manifest, out_dir, scene_names, native, overwrite, cache_dir):
         write_png(d / "preview.png", preview_sheet(scene.image, mp.depth, mp.normals, mp.albedo, shading,
                                                    roughness=mp.roughness, metallic=mp.metallic,
                                                    agreement=agree), srgb_encode=False)
+        try:
+            lights.get(scene, seed_of.get(name, m.defaults.seed))  # writes light.yaml
+        except ZcompError as exc:
+            click.echo(f"{name}: the light could not be fitted: {exc}", err=True)
         write_json_atomic(d / "sources.json", {"scene": name, "sources": scene.sources,
                                                "notes": list(scene.notes),
                                                "fits": est.get("fits", {}),

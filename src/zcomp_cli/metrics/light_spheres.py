@@ -65,7 +65,7 @@ import numpy as np
 
 from zcomp_cli.errors import InputError
 from zcomp_cli.metrics.image_metrics import si_rmse as _abs_si_rmse
-from zcomp_cli.renderers.physical import sh
+from zcomp_cli.scene import sh
 from zcomp_cli.renderers.physical.gloss import env_brdf, ggx_direct
 
 # Pixels across each sphere: the renders are smooth but for the silver highlights, whose

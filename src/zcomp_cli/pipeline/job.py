@@ -32,7 +32,7 @@ from zcomp_cli.compositing import (
     shading_from_image,
     shading_mask,
 )
-from zcomp_cli.compositing.compositor import BLUR_SIZE
+from zcomp_cli.compositing.compositor import BLUR_SIZE, keep_untouched
 from zcomp_cli.conventions import DEFAULT_SEED, valid_depth_mask
 from zcomp_cli.errors import GeometryError, NumericalError, RenderError
 from zcomp_cli.limits import type_name
@@ -145,8 +145,11 @@ def prepare_job(
     seed: int = DEFAULT_SEED,
     debug: bool = False,
     aovs: bool = False,
+    fitted_light=None,
 ) -> PreparedJob:
-    """Steps 1-4 of one job. Raises ZcompError subclasses for per-job failures."""
+    """Steps 1-4 of one job. Raises ZcompError subclasses for per-job failures.
+    ``fitted_light``: the scene's light as the light stage fitted it
+    (``light.stage.FittedLight``), handed to the renderer with the requests."""
     timings: dict[str, float] = {}
     notes: list[str] = list(scene.notes)
     cam = scene.camera
@@ -196,7 +199,7 @@ def prepare_job(
     timings["shading_s"] = time.perf_counter() - t
 
     common = dict(shading=shading, known=known, camera=cam, roi=roi, image=scene.image, scene_key=scene.key,
-                  light=getattr(scene, "light", None), debug=debug, aovs=aovs)
+                  light=getattr(scene, "light", None), fitted_light=fitted_light, debug=debug, aovs=aovs)
     # the object's occluder (its shadow, the sky it hides, its self-shadowing): the posed
     # mesh when the bundle references one; else, for a bundle of maps, its visible
     # surface extruded backwards to its footprint's far edge (``maps_occluder``); 2D image
@@ -239,6 +242,7 @@ def prepare_job(
         "roi": {"box": list(roi), "frac": (x1 - x0) * (y1 - y0) / float(H * W)},
         "occluder": occluder_kind,
         "seed": seed,
+        **({"light_stage": fitted_light.ledger()} if fitted_light is not None else {}),
     }
     dbg = {}
     if debug:
@@ -299,14 +303,22 @@ def finish_job(prep: PreparedJob, out: RenderOutput, renderer_name: str, rendere
             raise NumericalError(f"renderer returned a shading mask of shape {grown.shape}, expected {(H, W)}")
         # the renderer re-shaded more (an object's long shadow): the ratio applies there too
         s = s | grown
-    res = composite(prep.scene.image, f_bg, f_comp, s, prep.object_mask, balance_region=region & ~s,
-                    keep=prep.scene.photo)
+    res = composite(prep.scene.image, f_bg, f_comp, s, prep.object_mask, balance_region=region & ~s)
     if not np.all(np.isfinite(res.image)):
         raise NumericalError("the composite has non-finite values")
     timings["compositor_s"] = time.perf_counter() - t
 
+    # back to the photograph's units (``Scene.working_scale``: a power of two, exact)
+    k = np.float32(getattr(prep.scene, "working_scale", 1.0))
+    x_bg, image = prep.scene.image, res.image
+    if k != 1.0:
+        x_bg, image, f_bg, f_comp = x_bg * k, image * k, f_bg * k, f_comp * k
+    if prep.scene.photo is not None:  # its negative pixels, in its own units: kept where nothing is edited
+        x_bg = prep.scene.photo
+        image = keep_untouched(image, x_bg, res.weight, prep.object_mask)
     report = {
         **prep.report,
+        **({"working_scale": float(k)} if k != 1.0 else {}),
         **({"shading_mask_grown_px": int((s & ~prep.shading_mask).sum())} if out.shading_mask is not None else {}),
         "colour_balance": res.balance.tolist(),
         "renderer": {"settings": renderer_settings, "info": out.info, "timings": out.timings},
@@ -317,15 +329,16 @@ def finish_job(prep: PreparedJob, out: RenderOutput, renderer_name: str, rendere
     if debug:
         dbg = {**prep.debug_maps, "shading_mask": s.astype(np.float32), "f_bg": f_bg, "f_comp": f_comp, "ratio": res.ratio,
                "ratio_blurred": res.ratio_blurred, "weight": res.weight}
+        if k != 1.0 and "shading" in dbg:
+            dbg["shading"] = dbg["shading"] * k
         rdbg = check_debug_maps(out.debug_maps, (H, W), renderer_name)
     layers = {}
     if aovs:
         from zcomp_cli.compositing.aovs import aov_layers
 
-        layers = aov_layers(prep.scene.background, f_bg, f_comp, res.ratio_blurred, prep.object_mask, res.balance,
-                            res.image)
+        layers = aov_layers(x_bg, f_bg, f_comp, res.ratio_blurred, prep.object_mask, res.balance, image)
         layers.update(check_aov_layers(out.aov_layers, (H, W), renderer_name, set(layers)))
-    return JobOutput(res.image, report, dbg, layers, rdbg)
+    return JobOutput(image, report, dbg, layers, rdbg)
 
 
 def check_aov_layers(layers, shape: tuple[int, int], renderer_name: str, taken: set) -> dict[str, np.ndarray]:

@@ -29,6 +29,18 @@
             power: 60                    # watts (Blender's point lamp Power), or auto
             # facing: [0, -1, 0]         # a one-sided panel (Blender's area lamp) facing there
             # color: [1.0, 0.9, 0.8]     # linear RGB multiplier of a sun's or lamp's strength
+          # - type: sky                  # the sky itself (zcomp writes it: OUT/lights/<scene>.yaml):
+          #   radiance_sh: [[r, g, b], ...]  # its radiance's order-2 SH, 9 rows, in the ground
+          #   ground: [r, g, b]          # frame (x right, y up, z forward); the support's radiance
+        exposure: 1.0         # optional: the photograph's exposure against the lights given in
+                              # physical units (default auto: fitted)
+        # light: OUT/lights/kitchen.yaml  # or a file holding these keys (light, pitch_deg,
+                                         # roll_deg, exposure): a light zcomp wrote, given back
+
+Each light may say where its values came from (``from: {direction: shadows,
+angular_radius_deg: prior, irradiance: fit}``, as zcomp writes them): the values are
+given all the same; the words go to the reports, and a light whose direction was
+estimated keeps an estimate's shadow (faded at the shading mask's edge, not grown).
 
 Strengths: a probe's ``strength``, a sun's ``irradiance`` and a lamp's ``power`` are in
 the physical units Blender uses, so they hold relative to each other, and one exposure
@@ -37,7 +49,7 @@ strength (and colour); a sun's number ``strength`` (the older form) fixes its sh
 against the fitted sky: shadow / lit = 1 / (1 + strength * cos).
 
 Validation problems are reported with the field and the manifest line. ``parse_light``
-returns the typed light tree (``zcomp_cli.lightparams.LightParams``: what is given is
+returns the typed light tree (``zcomp_cli.scene.lightparams.LightParams``: what is given is
 frozen, what is ``auto`` or left out is free); ``parse_tilt`` reads the scene's
 ``pitch_deg``/``roll_deg``; ``scene_light`` puts the two together.
 """
@@ -46,13 +58,21 @@ from __future__ import annotations
 
 import math
 
-from zcomp_cli.lightparams import LAMP_RADIUS_M, SUN_RADIUS_DEG  # noqa: F401  (re-exported: the defaults)
+from zcomp_cli.scene.lightparams import LAMP_RADIUS_M, MAX_RADIUS_DEG, SUN_RADIUS_DEG  # noqa: F401  (the defaults)
 
 SUN_KEYS = {"type", "direction", "azimuth_deg", "elevation_deg", "angular_radius_deg", "strength",
-            "irradiance", "color"}
+            "irradiance", "color", "from"}
 PROBE_KEYS = {"type", "hdr", "rotation_deg", "convention", "strength"}
-LAMP_KEYS = {"type", "position", "radius_m", "power", "facing", "color"}
+LAMP_KEYS = {"type", "position", "radius_m", "power", "facing", "color", "from"}
 BALL_KEYS = {"type", "image", "center", "radius", "reflectance", "strength"}
+SKY_KEYS = {"type", "radiance_sh", "ground", "from"}
+# what ``from`` may name, per kind of light (the values it says where they came from)
+FROM_FIELDS = {"sun": ("direction", "angular_radius_deg", "irradiance"), "lamp": ("position", "radius_m", "power"),
+               "sky": ("radiance_sh", "ground")}
+# the keys of a light file (``light: OUT/lights/<scene>.yaml``), a scene's own
+LIGHT_FILE_KEYS = {"light", "pitch_deg", "roll_deg", "exposure"}
+# a sky's radiance: beyond this it is no photograph's (and its square overflows float32)
+MAX_SKY_RADIANCE = 1e9
 PROBE_EXTS = {".exr", ".hdr"}
 # a mirror-ball photograph: HDR, or 8/16-bit with a warning (its sun is clipped)
 BALL_EXTS = {".exr", ".hdr", ".png", ".jpg", ".jpeg", ".tif", ".tiff"}
@@ -60,7 +80,6 @@ BALL_EXTS = {".exr", ".hdr", ".png", ".jpg", ".jpeg", ".tif", ".tiff"}
 # on a photograph): more means the photograph is not head-on or its pixels not square
 BALL_ROUND_TOL = 0.05
 MAX_LIGHTS = 3
-MAX_ANGULAR_RADIUS_DEG = 45.0
 
 
 def _num(v):
@@ -132,10 +151,63 @@ def _color(value, where, add):
     return vals
 
 
+def _parse_from(value, kind: str, where, add) -> dict | None:
+    """A light's ``from``: {field: origin code} (``Origin.code``: where each value came
+    from); empty when absent, None when invalid (a problem added)."""
+    from zcomp_cli.scene.lightparams import Origin
+
+    if "from" not in value:
+        return {}
+    f = value["from"]
+    codes = [o.code for o in Origin]
+    if not isinstance(f, dict):
+        add(value, "from", f"{where}.from", f"expected a mapping of field: origin, got {f!r}")
+        return None
+    out = {}
+    for k, v in f.items():
+        if k not in FROM_FIELDS[kind]:
+            add(f, k, f"{where}.from.{k}", f"unknown field {k!r} (a {kind} says where these came from: "
+                                           f"{', '.join(FROM_FIELDS[kind])})")
+            return None
+        if v not in codes:
+            add(f, k, f"{where}.from.{k}", f"unknown origin {v!r} (known: {', '.join(codes)})")
+            return None
+        out[k] = v
+    return out
+
+
+def _parse_sky(value, where, add) -> dict | None:
+    """A fitted sky given back (``type: sky``): its radiance's order-2 SH in the ground
+    frame (9 rows of RGB) and, optionally, the support's radiance seen from below."""
+    ok = _unknown_keys(value, SKY_KEYS, where, add, "sky")
+    out = {"type": "sky", "radiance_sh": None, "ground": None, "from": _parse_from(value, "sky", where, add)}
+    rows = value.get("radiance_sh")
+    vals = [[_num(x) for x in r] if isinstance(r, (list, tuple)) else [] for r in rows] \
+        if isinstance(rows, (list, tuple)) else []
+    if (len(vals) != 9 or any(len(r) != 3 or any(x is None or abs(x) > MAX_SKY_RADIANCE for x in r) for r in vals)):
+        add(value, "radiance_sh" if "radiance_sh" in value else None, f"{where}.radiance_sh",
+            f"a sky needs 'radiance_sh': 9 rows of 3 finite numbers (its radiance's order-2 SH, RGB), got "
+            f"{rows!r}"[:300])
+        ok = False
+    else:
+        out["radiance_sh"] = vals
+    if "ground" in value:
+        g = value["ground"]
+        gv = [_num(x) for x in g] if isinstance(g, (list, tuple)) else []
+        if len(gv) != 3 or any(x is None or not (0 <= x <= MAX_SKY_RADIANCE) for x in gv):
+            add(value, "ground", f"{where}.ground", f"expected 3 numbers >= 0 (the support's radiance), got {g!r}")
+            ok = False
+        else:
+            out["ground"] = gv
+    return out if ok and out["from"] is not None else None
+
+
 def _parse_sun(value, where, add) -> dict | None:
     ok = _unknown_keys(value, SUN_KEYS, where, add, "sun")
     out = {"type": "sun", "direction": None, "azimuth_deg": None, "elevation_deg": None,
-           "angular_radius_deg": None, "strength": None, "irradiance": None, "color": None}
+           "angular_radius_deg": None, "strength": None, "irradiance": None, "color": None,
+           "from": _parse_from(value, "sun", where, add)}
+    ok = ok and out["from"] is not None
     has_dir = "direction" in value
     has_angles = "azimuth_deg" in value or "elevation_deg" in value
     if has_dir == has_angles:
@@ -154,7 +226,7 @@ def _parse_sun(value, where, add) -> dict | None:
             else:
                 out[k] = v
     try:
-        out["angular_radius_deg"] = _number(value, "angular_radius_deg", where, add, 0.0, MAX_ANGULAR_RADIUS_DEG)
+        out["angular_radius_deg"] = _number(value, "angular_radius_deg", where, add, 0.0, MAX_RADIUS_DEG)
         out["strength"] = _number(value, "strength", where, add, 0.0, 1e3, auto=True)
         out["irradiance"] = _number(value, "irradiance", where, add, 0.0, 1e9)
         out["color"] = _color(value, where, add)
@@ -261,7 +333,9 @@ def _parse_ball(value, where, add, resolve) -> dict | None:
 
 def _parse_lamp(value, where, add) -> dict | None:
     ok = _unknown_keys(value, LAMP_KEYS, where, add, "lamp")
-    out = {"type": "lamp", "position": None, "radius_m": None, "power": "auto", "facing": None, "color": None}
+    out = {"type": "lamp", "position": None, "radius_m": None, "power": "auto", "facing": None, "color": None,
+           "from": _parse_from(value, "lamp", where, add)}
+    ok = ok and out["from"] is not None
     if "position" not in value:
         add(value, None, where, "a lamp needs 'position' ([x, y, z] in the camera frame, metres)")
         ok = False
@@ -294,8 +368,10 @@ def _parse_one(value, where, add, resolve) -> dict | None:
         return _parse_lamp(value, where, add)
     if kind == "chrome_ball":
         return _parse_ball(value, where, add, resolve)
+    if kind == "sky":
+        return _parse_sky(value, where, add)
     add(value, "type", f"{where}.type",
-        f"unsupported light type {kind!r} (supported: sun, directional, lamp, probe, chrome_ball)")
+        f"unsupported light type {kind!r} (supported: sun, directional, lamp, probe, chrome_ball, sky)")
     return None
 
 
@@ -329,16 +405,20 @@ def parse_light(value, where: str, add, resolve=None) -> dict | None:
     if not ok:
         return None
     probes = [x for x in out if x["type"] == "probe"]
-    direct = [x for x in out if x["type"] != "probe"]
+    skies = [x for x in out if x["type"] == "sky"]
+    direct = [x for x in out if x["type"] not in ("probe", "sky")]
     if len(probes) > 1:
         add(None, None, where, f"at most one probe or chrome_ball, got {len(probes)}")
+        return None
+    if len(skies) > 1 or (skies and probes):
+        add(None, None, where, "at most one sky, and none beside a probe (the probe is the sky)")
         return None
     if len(direct) > MAX_LIGHTS:
         add(None, None, where, f"at most {MAX_LIGHTS} suns and lamps (besides a probe), got {len(direct)}")
         return None
     ratio = [x for x in direct if x["type"] == "sun" and isinstance(x["strength"], float)]
-    absolute = probes + [x for x in direct if x.get("irradiance") is not None
-                         or (x["type"] == "lamp" and x["power"] != "auto")]
+    absolute = probes + skies + [x for x in direct if x.get("irradiance") is not None
+                                 or (x["type"] == "lamp" and x["power"] != "auto")]
     if ratio and absolute:
         add(None, None, where, "a sun's number 'strength' is its share against the fitted sky: it cannot stand "
                                "beside a probe, an irradiance or a lamp's power (give 'irradiance' in W/m^2, "
@@ -347,12 +427,18 @@ def parse_light(value, where: str, add, resolve=None) -> dict | None:
     return to_params(out)
 
 
-def to_params(lights: list, tilt: dict | None = None):
-    """The typed tree (``LightParams``) of validated light mappings (``_parse_one``'s)
-    and the camera's tilt (``parse_tilt``'s)."""
-    from zcomp_cli.lightparams import LampParams, LightParams, Param, ProbeParams, SunParams, WHITE
+def to_params(lights: list, tilt: dict | None = None, exposure=None):
+    """The typed tree (``LightParams``) of validated light mappings (``_parse_one``'s),
+    the camera's tilt (``parse_tilt``'s) and the photograph's exposure (a number, or
+    None: fitted). A value's origin is the manifest's, or what its ``from`` says."""
+    from zcomp_cli.scene.lightparams import (LampParams, LightParams, Origin, Param, ProbeParams, SkyParams,
+                                             SunParams, WHITE)
 
-    suns, lamps, probe = [], [], None
+    def given(x, key, value):
+        code = (x.get("from") or {}).get(key)
+        return Param.given(value, Origin.from_code(code) if code else Origin.MANIFEST)
+
+    suns, lamps, probe, sky = [], [], None, SkyParams()
     for x in lights:
         color = WHITE if x.get("color") is None else tuple(float(v) for v in x["color"])
         if x["type"] == "probe":
@@ -362,23 +448,32 @@ def to_params(lights: list, tilt: dict | None = None):
                                 ball_center=None if ball is None else tuple(float(v) for v in ball),
                                 ball_radius=None if ball is None else float(x["ball_radius"]),
                                 reflectance=None if ball is None else float(x["reflectance"]))
+        elif x["type"] == "sky":
+            g = x.get("ground")
+            sky = SkyParams(radiance_sh=given(x, "radiance_sh", x["radiance_sh"]),
+                            ground=given(x, "ground", g) if g is not None else Param.free())
         elif x["type"] == "sun":
             r = x["angular_radius_deg"]
             strength = x["strength"]
+            d = x["direction"]
             suns.append(SunParams(
-                direction=Param.given(tuple(x["direction"])) if x["direction"] is not None else Param.free(),
-                angles=(x["azimuth_deg"], x["elevation_deg"]) if x["direction"] is None else None,
-                radius_deg=Param.given(float(r)) if r is not None else Param.free(),
-                irradiance=Param.given(float(x["irradiance"])) if x["irradiance"] is not None else Param.free(),
+                direction=given(x, "direction", tuple(d)) if d is not None else Param.free(),
+                angles=(x["azimuth_deg"], x["elevation_deg"]) if d is None else None,
+                angles_from=given(x, "direction", None).origin,
+                radius_deg=given(x, "angular_radius_deg", float(r)) if r is not None else Param.free(),
+                irradiance=given(x, "irradiance", float(x["irradiance"])) if x["irradiance"] is not None
+                else Param.free(),
                 share=float(strength) if isinstance(strength, float) else None, color=color))
         else:
             lamps.append(LampParams(
-                position=Param.given(tuple(x["position"])),
-                radius_m=Param.given(float(x["radius_m"])) if x["radius_m"] is not None else Param.free(),
-                power=Param.free() if x["power"] == "auto" else Param.given(float(x["power"])),
+                position=given(x, "position", tuple(x["position"])),
+                radius_m=given(x, "radius_m", float(x["radius_m"])) if x["radius_m"] is not None else Param.free(),
+                power=Param.free() if x["power"] == "auto" else given(x, "power", float(x["power"])),
                 facing=None if x["facing"] is None else tuple(x["facing"]), color=color))
     tilt = tilt or {}
-    return LightParams(suns=tuple(suns), lamps=tuple(lamps), probe=probe, pitch_deg=tilt.get("pitch_deg"),
+    return LightParams(suns=tuple(suns), lamps=tuple(lamps), probe=probe, sky=sky,
+                       exposure=Param.free() if exposure is None else Param.given(float(exposure)),
+                       pitch_deg=tilt.get("pitch_deg"),
                        roll_deg=tilt.get("roll_deg") if tilt.get("pitch_deg") is not None else None)
 
 
@@ -405,18 +500,31 @@ def check_given_directions(params, tilt: dict, where: str, add) -> None:
                 "pitch_deg/roll_deg: it would light nothing the camera sees from above")
 
 
-def scene_light(params, tilt: dict):
+def scene_light(params, tilt: dict, exposure=None):
     """A scene's light tree: ``params`` (``parse_light``'s, or None: estimated) with the
-    camera's ``tilt``; None when the scene gives neither."""
+    camera's ``tilt`` and the photograph's ``exposure`` (None: fitted); None when the
+    scene gives none of them."""
     import dataclasses
 
-    from zcomp_cli.lightparams import LightParams
+    from zcomp_cli.scene.lightparams import LightParams, Param
 
-    if params is None and not tilt:
+    if params is None and not tilt and exposure is None:
         return None
     base = LightParams.estimate() if params is None else params
     return dataclasses.replace(base, pitch_deg=tilt.get("pitch_deg"),
-                               roll_deg=(tilt.get("roll_deg") or 0.0) if tilt.get("pitch_deg") is not None else None)
+                               roll_deg=(tilt.get("roll_deg") or 0.0) if tilt.get("pitch_deg") is not None else None,
+                               exposure=base.exposure if exposure is None else Param.given(float(exposure)))
+
+
+def parse_exposure(scene: dict, where: str, add):
+    """The scene's ``exposure`` (a number above 0; ``auto`` or absent: None, fitted)."""
+    if "exposure" not in scene or scene["exposure"] == "auto":
+        return None
+    v = _num(scene["exposure"])
+    if v is None or not (0 < v <= 1e9):
+        add(scene, "exposure", f"{where}.exposure", f"expected a number in (0, 1e9] or 'auto', got {scene['exposure']!r}")
+        return None
+    return v
 
 
 def parse_tilt(scene: dict, where: str, add) -> dict:
@@ -436,5 +544,5 @@ def parse_tilt(scene: dict, where: str, add) -> dict:
     return out
 
 
-__all__ = ["parse_light", "parse_tilt", "scene_light", "check_given_directions", "MAX_COLOR", "to_params", "SUN_RADIUS_DEG", "LAMP_RADIUS_M", "MAX_LIGHTS",
-           "PROBE_EXTS"]
+__all__ = ["parse_light", "parse_tilt", "parse_exposure", "scene_light", "check_given_directions", "MAX_COLOR",
+           "to_params", "SUN_RADIUS_DEG", "LAMP_RADIUS_M", "MAX_LIGHTS", "PROBE_EXTS", "LIGHT_FILE_KEYS"]

@@ -49,8 +49,8 @@ MAX_SEED = 2**32 - 1  # numpy and torch generators both take [0, 2**32)
 # Files zcomp writes at the top of an output folder: no job may be named like them
 # (summary.json and every shard's summary.shard-I-of-N.json: summary*.json).
 # what zcomp writes at the top of an output folder (eval's tables, `zcomp report`'s page,
-# `zcomp preview-light`'s sheets): no job folder may take these names
-RESERVED_OUTPUT_NAMES = {"summary.json", "eval.csv", "eval.json", "report.html", "report_thumbs", "preview"}
+# `zcomp preview-light`'s sheets, each scene's fitted light): no job folder may take these names
+RESERVED_OUTPUT_NAMES = {"summary.json", "eval.csv", "eval.json", "report.html", "report_thumbs", "preview", "lights"}
 RESERVED_OUTPUT_RE = re.compile(r"summary.*\.json", re.I)
 # Blender renders no image smaller than this on a side (mesh objects are rendered at
 # the scene's working size).
@@ -412,8 +412,8 @@ def _no_depth_problem(spec: SceneSpec, jobs, defaults) -> str:
 def _parse_scenes(d, parent, root, probs, check_files, defaults) -> dict[str, SceneSpec]:
     out: dict[str, SceneSpec] = {}
     for name, s, where in _named_entries(d, parent, "scenes", "scene", "at least 'image'", probs):
-        _check_keys(s, {"image", "fov_deg", "K", "light", "pitch_deg", "roll_deg", *MAP_CHANNELS}, where, probs,
-                    required=("image",))
+        _check_keys(s, {"image", "fov_deg", "K", "light", "pitch_deg", "roll_deg", "exposure", *MAP_CHANNELS}, where,
+                    probs, required=("image",))
         if "fov_deg" in s and "K" in s:
             probs.add(s, "K", where, "give fov_deg or K, not both")
         for m in MAP_CHANNELS:
@@ -548,37 +548,66 @@ def _no_light(path: Path) -> str | None:
 
 
 def _parse_scene_light(s, where, probs, root, files: list, check_files: bool = True):
-    """The scene's light tree for the renderer (``zcomp_cli.lightparams.LightParams``)
-    from ``light`` and ``pitch_deg``/``roll_deg`` when given (``pipeline/lightspec.py``);
-    None when the scene has neither (the light is estimated, world up read off the
-    support). Every file the light names is appended to ``files`` (the resume
+    """The scene's light tree for the renderer (``zcomp_cli.scene.lightparams.LightParams``)
+    from ``light``, ``pitch_deg``/``roll_deg`` and ``exposure`` when given
+    (``pipeline/lightspec.py``), or from the light file ``light`` names (those keys in a
+    YAML file of their own: a light zcomp wrote, given back; its paths relative to it);
+    None when the scene gives none of them (the light is estimated, world up read off
+    the support). Every file the light names is appended to ``files`` (the resume
     fingerprint hashes them)."""
-    from zcomp_cli.pipeline.lightspec import (PROBE_EXTS, check_given_directions, parse_light, parse_tilt,
-                                              scene_light)
+    from zcomp_cli.pipeline.lightspec import (LIGHT_FILE_KEYS, PROBE_EXTS, check_given_directions, parse_exposure,
+                                              parse_light, parse_tilt, scene_light)
+
+    src, lroot, lprobs = s, root, probs
+    if isinstance(s.get("light"), str):  # a light file
+        lp = _file(root, s["light"], s, "light", f"{where}.light", probs, {".yaml", ".yml"})
+        if lp is None:
+            return None
+        both = sorted(k for k in LIGHT_FILE_KEYS - {"light"} if k in s)
+        if both:
+            probs.add(s, both[0], f"{where}.{both[0]}", f"give {', '.join(both)} in the light file {lp.name} or "
+                                                        "here, not both")
+            return None
+        files.append(lp)
+        lprobs = _Problems(lp)
+        try:
+            src = load_yaml(lp)
+        except ManifestError as exc:
+            probs.add(s, "light", f"{where}.light", f"cannot read the light file: {exc}")
+            return None
+        if not isinstance(src, dict) or "light" not in src:
+            probs.add(s, "light", f"{where}.light", f"{lp.name} is no light file: expected a mapping with 'light' "
+                                                    "(and pitch_deg, roll_deg, exposure)")
+            return None
+        _check_keys(src, LIGHT_FILE_KEYS, lp.name, lprobs)
+        lroot, where = lp.parent, lp.name
 
     def add(container, key, w, msg):  # problems without a container sit on 'light'
-        probs.add(s if container is None else container, "light" if container is None else key, w, msg)
+        lprobs.add(src if container is None else container, "light" if container is None else key, w, msg)
 
-    def resolve(container, key, w, exts=PROBE_EXTS):  # a light probe file, relative to the manifest
-        p = _file(root, container[key], container, key, w, probs, exts)
+    def resolve(container, key, w, exts=PROBE_EXTS):  # a light probe file, relative to the manifest (its file)
+        p = _file(lroot, container[key], container, key, w, lprobs, exts)
         if p is not None and check_files and exts is PROBE_EXTS:
             bad = _probe_shape_problem(p)
             if bad:
-                probs.add(container, key, w, bad)
+                lprobs.add(container, key, w, bad)
                 return None
         if p is not None and check_files:
             dark = _no_light(p)
             if dark:
-                probs.add(container, key, w, dark)
+                lprobs.add(container, key, w, dark)
                 return None
         if p is not None:
             files.append(p)
         return p
 
-    tilt = parse_tilt(s, where, lambda c, k, w, m: probs.add(c, k, w, m))
-    params = parse_light(s["light"], f"{where}.light", add, resolve) if "light" in s else None
+    tilt = parse_tilt(src, where, lambda c, k, w, m: lprobs.add(c, k, w, m))
+    exposure = parse_exposure(src, where, lambda c, k, w, m: lprobs.add(c, k, w, m))
+    params = parse_light(src["light"], f"{where}.light", add, resolve) if "light" in src else None
     check_given_directions(params, tilt, f"{where}.light", add)
-    return scene_light(params, tilt)
+    if lprobs is not probs:
+        probs.items += lprobs.items
+    return scene_light(params, tilt, exposure)
 
 
 def _parse_objects(d, parent, root, probs, check_files) -> dict[str, ObjectSpec]:

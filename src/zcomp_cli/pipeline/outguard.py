@@ -35,6 +35,7 @@ import time
 from pathlib import Path
 
 from zcomp_cli.errors import UsageError
+from zcomp_cli.filedigest import sha256_file
 from zcomp_cli.interrupts import deferred
 from zcomp_cli.safe_read import read_json_file
 
@@ -295,14 +296,6 @@ def check_inside(root: Path, path: Path, field: str) -> None:
 
 
 # ----------------------------------------------------------------------------- digests
-def sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 class DigestCache:
     """sha256 of files, remembered by (absolute path, size, mtime_ns)."""
 

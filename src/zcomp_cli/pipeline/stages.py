@@ -4,6 +4,9 @@
   (:meth:`BatchContext.create`) when the renderer is known, and never changed after;
 * :class:`SceneStore`: the batch's scenes, each loaded on first use and freed after
   its last job (memory stays flat in the number of scenes);
+* :class:`LightStore`: the light stage (``light.stage.SceneLight``): each scene's light
+  fitted once (per seed), shared by its jobs, kept in zcomp's cache for the other
+  shards and workers, and written as ``OUT/lights/<scene>.yaml``;
 * :class:`JobWork`: one job on its way through the stages;
 * the stages themselves: :func:`resolve_poses` (stage 2), :func:`render_objects`
   (stage 3: every mesh job's object intrinsics in one Blender batch) and
@@ -15,7 +18,7 @@
 from __future__ import annotations
 
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
@@ -89,6 +92,104 @@ class SceneStore:
                 del self._scenes[n]
 
 
+class LightStore:
+    """The batch's light stage: ``get(scene, seed)`` is the scene's fitted light
+    (``light.stage.FittedLight``), fitted once per scene, tree, config and seed by the
+    renderer's light config, kept in memory and under the cache's ``lights/`` folder, and
+    written once a run in the manifest's ``light:`` syntax (``light.written``) at
+    ``path_of(scene)`` (default ``OUT/lights/<scene>.yaml``). A fit that fails fails
+    every job of that scene with its reason."""
+
+    def __init__(self, cfg, cache_dir: Path | None, out_root: Path, path_of=None):
+        from zcomp_cli.light.stage import SceneLight
+
+        self.stage = SceneLight(cfg, cache_dir)
+        self.path_of = path_of or (lambda name: Path(out_root) / LIGHTS_DIR / f"{name}.yaml")
+        self._written: set = set()
+        self._lock = threading.RLock()
+
+    def get(self, scene, seed: int):
+        from zcomp_cli.compositing import shading_from_image
+        from zcomp_cli.light.stage import LightInputs
+
+        with self._lock:
+            scale = float(getattr(scene, "working_scale", 1.0))
+            shading = shading_from_image(scene.image, scene.maps.albedo)
+            inputs = LightInputs.of(scene.maps, shading, None, scene.camera, scene.key)
+            fitted = self.stage.get(inputs, in_photo_units(getattr(scene, "light", None), 1.0 / scale), seed)
+            if (scene.name, fitted.key) not in self._written:
+                self._written.add((scene.name, fitted.key))
+                self.write(scene.name, fitted, scale)
+            return fitted
+
+    def write(self, name: str, fitted, scale: float = 1.0) -> None:
+        """The fitted light at ``path_of(name)`` (``light.written``), in the photograph's
+        units (its values times the scene's ``working_scale``); skipped, with a
+        warning, where its folder is not zcomp's to write into (a file, a link)."""
+        import dataclasses
+        import logging
+
+        from zcomp_cli.light.written import write_light_yaml
+
+        if scale != 1.0:
+            fitted = dataclasses.replace(fitted, params=in_photo_units(fitted.params, scale, filled=True))
+        path = self.path_of(name)
+        folder = path.parent
+        if folder.is_symlink() or (folder.exists() and not folder.is_dir()):
+            logging.getLogger(__name__).warning("not writing %s: %s is not a folder zcomp made", path, folder)
+            return
+        try:
+            write_light_yaml(path, fitted, name)
+        except ZcompError as exc:
+            logging.getLogger(__name__).warning("could not write %s: %s", path, exc)
+
+
+# the folder of an output folder holding each scene's fitted light (``<scene>.yaml``)
+LIGHTS_DIR = "lights"
+
+
+def in_photo_units(params, k: float, *, filled: bool = False):
+    """A light tree whose values in the photograph's units are multiplied by ``k`` -- the
+    exposure (photograph units per physical unit) and the support's radiance -- where
+    they are given (or, ``filled``, fitted): ``1 / working_scale`` takes a manifest's
+    light to a scene's working units (``pipeline.scene.Scene.working_scale``),
+    ``working_scale`` a fitted one back for writing (an exposure nothing fixed is then
+    ``k``: the fitted strengths are in working units). None stays None; k = 1: as it is."""
+    import dataclasses
+
+    from zcomp_cli.scene.lightparams import Origin
+
+    if params is None or k == 1.0:
+        return params
+
+    def times(p, default=None):
+        if p.value is not None and (p.frozen or filled):
+            import numpy as np
+
+            return p.filled(np.asarray(p.value, np.float64) * k)
+        return p.filled(default, Origin.FIT) if default is not None else p
+
+    sky = dataclasses.replace(params.sky, ground=times(params.sky.ground))
+    return dataclasses.replace(params, sky=sky, exposure=times(params.exposure, k if filled else None))
+
+
+def light_config_of(spec: RendererSpec):
+    """The light stage's config a renderer spec's renderer fits with (``LightConfig``;
+    the default for one that draws no light, or cannot be built here)."""
+    from zcomp_cli.light.config import LightConfig
+    from zcomp_cli.renderers import get_renderer
+
+    try:
+        r = get_renderer(spec.name, **spec.settings)
+    except ZcompError:
+        return LightConfig()
+    cfg = r.light_config() if getattr(r, "uses_light", False) else None
+    close = getattr(r, "close", None)
+    if callable(close):
+        close()
+    return cfg if cfg is not None else LightConfig()
+
+
 @dataclass
 class JobWork:
     """One job on its way through the stages: the plan sets ``fingerprint``, stage 2
@@ -100,6 +201,10 @@ class JobWork:
     pose: object | None = None
     bundle_dir: Path | None = None
     error: str | None = None
+    # what the job's ledger needs to know of the stages before it (``pipeline.ledger``):
+    # ``object`` ({"cached", "seconds"} of its Blender passes), ``scene_loaded``, ``glossy``,
+    # ``light`` (the light stage's entries, ``light.ledger.light_entries``)
+    facts: dict = field(default_factory=dict)
 
 
 def resolve_batch_size(requested: int | None, renderer) -> int:
@@ -124,6 +229,7 @@ class BatchContext:
     renderer_spec: RendererSpec
     renderer: object  # a renderers.base.Renderer, built before any stage runs
     scenes: SceneStore
+    lights: LightStore | None = None  # the light stage, for a renderer that draws a light
     batch_size: int = 1
     debug: bool = False
     aovs: bool = False  # also write aovs.exr (compositing.aovs)
@@ -136,8 +242,10 @@ class BatchContext:
                progress: Progress | None = None) -> "BatchContext":
         from zcomp_cli.cache import cache_dir as cache_folder
 
+        lights = (LightStore(renderer.light_config(), cache_folder("lights", cache_root), Path(out_root))
+                  if getattr(renderer, "uses_light", False) else None)
         return cls(manifest, Path(out_root), renderer_spec, renderer,
-                   SceneStore(manifest, cache_folder("estimates", cache_root)),
+                   SceneStore(manifest, cache_folder("estimates", cache_root)), lights=lights,
                    batch_size=resolve_batch_size(batch_size, renderer), debug=debug,
                    aovs=aovs, cache_root=cache_root, progress=progress)
 
@@ -213,6 +321,7 @@ def render_objects(ctx: BatchContext, works: list[JobWork], *, session=None) -> 
     results = render_object_intrinsics(requests, cache_dir=ctx.cache_root, samples=ctx.samples, progress=_cb,
                                        session=session)
     for w, res in zip(owners, results):
+        w.facts["object"] = {"cached": bool(getattr(res, "cached", False)), "seconds": float(getattr(res, "seconds", 0))}
         if res.ok:
             w.bundle_dir = res.bundle_dir
         else:

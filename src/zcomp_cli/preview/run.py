@@ -159,8 +159,9 @@ def check_ball_size(camera, M, diameter: float, given: bool) -> None:
 
 
 def preview_scene(manifest, scene_name: str, renderer, *, out_dir, work: Path, pixel_native=None,
-                  diameter: float | None = None, cache_dir=None) -> PreviewResult:
-    """Steps 1-5 for one scene (module docstring); raises ZcompError on failure."""
+                  diameter: float | None = None, cache_dir=None, lights=None) -> PreviewResult:
+    """Steps 1-5 for one scene (module docstring); raises ZcompError on failure.
+    ``lights``: the light stage (``pipeline.stages.LightStore``; None: one for this call)."""
     from zcomp_cli.cache import cache_dir as cache_folder
     from zcomp_cli.pipeline.job import finish_job, prepare_job, roi_around
     from zcomp_cli.pipeline.scene import load_scene
@@ -181,18 +182,27 @@ def preview_scene(manifest, scene_name: str, renderer, *, out_dir, work: Path, p
         write_balls_glb(glb, d)
     bundle = ball_bundle(scene.camera, M, d, mesh_path=glb)
     seed = next((j.seed for j in manifest.jobs if j.scene == scene_name), manifest.defaults.seed)
-    prep = prepare_job(scene, bundle, shading_radius=manifest.defaults.shading_radius, seed=seed)
-    # 3.-4. the light, Blender
+    # 3. the light: the batch's light stage (its cache shared with `zcomp composite`)
+    if lights is None:
+        from zcomp_cli.pipeline.stages import LightStore
+
+        lights = LightStore(renderer.light_config(), cache_folder("lights", cache_dir), Path(out_dir))
+    fitted = lights.get(scene, seed)
+    model = fitted.model
+    prep = prepare_job(scene, bundle, shading_radius=manifest.defaults.shading_radius, seed=seed,
+                       fitted_light=fitted)
+    # 4. Blender
     t = time.perf_counter()
     out = renderer.render(prep.requests, seed=seed)
     res = finish_job(prep, out, renderer.name, renderer.settings())
-    model = renderer.light(prep.requests[0], seed)
     cover = bundle.mask > 0
     box = roi_around(cover, max(4, int(0.1 * cover.any(0).sum())))
     bh = max(1, box[3] - box[1])
     zoom = float(np.clip(ALONE_MIN_PX / bh, 1.0, MAX_ZOOM))
     ta = time.perf_counter()
+    # (in the photograph's units, as finish_job gives the composite: ``Scene.working_scale``)
     alone = renderer.render_alone(prep.requests[1], seed, box=box, zoom=zoom)
+    alone[..., :3] *= np.float32(scene.working_scale)
     alone_s = time.perf_counter() - ta
     if not (alone[..., 3] > 0).any():
         raise RenderError(f"Blender drew no ball (the balls {d:.3g} m across at "
@@ -261,7 +271,12 @@ def preview_light(manifest, out_dir, *, scenes=None, pixel_native=None, diameter
     from zcomp_cli.pipeline.batch import check_renderer_budget
 
     check_renderer_budget(manifest, names, "cycles")
-    renderer = CyclesRenderer(samples=int(samples), world_map_resolution=WORLD_MAP_RESOLUTION)
+    from zcomp_cli.knobs import as_dict
+    from zcomp_cli.pipeline.stages import light_config_of
+
+    # the light the batch will fit: the manifest's renderer's light config
+    renderer = CyclesRenderer(samples=int(samples), world_map_resolution=WORLD_MAP_RESOLUTION,
+                              light=as_dict(light_config_of(manifest.defaults.renderer)))
     renderer.check()
     out_dir = Path(out_dir)
     folder = out_dir / SUBDIR
@@ -284,8 +299,11 @@ def _preview_scenes(manifest, renderer, out_dir, names, *, pixel_native, diamete
                     progress) -> list[PreviewResult]:
     import os
 
+    from zcomp_cli.cache import cache_dir as cache_folder
     from zcomp_cli.pipeline.outguard import sweep_dead_temporaries
+    from zcomp_cli.pipeline.stages import LightStore
 
+    lights = LightStore(renderer.light_config(), cache_folder("lights", cache_dir), Path(out_dir))
     sweep_dead_temporaries()  # what killed runs left in /tmp (a preview's work folder among them)
     work = Path(tempfile.mkdtemp(prefix=f"{WORK_PREFIX}{os.getpid()}-"))
     results = []
@@ -296,7 +314,8 @@ def _preview_scenes(manifest, renderer, out_dir, names, *, pixel_native, diamete
             t = time.perf_counter()
             try:
                 results.append(preview_scene(manifest, name, renderer, out_dir=out_dir, work=work,
-                                             pixel_native=pixel_native, diameter=diameter, cache_dir=cache_dir))
+                                             pixel_native=pixel_native, diameter=diameter, cache_dir=cache_dir,
+                                             lights=lights))
             except ZcompError as exc:
                 results.append(PreviewResult(name, seconds=time.perf_counter() - t, error=str(exc)))
         if progress:

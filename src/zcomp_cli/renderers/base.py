@@ -34,10 +34,14 @@ class RenderRequest:
         image: H x W x 3 linear background photograph (x_bg) for context, optional.
         scene_key: a key identifying the background scene (same key = same background),
             so a renderer may cache per-scene work such as lighting estimation.
-        light: the scene's light context from the manifest (``pipeline/lightspec.py``):
-            ``{"lights": [...]}`` when the light is given (a renderer that models light
-            uses it instead of estimating one) and the camera's ``pitch_deg``/``roll_deg``
-            when given; None when the manifest says neither.
+        light: the scene's light tree from the manifest (``scene.lightparams.LightParams``:
+            what is given frozen, what is left out free, the camera's tilt; built by
+            ``pipeline/lightspec.py``); None when the manifest gives neither a light nor
+            a tilt (the light is estimated).
+        fitted_light: the scene's light as the light stage fitted it
+            (``light.stage.FittedLight``: the model, the filled tree, the posterior);
+            the batch fits it once per scene and hands it to every job. None: a
+            renderer that draws a light runs the stage itself (``light.stage``).
         occluder: the object's posed mesh (``zcomp_cli.posed_mesh.PosedMesh``) on the
             composite request when the bundle references one, else None.
         coverage: H x W float in [0, 1], the inserted object's visible coverage on the
@@ -56,7 +60,8 @@ class RenderRequest:
     roi: tuple[int, int, int, int] | None = None
     image: np.ndarray | None = None
     scene_key: str | None = None
-    light: dict | None = None
+    light: object | None = None
+    fitted_light: object | None = None
     occluder: object | None = None
     coverage: np.ndarray | None = None
     debug: bool = False
@@ -98,6 +103,14 @@ class Renderer(ABC):
     ``NumericalError`` instead)."""
 
     name: str = "renderer"
+    # whether it draws the scene's light (then the batch fits it once per scene, with
+    # ``light_config()``, and hands it over as ``RenderRequest.fitted_light``)
+    uses_light: bool = False
+
+    def light_config(self):
+        """The light stage's config this renderer's light is fitted with
+        (``light.config.LightConfig``; None: it draws no light)."""
+        return None
 
     @abstractmethod
     def render(self, requests: Sequence[RenderRequest], *, seed: int = DEFAULT_SEED) -> RenderOutput:

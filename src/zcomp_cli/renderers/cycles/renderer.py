@@ -2,19 +2,21 @@
 
 Per request (numbered as the pipeline's steps):
 
-1. **The light**: the physical renderer's ``LightModel`` -- the manifest's lights with
-   their strengths fitted to the photograph, or the whole light estimated -- in zcomp's
-   shading units (``scene``: Blender's are the same, so no exposure of its own). A given
-   probe is the world itself (its rotation and convention, ``docs/lights.md``); an
-   estimated sky is drawn into a small world map; suns and lamps are Blender's.
-2. **The geometry**: the request's depth map as a mesh (``physical.depthmesh``:
+1. **The light**: the scene's fitted light (``RenderRequest.fitted_light``, the light
+   stage's, ``zcomp_cli.light``; or that stage run here for a caller who gives none) --
+   the manifest's lights with their strengths fitted to the photograph, or the whole
+   light estimated -- in zcomp's shading units (``scene``: Blender's are the same, so no
+   exposure of its own). A given probe is the world itself (its rotation and
+   convention, ``docs/lights.md``); an estimated sky is drawn into a small world map;
+   suns and lamps are Blender's.
+2. **The geometry**: the request's depth map as a mesh (``scene.depthmesh``:
    discontinuities cut, occluders extruded backwards, the walls beyond the frame), its
    albedo as each vertex's diffuse colour so bounce light has the photograph's colours;
    on the composite request, the pixels the object covers are left out of that mesh and
    the object is its own file at its pose with its own materials (``PosedMesh.source``),
    or, for an object given as maps, its extruded surface with its mean material.
 3. **The window**: only the re-shaded pixels (the unknown ones, grown along a given
-   light's shadow as the physical renderer does) and a margin are path traced (Blender's
+   light's shadow, ``renderers.lighting.request_reach``) and a margin are path traced (Blender's
    render border); every known pixel is ``albedo x shading``, the photograph, exactly
    (the renderer contract), so the compositor's guarantees hold as they are.
 4. **Blender**: one process per renderer (``blender.runner.BlenderSession``, the
@@ -55,25 +57,27 @@ KEEP_WORLDS = 4
 
 class CyclesRenderer(Renderer):
     """Blender Cycles on a mesh of the photograph's depth (module docstring). Settings:
-    ``CyclesSettings``; ``light``: settings of the physical renderer whose light fit it
-    uses (a mapping)."""
+    ``CyclesSettings`` (its ``light``: the light stage's config, a mapping)."""
 
     name = "cycles"
+    uses_light = True
 
-    def __init__(self, light: dict | None = None, **settings):
-        from zcomp_cli.renderers.physical import PhysicalRenderer
+    def __init__(self, **settings):
+        from zcomp_cli.light.stage import SceneLight
 
         self._settings = CyclesSettings.from_kwargs(**settings)
-        if light is not None and not isinstance(light, dict):
-            raise UsageError(f"cycles renderer setting light: a mapping of physical renderer settings, got {light!r}")
-        self._physical = PhysicalRenderer(**(light or {}))
+        # the light stage for a caller who gives no fitted light (memory only)
+        self._lights = SceneLight(self._settings.light)
         self._session = None
         self._work: Path | None = None
         self._meshes: dict = {}
         self._worlds: dict = {}  # inputs' key -> the world's rows (its EXR in the work folder), oldest first
 
     def settings(self) -> dict:
-        return {"name": self.name, **self._settings.as_dict(), "light": self._physical.settings()}
+        return {"name": self.name, **self._settings.as_dict()}
+
+    def light_config(self):
+        return self._settings.light
 
     def check(self) -> None:
         import importlib.util
@@ -112,16 +116,14 @@ class CyclesRenderer(Renderer):
     def render(self, requests: Sequence[RenderRequest], *, seed: int = DEFAULT_SEED) -> RenderOutput:
         if not requests:
             raise UsageError("cycles renderer needs at least one request")
-        from zcomp_cli.renderers.physical.lightmodel import ShadowKind
+        from zcomp_cli.renderers.lighting import request_reach
 
         timings = {"estimate": 0.0, "build": 0.0, "blender": 0.0}
         t0 = time.perf_counter()
-        model = self._physical.light(requests[0], seed)
+        model = self.light(requests[0], seed)
         timings["estimate"] = time.perf_counter() - t0
-        grown = reach = None
-        if model.source == "manifest" and model.shadows is ShadowKind.CAST:
-            # where a given light's shadow falls beyond the mask (the physical renderer's rule)
-            grown, reach = self._physical.shadow_reach(requests, model)
+        # where a given light's shadow falls beyond the mask (every light-drawing renderer's rule)
+        grown, reach = request_reach(requests, model, self._settings.light)
         images, passes, layers = [], [], {}
         for k, req in enumerate(requests):
             im, info, aov = self._render_one(req, model, seed, reach, timings)
@@ -165,7 +167,7 @@ class CyclesRenderer(Renderer):
         t = time.perf_counter()
         self._blender()
         item, arrays = self._describe(req, model, seed, box)
-        item.update(width=W, height=H, camera=blender_camera_from_K(req.camera.K, W, H))
+        item.update(width=W, height=H, camera=blender_camera_from_K(req.camera.K, W, H), clip=clip_range(req.maps.depth))
         timings["build"] += time.perf_counter() - t
         ch, ev, res = self._run(item, arrays, timings)
         rgb = np.nan_to_num(get_pass(ch, "Combined", "RGB"), nan=0.0, posinf=0.0, neginf=0.0)
@@ -241,9 +243,15 @@ class CyclesRenderer(Renderer):
             (self._work / f"world_{old}.exr").unlink(missing_ok=True)
         return path, self._worlds[key]
 
+    def fitted_light(self, req: RenderRequest, seed: int = DEFAULT_SEED):
+        """The scene's fitted light (``renderers.lighting.request_light``)."""
+        from zcomp_cli.renderers.lighting import request_light
+
+        return request_light(req, self._lights, seed)
+
     def light(self, req: RenderRequest, seed: int = DEFAULT_SEED):
-        """The scene's light model (the physical renderer's fit, cached per scene)."""
-        return self._physical.light(req, seed)
+        """The scene's light model (``fitted_light``'s)."""
+        return self.fitted_light(req, seed).model
 
     def render_alone(self, req: RenderRequest, seed: int = DEFAULT_SEED, *, box, zoom: float = 1.0,
                      samples: int | None = None) -> np.ndarray:
@@ -269,7 +277,7 @@ class CyclesRenderer(Renderer):
               min(Hz, math.ceil(y1 * z)))
         if bz[2] <= bz[0] or bz[3] <= bz[1]:
             raise UsageError(f"render_alone: empty window {list(box)}")
-        model = self._physical.light(req, seed)
+        model = self.light(req, seed)
         self._blender()
         item, arrays = self._describe(req, model, seed, bz, with_scene=False)
         K = np.asarray(req.camera.K, np.float64).copy()
@@ -284,9 +292,8 @@ class CyclesRenderer(Renderer):
     def _describe(self, req: RenderRequest, model, seed: int, box, *, with_scene: bool = True) -> tuple[dict, dict]:
         """The Blender item and its arrays for one request (``scene``); without the
         scene's mesh when not ``with_scene`` (``render_alone``)."""
-        from zcomp_cli.lightparams import LightParams
-        from zcomp_cli.renderers.physical.depthmesh import has_geometry
-        from zcomp_cli.renderers.physical.lightmodel import ShadowKind
+        from zcomp_cli.scene.depthmesh import has_geometry
+        from zcomp_cli.scene.lightmodel import ShadowKind
 
         s = self._settings
         d = np.nan_to_num(np.asarray(req.maps.depth, np.float64), nan=0.0, posinf=0.0, neginf=0.0)
@@ -308,16 +315,14 @@ class CyclesRenderer(Renderer):
         key = h.hexdigest()[:24] if with_scene else None
         arrays = self._meshes.get(key) if with_scene else {}
         if arrays is None:  # (a large frame: meshed finely only around the window)
-            arrays = sc.scene_arrays(d, n, albedo, valid, req.camera, model, box)
+            arrays = sc.scene_arrays(d, n, albedo, valid, req.camera, model, box, cfg=s.light.mesh)
             # the last few scenes' meshes (a job's two passes): memory flat in the scenes
             self._meshes = {**dict(list(self._meshes.items())[-3:]), key: arrays}
         arrays = dict(arrays)
-        params = getattr(req, "light", None) or LightParams.estimate()
-        probe = params.probe if model.probe is not None and s.world == "probe" else None
+        probe = model.probe.params if model.probe is not None and s.world == "probe" else None
         up = np.asarray(model.up, np.float64)
         if probe is not None:
-            exposure = float(model.fit.exposure) if np.isfinite(model.fit.exposure) else 1.0
-            scale = exposure * float(probe.strength)
+            scale = model.probe.scale
             wkey = repr(("probe", probe.to_dict(), scale, up.tolist(), s.probe_width))
             make = lambda: sc.probe_image(probe, up, scale, s.probe_width)  # noqa: E731
         else:
@@ -373,3 +378,23 @@ def _light_passes(channels: dict, box, shape) -> dict[str, np.ndarray]:
 
 
 __all__ = ["CyclesRenderer"]
+
+
+# The camera's clipping range in Blender: at least Blender's own defaults for a scene in
+# metres, and always wide enough for the scene's depths (a pixel's ray, 85 deg off the
+# axis in a 170 deg view, is 11.5 times its depth): with a fixed 10 km, a scene 10 km
+# deep was clipped away and the path tracer saw the world where its floor was (issue 49).
+CLIP_RANGE_M = (1e-3, 1e4)
+CLIP_DEPTHS = 100.0
+
+
+def clip_range(depth) -> list[float]:
+    """[clip_start, clip_end] of the camera for a scene of ``depth`` (H, W) z-depths (0 or
+    non-finite: none): ``CLIP_RANGE_M`` widened to half the nearest depth and
+    ``CLIP_DEPTHS`` times the farthest."""
+    d = np.asarray(depth, np.float64)
+    d = d[np.isfinite(d) & (d > 0)]
+    lo, hi = CLIP_RANGE_M
+    if d.size:
+        lo, hi = min(lo, 0.5 * float(d.min())), max(hi, CLIP_DEPTHS * float(d.max()))
+    return [lo, hi]

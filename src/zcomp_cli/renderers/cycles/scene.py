@@ -60,7 +60,7 @@ def sky_image(sky, width: int) -> tuple[np.ndarray, np.ndarray]:
     convention (rotation 0) and its ``world_rows``. Above the horizon the sky's SH
     radiance (clamped at 0: order 2 rings behind a bright region), below it the
     support's radiance (``Sky.ground``): what an object sees past the mesh's edge."""
-    from zcomp_cli.renderers.physical import sh
+    from zcomp_cli.scene import sh
 
     frame = ground_frame(sky.up)
     h, w = max(1, int(width) // 2), int(width)
@@ -76,8 +76,8 @@ def probe_image(probe_params, up, scale: float, max_width: int) -> tuple[np.ndar
     it: non-finite and negative values 0, at most ``max_width`` wide) times ``scale``
     (its strength times the fitted exposure), and the ``world_rows`` of its convention
     and yaw."""
-    from zcomp_cli.renderers.physical.probe import probe_radiance
-    from zcomp_cli.renderers.physical.settings import ProbeConfig
+    from zcomp_cli.scene.probe import probe_radiance
+    from zcomp_cli.scene.config import ProbeConfig
 
     frame = ground_frame(up)
     img, convention, rotation = probe_radiance(probe_params, frame, ProbeConfig(max_width=int(max_width)))
@@ -95,7 +95,7 @@ def lamps_of(model, *, skip_probe_sources: bool) -> list[dict]:
     """Blender lamps of a ``LightModel``'s suns and lamps (``scene`` module docstring's
     units). ``skip_probe_sources``: leave out the suns measured on the probe (the probe,
     given as the world, holds them)."""
-    from zcomp_cli.lightparams import Origin
+    from zcomp_cli.scene.lightparams import Origin
 
     out = []
     for s in model.suns:
@@ -132,7 +132,7 @@ def fill_behind(depth, normals, albedo, valid, hidden, camera, up):
     """
     from scipy import ndimage
 
-    from zcomp_cli.renderers.physical.depthmesh import support_mask
+    from zcomp_cli.scene.depthmesh import support_mask
 
     d = np.array(depth, np.float64)
     n = np.array(normals, np.float64)
@@ -181,13 +181,21 @@ def walls_behind(walls) -> tuple:
 
 # The support's plane beyond the frame: a square this many metres from the camera's foot
 # either way (physical: the light model's support is infinite, ``Sky.ground``; from an
-# object 2 m above it, the plane beyond 100 m is under 1.2 deg of its horizon).
+# object 2 m above it, the plane beyond 100 m is under 1.2 deg of its horizon), and at
+# least GROUND_HALF_HEIGHTS times the camera's height above the support: in metres
+# alone, a scene seen from 100 m up (or measured in centimetres) had a floor smaller than
+# the one in view, and its objects saw the world below the horizon (with the camera's
+# clipping, ``renderer.clip_range``, the 8.8 % of the composite the stability sweep saw at
+# 10 km scale: issue 49). From the camera's own height
+# the plane beyond 50 heights is under 1.2 deg of the horizon, as above.
 GROUND_HALF_M = 100.0
+GROUND_HALF_HEIGHTS = 50.0
 
 
 def with_ground(arrays: dict, mesh, diffuse: np.ndarray) -> dict:
     """``arrays`` (``scene_mesh_arrays``) plus the support's plane beyond the frame: a
-    square of ``GROUND_HALF_M`` about the camera's foot, ``WALL_BEHIND_REL`` of the camera's
+    square of ``GROUND_HALF_M`` (at least ``GROUND_HALF_HEIGHTS`` camera heights) about the
+    camera's foot, ``WALL_BEHIND_REL`` of the camera's
     height below the support (the visible floor hides it wherever the mesh is), coloured
     the support pixels' mean ``diffuse``. Without it, whatever stands on the floor sees the
     world below the horizon where the floor leaves the frame, not the lit floor the
@@ -199,7 +207,7 @@ def with_ground(arrays: dict, mesh, diffuse: np.ndarray) -> dict:
     up = np.asarray(mesh.up, np.float64)
     right, _, fwd = ground_frame(up)
     base = up * (h0 - WALL_BEHIND_REL * abs(h0))
-    L = GROUND_HALF_M
+    L = max(GROUND_HALF_M, GROUND_HALF_HEIGHTS * abs(h0))
     V = np.stack([base + a * L * right + b * L * fwd for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
     F = np.array([[0, 1, 2], [0, 2, 3]], np.int64)
     # faces wound so that the normal is up (Blender shades both sides alike anyway)
@@ -264,18 +272,19 @@ def mesh_regions(shape, box) -> tuple[tuple[int, int, int, int], int] | None:
     return fine, max(2, int(math.ceil(math.sqrt(H * W / COARSE_MESH_PIXELS))))
 
 
-def scene_arrays(depth, normals, albedo, valid, camera, model, box=None) -> dict[str, np.ndarray]:
+def scene_arrays(depth, normals, albedo, valid, camera, model, box=None, cfg=None) -> dict[str, np.ndarray]:
     """The background's mesh as Blender gets it (``scene_mesh_arrays`` and the ground
     beyond the frame, ``with_ground``), over the whole frame or, for a large one, at full
     resolution around the window ``box`` Cycles traces and coarse elsewhere
-    (``mesh_regions``). ``model``: the light model (its up, walls and albedo offset)."""
-    from zcomp_cli.renderers.physical.depthmesh import build_depth_mesh
+    (``mesh_regions``). ``model``: the light model (its up, walls and albedo offset);
+    ``cfg``: the mesh's constants (``scene.config.MeshConfig``)."""
+    from zcomp_cli.scene.depthmesh import build_depth_mesh
 
     diffuse = np.clip(albedo + float(model.albedo_offset), 0.0, 1.0)
     walls = walls_behind(model.walls)
     regions = mesh_regions(np.shape(depth), box)
     if regions is None:
-        mesh = build_depth_mesh(depth, normals, camera, model.up, valid=valid, walls=walls)
+        mesh = build_depth_mesh(depth, normals, camera, model.up, valid=valid, walls=walls, cfg=cfg)
         return with_ground(scene_mesh_arrays(mesh, diffuse, n_walls=len(model.walls)), mesh, diffuse)
     (fx0, fy0, fx1, fy1), step = regions
     # the rest of the frame, every step-th pixel (its camera: the same rays through them),
@@ -294,14 +303,14 @@ def scene_arrays(depth, normals, albedo, valid, camera, model, box=None) -> dict
              & (cols[None, :] >= fx0 + step) & (cols[None, :] < fx1 - step))
     sub = np.ix_(rows, cols)
     coarse = build_depth_mesh(depth[sub], normals[sub], coarse_cam, model.up, valid=valid[sub] & ~inner,
-                              walls=walls)
+                              walls=walls, cfg=cfg)
     out = with_ground(scene_mesh_arrays(coarse, diffuse[sub], n_walls=len(model.walls)), coarse, diffuse[sub])
     K = np.array(camera.K, np.float64)
     K[0, 2] -= fx0
     K[1, 2] -= fy0
     crop = np.s_[fy0:fy1, fx0:fx1]
     fine = build_depth_mesh(depth[crop], normals[crop], Camera(K, fx1 - fx0, fy1 - fy0), model.up,
-                            valid=valid[crop])
+                            valid=valid[crop], cfg=cfg)
     return _joined(out, scene_mesh_arrays(fine, diffuse[crop]))
 
 
@@ -313,5 +322,5 @@ def _joined(a: dict, b: dict) -> dict:
             "colors": np.concatenate([a["colors"], b["colors"]])}
 
 
-__all__ = ["world_rows", "mesh_regions", "scene_arrays", "fill_behind", "walls_behind", "with_ground", "WALL_BEHIND_REL", "GROUND_HALF_M", "blender_uv", "sky_image", "probe_image", "lamps_of", "scene_mesh_arrays",
+__all__ = ["world_rows", "mesh_regions", "scene_arrays", "fill_behind", "walls_behind", "with_ground", "WALL_BEHIND_REL", "GROUND_HALF_M", "GROUND_HALF_HEIGHTS", "blender_uv", "sky_image", "probe_image", "lamps_of", "scene_mesh_arrays",
            "SUN_WATTS_PER_SHADING", "LAMP_WATTS_PER_SHADING"]

@@ -1,8 +1,7 @@
-"""The embedded ``physical`` renderer (DESIGN.md sections 5 and 8): the scene's light
-(given in the manifest or fitted to the known shading, ``lightmodel``), screen-space
-shadow rays, shading synthesis for the masked pixels."""
+"""The embedded ``physical`` renderer (DESIGN.md sections 5 and 8): the transport. It
+draws the scene's fitted light (``zcomp_cli.light``) with screen-space shadows, the sky's
+visibility, the object's mesh shadow and occlusion, and glossy reflections."""
 
-from zcomp_cli.renderers.physical.lightmodel import LightModel
 from zcomp_cli.renderers.physical.renderer import PhysicalRenderer
 
-__all__ = ["PhysicalRenderer", "LightModel"]
+__all__ = ["PhysicalRenderer"]

@@ -2,7 +2,7 @@
 
 The sky's reflection toward the camera is approximated as Karis does ("Real Shading in
 Unreal Engine 4", SIGGRAPH 2013): the sky prefiltered by the GGX lobe around the mirror
-direction (``probe.PrefilteredProbe``), times the environment BRDF
+direction (``PrefilteredProbe``, ``prefilter``), times the environment BRDF
 ``F0 A(roughness, n.v) + B(roughness, n.v)``, integrated from the same BRDF that reflects
 the lights (his analytic fit for mobile, used before, is 0.1-0.16 below that integral
 at roughness 0.3-0.8). The sky prefiltered is the manifest's probe with its
@@ -24,24 +24,110 @@ more than it receives (a light rim at grazing angles).
 from __future__ import annotations
 
 import functools
+import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from zcomp_cli import equirect
-from zcomp_cli.renderers.physical import sh
-from zcomp_cli.renderers.physical.lightmodel import LightModel
-from zcomp_cli.renderers.physical.settings import ProbeConfig
+from zcomp_cli.renderers.physical.settings import GlossConfig
+from zcomp_cli.scene import sh
+from zcomp_cli.scene.probe import area_resize
+from zcomp_cli.scene.lightmodel import LightModel
 from zcomp_cli.worldframe import ground_frame
 
-# The constants (the model's map size, the least GGX alpha, the environment BRDF's
-# table: its nodes and samples) are ``settings.ProbeConfig``'s, each with its
-# provenance.
-DEFAULT = ProbeConfig()
+
+@dataclass(frozen=True)
+class PrefilteredProbe:
+    """The radiance above the horizon (without the compact sources, which are lights of
+    their own) blurred by GGX lobes of several
+    roughness levels: ``maps`` (levels, h, w, 4) equirectangular in the probe's
+    convention, RGB and the lobe's share above the horizon (below it the support is
+    seen: ``lookup``'s ``ground``); ``frame``/``convention``/``rotation_deg`` to look
+    them up; ``scale`` multiplies the radiance (the exposure the fit finds)."""
+
+    maps: np.ndarray
+    roughness: tuple
+    frame: np.ndarray
+    convention: str
+    rotation_deg: float
+    scale: float = 1.0
+    name: str = ""
+
+    def __str__(self) -> str:
+        return f"prefiltered {self.name} ({self.maps.shape[2]}x{self.maps.shape[1]}, {len(self.roughness)} levels)"
+
+    def scaled(self, k: float) -> "PrefilteredProbe":
+        import dataclasses
+
+        return dataclasses.replace(self, scale=float(self.scale * k))
+
+    def lookup(self, directions: np.ndarray, roughness: np.ndarray, ground=None) -> np.ndarray:
+        """(N, 3) prefiltered radiance toward unit ``directions`` (N, 3) for perceptual
+        ``roughness`` (N,) in [0, 1] (bilinear in direction, linear between levels);
+        ``ground`` (3,): the support's radiance, for the lobe's share below the horizon."""
+        d = np.asarray(directions, np.float64).reshape(-1, 3)
+        _, h, w, _ = self.maps.shape
+        u, v = equirect.direction_to_uv(d, self.frame, self.convention, self.rotation_deg)
+        x = u * w - 0.5
+        y = np.clip(v * h - 0.5, 0, h - 1)
+        x0 = np.floor(x).astype(int)
+        y0 = np.floor(y).astype(int)
+        fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+        y1 = np.minimum(y0 + 1, h - 1)
+        x0w, x1w = x0 % w, (x0 + 1) % w
+        r = np.clip(np.asarray(roughness, np.float64).reshape(-1), self.roughness[0], self.roughness[-1])
+        lv = np.interp(r, self.roughness, np.arange(len(self.roughness)))
+        l0 = np.clip(np.floor(lv).astype(int), 0, len(self.roughness) - 2)
+        fl = (lv - l0)[:, None]
+
+        def at(level):
+            m = self.maps
+            return ((1 - fy) * ((1 - fx) * m[level, y0, x0w] + fx * m[level, y0, x1w])
+                    + fy * ((1 - fx) * m[level, y1, x0w] + fx * m[level, y1, x1w]))
+
+        v = (1 - fl) * at(l0) + fl * at(l0 + 1)
+        out = self.scale * v[:, :3]
+        if ground is not None:
+            out = out + np.clip(1.0 - v[:, 3:4], 0.0, 1.0) * np.asarray(ground, np.float64)[None]
+        return out
+
+
+def _ggx_alpha(roughness):
+    r = np.asarray(roughness, np.float64)
+    return np.maximum(r * r, 1e-4)
+
+
+def prefilter(img: np.ndarray, frame, *, convention: str = equirect.DEFAULT_CONVENTION,
+              rotation_deg: float = 0.0, name: str = "probe", cfg: GlossConfig) -> PrefilteredProbe:
+    """The probe (H, W, 3) convolved with GGX lobes of ``cfg.gloss_roughness`` around each
+    reflection direction (the split-sum approximation of Karis 2013: the lobe with
+    n = v = r), on a ``cfg.gloss_width``-wide copy; energy-preserving (each lobe's
+    weights sum to 1)."""
+    small = area_resize(np.asarray(img, np.float64), cfg.gloss_width)
+    h, w = small.shape[:2]
+    frame = np.asarray(frame, np.float64)
+    d = equirect.pixel_directions(h, w, frame, convention, rotation_deg).reshape(-1, 3)
+    om = equirect.solid_angles(h, w).reshape(-1)
+    above = (d @ frame[1] > 0).astype(np.float64)[:, None]
+    L = np.concatenate([small.reshape(-1, 3) * above, above], 1)
+    cos = np.clip(d @ d.T, -1.0, 1.0)  # (out, in)
+    maps = []
+    for r in cfg.gloss_roughness:
+        a2 = float(_ggx_alpha(r)) ** 2
+        # GGX D(h) with h halfway between r and l, weighted by n.l (n = r), as a
+        # function of cos(r, l): cos(theta_h) = sqrt((1 + cos) / 2)
+        ch2 = np.clip((1.0 + cos) / 2.0, 0.0, 1.0)
+        D = a2 / (math.pi * (ch2 * (a2 - 1.0) + 1.0) ** 2)
+        wgt = D * np.maximum(cos, 0.0) * om[None]
+        wgt /= np.maximum(wgt.sum(1, keepdims=True), 1e-30)
+        maps.append((wgt @ L).reshape(h, w, 4))
+    return PrefilteredProbe(maps=np.stack(maps), roughness=cfg.gloss_roughness, frame=frame,
+                            convention=convention, rotation_deg=float(rotation_deg), name=name)
 
 
 @functools.cache
-def _env_lut(size: int = DEFAULT.env_lut_size, samples: int = DEFAULT.env_lut_samples,
-             min_alpha: float = DEFAULT.min_alpha) -> np.ndarray:
+def _env_lut(size: int, samples: int, min_alpha: float) -> np.ndarray:
     """(size, size, 2) the split-sum (A, B) of ``ggx_direct``'s BRDF, integrated by GGX
     importance sampling (``samples`` Hammersley points per node) as Karis 2013
     precomputes it: row roughness, column n.v, both from 0 to 1 (computed once per
@@ -81,10 +167,11 @@ def _env_lut(size: int = DEFAULT.env_lut_size, samples: int = DEFAULT.env_lut_sa
 
 
 def env_brdf(roughness: np.ndarray, ndv: np.ndarray,
-             cfg: ProbeConfig = DEFAULT) -> tuple[np.ndarray, np.ndarray]:
+             cfg: GlossConfig | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The split-sum environment BRDF of ``ggx_direct``'s BRDF: (A, B) (N,) for
     perceptual ``roughness`` (N,) and ``n.v`` (N,) in [0, 1] (bilinear in the table of
     ``_env_lut``, ``cfg``'s), so that the directional albedo is ``F0 A + B``."""
+    cfg = GlossConfig() if cfg is None else cfg
     lut = _env_lut(cfg.env_lut_size, cfg.env_lut_samples, cfg.min_alpha)
     m = cfg.env_lut_size - 1
     r = np.clip(np.nan_to_num(np.asarray(roughness, np.float64).reshape(-1)), 0.0, 1.0) * m
@@ -107,15 +194,16 @@ def _smith_g(alpha, nv, nl):
 
 
 def specular_albedo(roughness: np.ndarray, ndv: np.ndarray, f0: np.ndarray,
-                    cfg: ProbeConfig = DEFAULT) -> np.ndarray:
+                    cfg: GlossConfig | None = None) -> np.ndarray:
     """(N, C) directional albedo ``F0 A + B`` of the GGX specular layer toward the viewer,
     for perceptual ``roughness`` (N,), ``n.v`` (N,) and ``f0`` (N, C) in [0, 1]."""
+    cfg = GlossConfig() if cfg is None else cfg
     a, b = env_brdf(roughness, ndv, cfg)
     return np.clip(np.asarray(f0, np.float64) * a[:, None] + b[:, None], 0.0, 1.0)
 
 
 def ggx_direct(n: np.ndarray, v: np.ndarray, l: np.ndarray, roughness: np.ndarray, f0: np.ndarray,
-               tan_radius=0.0, *, cfg: ProbeConfig = DEFAULT) -> np.ndarray:
+               tan_radius=0.0, *, cfg: GlossConfig | None = None) -> np.ndarray:
     """(N, C) ``f_spec(v, l) (n.l)``: the GGX specular BRDF times the cosine, so that a
     light bringing the irradiance ``E_perp`` to a surface facing it is reflected toward
     ``v`` with the radiance ``E_perp`` times this.
@@ -125,6 +213,7 @@ def ggx_direct(n: np.ndarray, v: np.ndarray, l: np.ndarray, roughness: np.ndarra
     f0: (N, C) reflectance at normal incidence; tan_radius: the light's angular radius
     as a tangent (scalar or (N,)), widening the lobe; ``cfg.min_alpha`` the sharpest
     lobe. 0 where n.l <= 0 or n.v <= 0."""
+    cfg = GlossConfig() if cfg is None else cfg
     n, v, l = (np.asarray(x, np.float64).reshape(-1, 3) for x in (n, v, l))
     f0 = np.asarray(f0, np.float64)
     r = np.clip(np.nan_to_num(np.asarray(roughness, np.float64).reshape(-1)), 0.0, 1.0)
@@ -147,11 +236,12 @@ def ggx_direct(n: np.ndarray, v: np.ndarray, l: np.ndarray, roughness: np.ndarra
     return np.where(ok[:, None], out, 0.0)
 
 
-def model_radiance_map(model: LightModel, size=None, cfg: ProbeConfig = DEFAULT) -> tuple[np.ndarray, np.ndarray]:
+def model_radiance_map(model: LightModel, size=None, cfg: GlossConfig | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(equirectangular radiance (h, w, 3) of the model's sky in the ``zcomp``
     convention, its ground frame (3, 3)); its suns and lamps are reflected by
     ``ggx_direct``, each with its visibility. ``size`` (h, w); None:
     ``cfg.model_map_width`` wide, half as high."""
+    cfg = GlossConfig() if cfg is None else cfg
     h, w = (cfg.model_map_width // 2, cfg.model_map_width) if size is None else size
     frame = ground_frame(model.up)
     d = equirect.pixel_directions(h, w, frame)
@@ -161,26 +251,47 @@ def model_radiance_map(model: LightModel, size=None, cfg: ProbeConfig = DEFAULT)
 
 
 _CACHE: dict = {}
+# prefiltered skies kept in this process (the sky of a scene's light, read by each of its
+# jobs' glossy objects): a few scenes' worth
+KEEP_PREFILTERED = 16
+# the seconds of each prefilter built in this process, in order (a job's ledger reads
+# whether its render built one: issue 49)
+BUILT: list = []
 
 
-def prefiltered_light(model: LightModel, cfg: ProbeConfig = DEFAULT):
-    """``probe.PrefilteredProbe`` of the model's sky: its probe's (the compact sources
-    taken out, prefiltered when the probe was read), else its own map's (cached per
-    model object and config)."""
-    from zcomp_cli.renderers.physical.probe import prefilter
+def prefiltered_light(model: LightModel, cfg: GlossConfig) -> PrefilteredProbe:
+    """``PrefilteredProbe`` of the model's sky, built when an object first reads it and
+    kept for the process (per light and config): its probe's (``ProbeRef``: the map with
+    its compact sources taken out, ``scene.probe.load_given_probe``, split with the
+    config it was split with), else the model's own sky's map."""
+    from zcomp_cli.knobs import from_mapping
+    from zcomp_cli.scene.config import ProbeConfig
 
-    if model.probe is not None:
-        return model.probe
-    key = (id(model), cfg)
-    hit = _CACHE.get(key)
-    if hit is not None and hit[0] is model:
-        return hit[1]
-    L, frame = model_radiance_map(model, cfg=cfg)
-    pf = prefilter(L, frame, name="the fitted light", cfg=cfg)
-    if len(_CACHE) > 16:
-        _CACHE.clear()
-    _CACHE[key] = (model, pf)
-    return pf
+    ref = model.probe
+    if ref is not None:
+        key = ("probe", repr(ref.params.to_dict()), ref.frame.tobytes(), repr(sorted(ref.cfg.items())), cfg)
+    else:
+        key = ("sky", model.sky.radiance_sh.tobytes(), model.up.tobytes(), cfg)
+    pf = _CACHE.get(key)
+    if pf is None:
+        import time
+
+        t0 = time.perf_counter()
+        if ref is not None:
+            from zcomp_cli.scene.probe import load_given_probe
+
+            split = load_given_probe(ref.params, ref.frame, cfg=from_mapping(ProbeConfig, ref.cfg, "probe"))
+            pf = prefilter(split.residual, split.frame, convention=split.convention, rotation_deg=split.rotation_deg,
+                           name=split.name, cfg=cfg)
+        else:
+            L, frame = model_radiance_map(model, cfg=cfg)
+            pf = prefilter(L, frame, name="the fitted light", cfg=cfg)
+        while len(_CACHE) >= KEEP_PREFILTERED:
+            _CACHE.pop(next(iter(_CACHE)))
+        _CACHE[key] = pf
+        BUILT.append(time.perf_counter() - t0)
+    return pf if ref is None else pf.scaled(ref.scale)
 
 
-__all__ = ["env_brdf", "specular_albedo", "ggx_direct", "model_radiance_map", "prefiltered_light"]
+__all__ = ["env_brdf", "specular_albedo", "ggx_direct", "model_radiance_map", "prefiltered_light", "prefilter",
+           "PrefilteredProbe"]

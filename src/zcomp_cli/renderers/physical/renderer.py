@@ -1,21 +1,22 @@
-"""PhysicalRenderer: the scene's light (given or fitted) and screen-space transport, no
-weights (DESIGN.md sections 5 and 8).
+"""PhysicalRenderer: screen-space transport of the scene's fitted light, no weights
+(DESIGN.md sections 5 and 8).
 
 Steps of ``render``:
 
-1. the scene's light (``LightModel``), once per scene: the manifest's light frozen in
-   the fit (``known_light``), else the light fitted to the photograph (``estimate``);
-2. for a manifest light, where the object's shadow falls beyond the shading mask (the
-   mask is grown along it);
+1. the scene's light: the request's fitted light (``RenderRequest.fitted_light``, the
+   light stage's: ``zcomp_cli.light``), or, for a caller who gave none, the same stage
+   run here (kept per scene for the renderer's life);
+2. for a light the manifest gives, where the object's shadow falls beyond the shading
+   mask (``scene.shadowreach``: the mask is grown along it);
 3. each request: known pixels reproduce albedo x shading exactly; the others are
-   synthesised with the light model's transport (``lightmodel``): the sky through its
-   visibility (screen-space occlusion, and the object's mesh), the support's bounce,
-   each sun and lamp with its soft shadow, the scene's albedo offset, and on the object its
-   glossy reflection where the bundle has roughness and metallic maps.
+   synthesised with the light model's transport (``scene.lightmodel``): the sky through
+   its visibility (screen-space occlusion, and the object's mesh), the support's bounce,
+   each sun and lamp with its soft shadow, the scene's albedo offset, and on the object
+   its glossy reflection where the bundle has roughness and metallic maps.
 
-With ``--debug`` (``RenderRequest.debug``), a job whose light's direction was searched
+With ``--debug`` (``RenderRequest.debug``), a job whose light's fit read the photograph's shadows
 also returns the evidence the fit read, at the job's resolution, as
-``RenderOutput.debug_maps`` (``evidence_maps``: the soft cast-shadow mask, its
+``RenderOutput.debug_maps`` (``light.evidence_maps``: the soft cast-shadow mask, its
 confidence, the support's shadow ratio, the casters and the support).
 """
 
@@ -27,40 +28,18 @@ from typing import Sequence
 import numpy as np
 
 from zcomp_cli.conventions import DEFAULT_SEED
-from zcomp_cli.errors import InputError, NumericalError, UsageError
+from zcomp_cli.errors import NumericalError, UsageError
+from zcomp_cli.light.stage import FittedLight, SceneLight, clean
 from zcomp_cli.renderers.base import Renderer, RenderOutput, RenderRequest
-from zcomp_cli.renderers.physical.depthmesh import has_geometry
-from zcomp_cli.renderers.physical.evidence_maps import LightEvidence
-from zcomp_cli.renderers.physical.lightmodel import LightModel, ShadowKind
-from zcomp_cli.renderers.physical.sampling import length
-from zcomp_cli.renderers.physical.settings import PhysicalSettings, TransportConfig
-from zcomp_cli.renderers.physical.softshadow import (blur_reach, classwise_blur, penumbra_filter, pixel_jitter,
-                                                     sky_samples, weighted_visibility)
-from zcomp_cli.renderers.physical.visibility import march_visibility
-
-# The synthesis's constants (the march's reach, bias and thickness, the penumbra's
-# levels, the sky's visibility and bounce, the fades, the strided grids' threshold, the
-# mesh's shadow map and sky elements, the probe's and the gloss's) are
-# ``settings.TransportConfig``'s and ``settings.ProbeConfig``'s, each with its
-# provenance: the renderer passes its own (``PhysicalSettings.transport``, ``.probe``).
-DEFAULT = TransportConfig()
-
-
-def _march_kw(cfg: TransportConfig) -> dict:
-    """The screen-space shadow march's reach, bias and thickness from ``cfg``."""
-    return {"max_distance_rel": cfg.march_range_rel, "bias_rel": cfg.march_bias_rel,
-            "thickness_rel": cfg.march_thickness_rel}
-
-
-def _clean(a, lo, hi):
-    # one copy (np.array), then in place: the clip (which sends +-inf to the bounds, as
-    # nan_to_num would before it) and NaN to 0 (two passes where nan_to_num took four)
-    out = np.array(a, np.float64)
-    np.clip(out, lo, hi, out=out)
-    nan = np.isnan(out)
-    if nan.any():
-        out[nan] = min(max(0.0, lo), hi)
-    return out
+from zcomp_cli.renderers.lighting import request_light, request_reach
+from zcomp_cli.renderers.physical.settings import PhysicalSettings
+from zcomp_cli.renderers.physical.softshadow import blur_reach, classwise_blur, penumbra_filter
+from zcomp_cli.scene.depthmesh import has_geometry
+from zcomp_cli.scene.lightmodel import LightModel, ShadowKind
+from zcomp_cli.scene.march import grid_points, march_visibility
+from zcomp_cli.scene.objectshadow import light_shadow
+from zcomp_cli.scene.sampling import length, pixel_jitter
+from zcomp_cli.scene.skyvis import sky_samples, weighted_visibility
 
 
 class PhysicalRenderer(Renderer):
@@ -68,75 +47,34 @@ class PhysicalRenderer(Renderer):
     unknown names or bad values raise UsageError."""
 
     name = "physical"
+    uses_light = True
 
     def __init__(self, **settings):
         self._settings = PhysicalSettings.from_kwargs(**settings)
-        self._cache: dict = {}
-        # per cache key, the evidence the scene's fit read (``evidence_maps.LightEvidence``,
-        # None: none, a given light's direction), for --debug
-        self._evidence: dict = {}
+        # the light stage for a caller who gives no fitted light (memory only)
+        self._lights = SceneLight(self._settings.light)
 
     def settings(self) -> dict:
         return {"name": self.name, **self._settings.as_dict()}
 
-    # step 1: the light (cached per scene and seed)
+    def light_config(self):
+        return self._settings.light
+
+    # step 1: the light
+    def fitted_light(self, req: RenderRequest, seed: int = DEFAULT_SEED) -> FittedLight:
+        """The scene's fitted light (``request_light``)."""
+        return request_light(req, self._lights, seed)
+
     def light(self, req: RenderRequest, seed: int = DEFAULT_SEED) -> LightModel:
-        """The scene's light: the tree of ``req.light`` (``lightparams.LightParams``, its
-        given parameters frozen; None: everything free) fitted to the known shading
-        (``lightfit.fit_light``)."""
-        return self.light_and_evidence(req, seed)[0]
-
-    def light_and_evidence(self, req: RenderRequest,
-                           seed: int = DEFAULT_SEED) -> tuple[LightModel, LightEvidence | None]:
-        """``light`` and the evidence its fit read (``evidence_maps.LightEvidence``;
-        None where no direction was searched, or where ``fit_light`` does not say),
-        cached together per scene."""
-        from zcomp_cli.lightparams import LightParams
-
-        params = getattr(req, "light", None) or LightParams.estimate()
-        key = (req.scene_key, seed, params.key()) if req.scene_key is not None else None
-        if key is not None and key in self._cache:
-            return self._cache[key], self._evidence.get(key)
-        d, n, sh, known = self._inputs(req)
-        albedo = _clean(req.maps.albedo, 0.0, 1.0)
-        if key is not None:
-            # Cached per scene, so it must depend on the scene alone: fit on every valid
-            # background pixel, not on the first job's shading mask -- else a job's
-            # result would depend on which job of its scene a process ran first, and
-            # shards or Ray workers would give other composites than one local run.
-            known = (d > 0) & np.all(np.isfinite(req.shading), axis=-1)
-        from zcomp_cli.renderers.physical.scene_frame import scene_up
-
-        valid = known & has_geometry(d, n)
-        up, up_from = scene_up(params.tilt, n, valid, self._settings.frame)
-        diagnostics: dict = {}
-        from zcomp_cli.renderers.physical import lightfit
-
-        # (looked up on the module at each call: a test may replace it)
-        model, _ = lightfit.fit_light(params, d, n, sh, known, albedo, req.camera, up=up, up_from=up_from,
-                                      settings=self._settings, seed=seed, diagnostics=diagnostics)
-        evidence = LightEvidence.from_diagnostics(diagnostics)
-        if key is not None:
-            self._cache[key] = model
-            self._evidence[key] = evidence
-        return model, evidence
-
-    # (the name the benchmark scripts and older callers know)
-    estimate = light
+        """The scene's light model (``fitted_light``'s)."""
+        return self.fitted_light(req, seed).model
 
     @staticmethod
     def _inputs(req: RenderRequest):
-        H, W = req.camera.height, req.camera.width
         m = req.maps
-        shapes = {"depth": (m.depth, (H, W)), "normals": (m.normals, (H, W, 3)),
-                  "albedo": (m.albedo, (H, W, 3)), "shading": (req.shading, (H, W, 3)),
-                  "known": (req.known, (H, W))}
-        for name, (a, want) in shapes.items():
-            if np.shape(a) != want:
-                raise InputError(f"physical renderer: {name} has shape {np.shape(a)}, expected {want}")
-        d = _clean(m.depth, 0.0, 1e6)
-        n = _clean(m.normals, -1.0, 1.0)
-        sh = _clean(req.shading, 0.0, 1e6)
+        d = clean(m.depth, 0.0, 1e6)
+        n = clean(m.normals, -1.0, 1.0)
+        sh = clean(req.shading, 0.0, 1e6)
         return d, n, sh, np.asarray(req.known, bool)
 
     def render(self, requests: Sequence[RenderRequest], *, seed: int = DEFAULT_SEED) -> RenderOutput:
@@ -144,19 +82,23 @@ class PhysicalRenderer(Renderer):
             raise UsageError("physical renderer needs at least one request")
         timings = {"estimate": 0.0, "synthesis": 0.0}
         t0 = time.perf_counter()
-        model, evidence = self.light_and_evidence(requests[0], seed)
+        fitted = self.fitted_light(requests[0], seed)
+        model, evidence = fitted.model, fitted.evidence
         timings["estimate"] = time.perf_counter() - t0
-        grown = None
-        if model.source == "manifest" and model.shadows is ShadowKind.CAST:
-            # step 2: where the object's shadow falls for this light, beyond the mask
-            t1 = time.perf_counter()
-            grown, reach = self.shadow_reach(requests, model)
-            if grown is not None:
-                requests = [_grown_request(req, reach) for req in requests]
-            timings["shadow_reach"] = time.perf_counter() - t1
         t1 = time.perf_counter()
+        # step 2: where a given light's shadow falls beyond the mask
+        grown, reach = request_reach(requests, model, self._settings.light)
+        if grown is not None:
+            requests = [_grown_request(req, reach) for req in requests]
+        timings["shadow_reach"] = time.perf_counter() - t1
+        t1 = time.perf_counter()
+        from zcomp_cli.renderers.physical.gloss import BUILT
+
+        built = len(BUILT)
         images = [self._render_one(req, model) for req in requests]
         timings["synthesis"] = time.perf_counter() - t1
+        if len(BUILT) > built:  # (the job's ledger: a glossy prefilter built, not reused)
+            timings["prefilter_built"] = float(sum(BUILT[built:]))
         light = model.to_info()
         info = {"light": light, "fallback": light["fallback"], "shadow": str(model.shadows),
                 "settings": self.settings()}
@@ -166,69 +108,10 @@ class PhysicalRenderer(Renderer):
             debug_maps = evidence.maps(np.shape(requests[0].known))
         return RenderOutput(images=images, info=info, timings=timings, shading_mask=grown, debug_maps=debug_maps)
 
-    def shadow_reach(self, requests: Sequence[RenderRequest], model: LightModel):
-        """(grown, reach): the shading mask grown along a given light's shadow -- the
-        requests' unknown pixels with ``reach``, the known pixels the object's shadow
-        falls on (``_shadow_reach``) -- or (None, None) when it falls inside the mask. Only
-        for a known light (the caller's rule): a wrong estimated shadow drawn at full
-        length costs more than a cut one. Every renderer that draws this light's shadow
-        re-shades the same pixels (``RenderOutput.shading_mask``)."""
-        reach = np.zeros(np.shape(requests[0].known), bool)
-        unknown = np.zeros_like(reach)
-        for req in requests:
-            reach |= self._shadow_reach(req, model)
-            unknown |= ~np.asarray(req.known, bool)
-        if not (reach & ~unknown).any():
-            return None, None
-        return unknown | reach, reach
-
-    def _shadow_reach(self, req: RenderRequest, model: LightModel) -> np.ndarray:
-        """(H, W) bool: known pixels in the shadow of what the request's shading mask
-        holds (the inserted object), grown by the widest penumbra. The shading mask is
-        a ball around the object; under a low sun its shadow runs past it, and a shadow
-        cut at the mask's edge is a visible straight end."""
-        import cv2
-
-        cfg = self._settings.transport
-        d, n, _, known = self._inputs(req)
-        H, W = d.shape
-        occ = ~known & (d > 0)
-        out = np.zeros((H, W), bool)
-        if not occ.any():
-            return out
-        st = 2 if H * W > cfg.full_res_pixels else 1
-        geo = has_geometry(d, n)
-        gy, gx, Pg, Ng, ok = _grid_points(d, n, geo, req.camera, (0, 0, H, W), st)
-        for light in _direct_lights(model):
-            L, dist, _ = light.toward(Pg.reshape(-1, 3))
-            L, dist = L.reshape(Pg.shape), dist.reshape(gy.shape)
-            cand = known[gy, gx] & ok & (np.sum(Ng * L, -1) > 0.02)
-            if not cand.any():
-                continue
-            ys, xs, P, N = gy[cand], gx[cand], Pg[cand], Ng[cand]
-            v, t = march_visibility(P, N, L[cand], d, req.camera, steps=int(self._settings.march_steps),
-                                    nearest=True, return_distance=True, occluder_mask=occ,
-                                    max_distance=dist[cand], walls=model.walls, **_march_kw(cfg))
-            if req.occluder is not None:
-                vm, tm = light.mesh_shadow(req.occluder, P, N, cfg)
-                v, t = np.minimum(v, vm), np.minimum(t, tm)
-            hit = v < 0.5
-            if not hit.any():
-                continue
-            # the widest penumbra among them (t tan a f / z), then the compositor's blur
-            tan_a = light.tan_radius(P[hit])
-            pen = float(np.max(t[hit] * tan_a * req.camera.fx / np.maximum(d[ys[hit], xs[hit]], 1e-6)))
-            r = int(np.ceil(min(pen, cfg.max_penumbra_px) + st + 2))
-            one = np.zeros((H, W), np.uint8)
-            one[ys[hit], xs[hit]] = 1
-            k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-            out |= cv2.dilate(one, k) > 0
-        return out & known & (d > 0)
-
     def _render_one(self, req: RenderRequest, model: LightModel) -> np.ndarray:
         # step 3: known pixels reproduce albedo * known shading exactly
         d, n, sh, known = self._inputs(req)
-        alb = _clean(req.maps.albedo, 0.0, 1e6)
+        alb = clean(req.maps.albedo, 0.0, 1e6)
         H, W = d.shape
         out_sh = sh.copy()
         glossy = None
@@ -270,7 +153,7 @@ class PhysicalRenderer(Renderer):
         ys, xs = np.nonzero(todo)
         ao_st = 4 if H * W > cfg.full_res_pixels else 2
         ay0, ax0, ay1, ax1 = _window(ys, xs, H, W, int(3 * max(cfg.sky_blur_px, 1.5 * ao_st)) + 4, even=ao_st)
-        gy, gx, P, N, ok = _grid_points(d, n, geo_all, camera, (ay0, ax0, ay1, ax1), ao_st)
+        gy, gx, P, N, ok = grid_points(d, n, geo_all, camera, (ay0, ax0, ay1, ax1), ao_st)
         rad = max(cfg.sky_blur_px, 1.5 * ao_st)
         # only the grid points a todo pixel's blur reads (its kernel's reach, plus a
         # block: a pixel takes its block's anchor) are computed; the window's wider
@@ -285,13 +168,13 @@ class PhysicalRenderer(Renderer):
         if occluder is not None:
             # the real mesh is the object's occluder; the depth's shell only the scene's
             # (``mesh_silhouette``): one silhouette for every light and the sky
-            from zcomp_cli.renderers.physical.meshshadow import mesh_silhouette
+            from zcomp_cli.scene.objectshadow import mesh_silhouette
 
             scene_only = ~mesh_silhouette(occluder, camera, (H, W))
         occ_c = dist_c = None
         if ok.any():
-            smp = sky_samples(P[ok], N[ok], gy[ok], gx[ok], d, camera, cfg=cfg, occluder_mask=scene_only,
-                              walls=walls)
+            smp = sky_samples(P[ok], N[ok], gy[ok], gx[ok], d, camera, cfg=self._settings.light.march,
+                              occluder_mask=scene_only, walls=walls)
             ao_c[ok] = weighted_visibility(*smp, radiance_sh)
             if occluder is not None:
                 # the sky the object hides, from its mesh (``mesh_occlusion``): smooth,
@@ -351,8 +234,8 @@ class PhysicalRenderer(Renderer):
         nv = n[ys, xs].astype(np.float64)
         nv = nv / np.maximum(length(nv), 1e-12)[:, None]
         nv[~geo_all[ys, xs]] = 0.0
-        from zcomp_cli.renderers.physical import sh as shm
-        from zcomp_cli.renderers.physical.lightmodel import ground_view
+        from zcomp_cli.scene import sh as shm
+        from zcomp_cli.scene.lightmodel import ground_view
 
         sky = np.maximum(shm.evaluate(shm.shading_coeffs(model.sky.radiance_sh), nv), 0.0)
         ambient = sky * vis_sky + ground_view(nv, model.up)[:, None] * model.sky.ground[None]
@@ -364,7 +247,7 @@ class PhysicalRenderer(Renderer):
             P = camera.ray(xs + 0.5, ys + 0.5) * d[ys, xs][:, None]
             fade = (_edge_fade(todo if unknown is None else unknown, ys, xs, cfg.edge_fade_px, cfg.mesh_ao_fade)
                     if model.source != "manifest" else None)
-            for light in _direct_lights(model):
+            for light in (*model.suns, *model.lamps):
                 L, _, E = light.toward(P)
                 v_t = self._soft_visibility(d, n, geo_all, camera, light, box, ys, xs, occluder, scene_only,
                                             model.walls)
@@ -404,7 +287,7 @@ class PhysicalRenderer(Renderer):
         beneath keeps what the specular layer does not reflect (a metal none)."""
         from zcomp_cli.renderers.physical.gloss import ggx_direct, prefiltered_light, specular_albedo
 
-        pc = self._settings.probe
+        pc = self._settings.gloss
         P = camera.ray(xs + 0.5, ys + 0.5) * d[ys, xs][:, None]
         v = -P / np.maximum(np.linalg.norm(P, axis=1, keepdims=True), 1e-12)
         ndv = np.clip(np.sum(nv * v, 1), 1e-4, 1.0)
@@ -424,7 +307,7 @@ class PhysicalRenderer(Renderer):
 
     def _soft_visibility(self, d, n, geo_all, camera, light, box, ys, xs, occluder,
                          scene_only=None, walls=()) -> np.ndarray:
-        """Filtered visibility of ``light`` (``_DirectLight``) at pixels (ys, xs),
+        """Filtered visibility of ``light`` (a model's ``Sun`` or ``Lamp``) at pixels (ys, xs),
         marched over the window ``box``; ``scene_only``: (H, W) bool, the texels that
         occlude in the march (None: all), the ``occluder`` mesh shadowing for the rest.
         Above ``transport.full_res_pixels`` the march runs on a stride-2 grid (the filter
@@ -433,20 +316,21 @@ class PhysicalRenderer(Renderer):
         H, W = d.shape
         st = 2 if H * W > cfg.full_res_pixels else 1
         wy0, wx0, wy1, wx1 = box
-        gy, gx, P, N, ok = _grid_points(d, n, geo_all, camera, box, st)
+        gy, gx, P, N, ok = grid_points(d, n, geo_all, camera, box, st)
         L, dist, _ = light.toward(P.reshape(-1, 3))
         L, dist = L.reshape(P.shape), dist.reshape(gy.shape)
         lit = ok & (np.sum(N * L, -1) > 0)
         vis = np.zeros(gy.shape)
         t_hit = np.full(gy.shape, np.inf)
         if lit.any():
-            v, t = march_visibility(P[lit], N[lit], L[lit], d, camera,
+            march = self._settings.light.march
+            v, t = march_visibility(P[lit], N[lit], L[lit], d, camera, cfg=march,
                                     steps=int(self._settings.march_steps),
                                     jitter=pixel_jitter(gy[lit], gx[lit]), return_distance=True,
-                                    nearest=True, occluder_mask=scene_only, max_distance=dist[lit],
-                                    walls=walls, **_march_kw(cfg))
+                                    nearest=True, occluder_mask=scene_only, max_distance=dist[lit], walls=walls)
             if occluder is not None:
-                vm, tm = light.mesh_shadow(occluder, P[lit], N[lit], cfg)
+                vm, tm = light_shadow(occluder, P[lit], N[lit], light, bias_rel=march.march_bias_rel,
+                                      cfg=cfg.object_shadow)
                 v, t = np.minimum(v, vm), np.minimum(t, tm)
             vis[lit], t_hit[lit] = v, t
         vis = np.where(ok & ~lit, 1.0, vis)  # facing away: n.l = 0 does the shading
@@ -470,8 +354,7 @@ class PhysicalRenderer(Renderer):
         return vs[ys - wy0 - by0, xs - wx0 - bx0]
 
 
-def _edge_fade(region: np.ndarray, ys, xs, width_px: float = DEFAULT.edge_fade_px,
-               share: float = DEFAULT.mesh_ao_fade) -> np.ndarray:
+def _edge_fade(region: np.ndarray, ys, xs, width_px: float, share: float) -> np.ndarray:
     """(M,) in [0, 1] at pixels (ys, xs) of ``region`` (H, W) bool (the shading mask, the
     whole frame's: the same with or without a region of interest): 0 on its edge,
     rising smoothly to 1 at ``width_px`` inside it (``TransportConfig.edge_fade_px``) or
@@ -488,45 +371,6 @@ def _edge_fade(region: np.ndarray, ys, xs, width_px: float = DEFAULT.edge_fade_p
 
 
 
-class _DirectLight:
-    """A sun or a lamp as the transport sees it: ``toward(points)`` -> (unit directions,
-    distances (inf for a sun), shading on a facing surface (N, 3)); ``tan_radius``;
-    ``mesh_shadow``; ``varies``: whether its direction changes across the frame."""
-
-    def __init__(self, sun=None, lamp=None):
-        self.sun, self.lamp = sun, lamp
-        self.varies = lamp is not None
-
-    def toward(self, points):
-        P = np.asarray(points, np.float64).reshape(-1, 3)
-        if self.sun is not None:
-            n = len(P)
-            return (np.tile(self.sun.direction, (n, 1)), np.full(n, np.inf),
-                    np.tile(self.sun.irradiance, (n, 1)))
-        return self.lamp.toward(P)
-
-    def tan_radius(self, points):
-        if self.sun is not None:
-            return np.tan(np.deg2rad(min(self.sun.radius_deg, 89.0)))
-        if points is None:
-            return 0.0
-        _, r, _ = self.lamp.toward(points)
-        s = np.clip(self.lamp.radius_m / np.maximum(r, 1e-6), 0.0, 0.99)
-        return s / np.sqrt(1 - s * s)
-
-    def mesh_shadow(self, mesh, P, N, cfg: TransportConfig = DEFAULT):
-        from zcomp_cli.renderers.physical.meshshadow import mesh_shadow, mesh_shadow_point
-
-        if self.sun is not None:
-            return mesh_shadow(mesh, P, N, self.sun.direction, cfg=cfg)
-        return mesh_shadow_point(mesh, P, N, self.lamp.position, cfg=cfg)
-
-
-def _direct_lights(model: LightModel) -> list[_DirectLight]:
-    """The model's suns and lamps, in order."""
-    return [*(_DirectLight(sun=s) for s in model.suns), *(_DirectLight(lamp=lp) for lp in model.lamps)]
-
-
 def _window(ys, xs, H, W, margin, even=False):
     """(y0, x0, y1, x1): the box of the pixels grown by ``margin``; ``even``: its corner
     on a grid of that stride (True: 2), so strided grids line up globally (results do
@@ -536,17 +380,6 @@ def _window(ys, xs, H, W, margin, even=False):
         a = 2 if even is True else int(even)
         wy0, wx0 = wy0 - wy0 % a, wx0 - wx0 % a
     return wy0, wx0, min(H, int(ys.max()) + 1 + margin), min(W, int(xs.max()) + 1 + margin)
-
-
-def _grid_points(d, n, valid, camera, box, step=1):
-    """Pixels of ``box = (y0, x0, y1, x1)`` on a ``step`` grid: (gy, gx, camera-frame points,
-    unit normals (0 where not ``valid``), valid)."""
-    wy0, wx0, wy1, wx1 = box
-    gy, gx = np.mgrid[wy0:wy1:step, wx0:wx1:step]
-    nv = n[gy, gx].astype(np.float64)
-    ok = valid[gy, gx]
-    nv = np.where(ok[..., None], nv / np.maximum(length(nv), 1e-12)[..., None], 0.0)
-    return gy, gx, camera.ray(gx + 0.5, gy + 0.5) * d[gy, gx][..., None], nv, ok
 
 
 def _grown_request(req: RenderRequest, reach: np.ndarray) -> RenderRequest:

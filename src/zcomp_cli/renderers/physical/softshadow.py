@@ -16,33 +16,15 @@ percentage-closer soft shadows, in screen space):
    pixel, interpolated between the two levels around ``r``: continuous in ``r``, so the
    penumbra is smooth and free of bands.
 
-Ambient occlusion (the expected shadow under a light whose direction is unknown, and
-the sky occlusion of the ambient term) marches a few hemisphere directions, rotated per
-pixel, at half resolution, then blurs the noise away with the same normalised filter.
+The sky's visibility (``scene.skyvis``) is blurred with the same normalised filter.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from zcomp_cli.camera import Camera
-from zcomp_cli.renderers.physical.sampling import length
 from zcomp_cli.renderers.physical.settings import TransportConfig
-from zcomp_cli.renderers.physical.visibility import march_visibility
 
-# The constants (the blur levels, the blocker search, the sky's directions, steps and
-# reach) are ``settings.TransportConfig``'s, each with its provenance; the window's
-# margin and the widest penumbra follow from them (``window_margin_px``,
-# ``max_penumbra_px``).
-DEFAULT = TransportConfig()
-
-
-def pixel_jitter(ys: np.ndarray, xs: np.ndarray, salt: int = 0) -> np.ndarray:
-    """Deterministic per-pixel value in [0, 1) from integer pixel coordinates (a 4x4
-    ordered-dither matrix, shifted by ``salt``): neighbours get well-spread offsets,
-    and the same pixel always gets the same one (ROI-independent)."""
-    bayer = np.array([[0, 8, 2, 10], [12, 4, 14, 6], [3, 11, 1, 9], [15, 7, 13, 5]], np.float64)
-    return ((bayer[(ys + salt) % 4, (xs + 3 * salt) % 4] + 0.5) / 16.0)
 
 
 def blur_reach(radius: float) -> int:
@@ -123,7 +105,7 @@ def classwise_blur(values: np.ndarray, classes: np.ndarray, valid: np.ndarray, r
 
 def penumbra_filter(vis: np.ndarray, t_hit: np.ndarray, z: np.ndarray, classes: np.ndarray,
                     valid: np.ndarray, focal_px: float, tan_radius: float,
-                    box: tuple[int, int, int, int] | None = None, cfg: TransportConfig = DEFAULT) -> np.ndarray:
+                    box: tuple[int, int, int, int] | None = None, cfg: TransportConfig | None = None) -> np.ndarray:
     """Smooth a hard shadow into the penumbra a light of angular radius ``atan(tan_radius)``
     casts.
 
@@ -143,6 +125,7 @@ def penumbra_filter(vis: np.ndarray, t_hit: np.ndarray, z: np.ndarray, classes: 
     Returns:
         (H, W) float64 visibility in [0, 1], or (y1 - y0, x1 - x0) with ``box``.
     """
+    cfg = TransportConfig() if cfg is None else cfg
     H, W = vis.shape
     y0, x0, y1, x1 = (0, 0, H, W) if box is None else (max(0, int(box[0])), max(0, int(box[1])),
                                                         min(H, int(box[2])), min(W, int(box[3])))
@@ -211,56 +194,4 @@ def penumbra_filter(vis: np.ndarray, t_hit: np.ndarray, z: np.ndarray, classes: 
     return np.clip(out, 0.0, 1.0)
 
 
-def _hemisphere_dirs(normals: np.ndarray, jitter: np.ndarray, k: int) -> list[np.ndarray]:
-    """k cosine-distributed directions around each normal, rotated by ``jitter``."""
-    n = normals
-    a = np.where(np.abs(n[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
-    u = np.cross(n, a)
-    u /= np.maximum(length(u), 1e-12)[:, None]
-    v = np.cross(n, u)
-    out = []
-    for i in range(k):
-        s = (i + 0.5) / k
-        rr = np.sqrt(s)  # cosine-weighted: radius on the unit disc
-        ph = 2 * np.pi * (i * 0.618034 + jitter)
-        ct = np.sqrt(max(1 - rr * rr, 0.0))
-        d = ct * n + rr * (np.cos(ph)[:, None] * u + np.sin(ph)[:, None] * v)
-        out.append(d / np.maximum(length(d), 1e-12)[:, None])
-    return out
-
-
-def sky_samples(points: np.ndarray, normals: np.ndarray, ys: np.ndarray, xs: np.ndarray,
-                depth: np.ndarray, camera: Camera, *, cfg: TransportConfig = DEFAULT,
-                occluder_mask: np.ndarray | None = None, walls=()):
-    """The sky seen from (N,) camera-frame points over the depth map (screen space, like
-    the direct shadow), in ``k = cfg.sky_directions`` cosine-distributed directions turned
-    per pixel, each marched ``cfg.sky_steps`` times up to ``cfg.sky_range_rel`` of the
-    depth: (directions (k, N, 3), visibility (k, N) in {0, 1}). ``occluder_mask``: (H, W)
-    bool, the texels that may occlude (None: all); ``walls`` (``planes.Wall``) beyond the
-    frame occlude at any distance. Noisy by design: filter what is made of it."""
-    k = cfg.sky_directions
-    if len(points) == 0:
-        return np.zeros((k, 0, 3)), np.zeros((k, 0))
-    jit = pixel_jitter(ys, xs, salt=1)
-    dirs = _hemisphere_dirs(normals, jit, k)
-    vis = [march_visibility(points, normals, d, depth, camera, steps=cfg.sky_steps,
-                            max_distance_rel=cfg.sky_range_rel, bias_rel=cfg.march_bias_rel,
-                            thickness_rel=cfg.march_thickness_rel, jitter=pixel_jitter(ys, xs, salt=i + 2),
-                            nearest=True, occluder_mask=occluder_mask, walls=walls)
-           for i, d in enumerate(dirs)]
-    return np.stack(dirs), np.stack(vis)
-
-
-def weighted_visibility(dirs: np.ndarray, vis: np.ndarray, radiance_sh: np.ndarray) -> np.ndarray:
-    """The visible share of a sky of SH radiance ``radiance_sh`` (9, C) from the samples
-    of ``sky_samples``: sum_k L(w_k) V_k / sum_k L(w_k) (cosine-distributed samples, so
-    this is the irradiance's share): (N, C) in [0, 1]; 1 where the sky sends nothing."""
-    from zcomp_cli.renderers.physical import sh
-
-    K, N = vis.shape
-    L = np.maximum(sh.basis(dirs.reshape(-1, 3)) @ np.asarray(radiance_sh, np.float64), 0.0).reshape(K, N, -1)
-    num = (L * vis[..., None]).sum(0)
-    den = L.sum(0)
-    return np.where(den > 1e-12, num / np.maximum(den, 1e-300), 1.0)
-
-
+__all__ = ["blur_reach", "gaussian_blur", "normalized_blur", "classwise_blur", "penumbra_filter"]

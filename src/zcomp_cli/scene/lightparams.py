@@ -3,22 +3,27 @@ section 8; Mitsuba's lesson: a scene is parameters, estimating fits the free one
 known light is the same object with some frozen).
 
 One tree, typed from the manifest (``pipeline/lightspec.py`` builds it) to the solver
-(``renderers/physical/lightfit.py`` fits it):
+(``light/fit.py`` fits it, and gives back the same tree with every free value filled):
 
-* ``LightParams``: the suns, the lamps, one probe at most, the camera's tilt;
+* ``LightParams``: the suns, the lamps, one probe at most, the sky, the photograph's
+  exposure against the lights' physical units, the camera's tilt;
 * ``SunParams``: a direction (or azimuth/elevation on the ground), an angular radius, an
-  irradiance (W/m^2, Blender's Sun strength), a colour, or the older ``share`` (direct
-  over sky on a surface facing it);
+  irradiance (W/m^2, Blender's Sun strength; one number, or RGB once fitted), a colour,
+  or the older ``share`` (direct over sky on a surface facing it);
 * ``LampParams``: a position, a radius, a power (W, Blender's point lamp), a panel's
   facing direction, a colour;
-* ``ProbeParams``: an equirectangular HDR map with its yaw, convention and strength.
+* ``ProbeParams``: an equirectangular HDR map with its yaw, convention and strength;
+* ``SkyParams``: the sky's radiance as order-2 SH in the ground frame (x the camera's
+  right on the ground, y up, z forward: ``worldframe.ground_frame``) and the support's
+  radiance seen from below its horizon; free: fitted (the sky lobes), or the probe's.
 
 Each fittable quantity is a ``Param``: a value (None while it is to be fitted), whether
 it is ``frozen`` (given: the solver keeps it), and where it came from (``Origin``,
 turned into words only in reports). ``LightParams.estimate()`` is the tree with one free
-light: the photograph's light, everything fitted.
+light: the photograph's light, everything fitted. ``to_dict``/``from_dict`` round-trip
+the tree (the light stage's cache).
 
-Lives below both the pipeline and the renderers (it imports neither).
+Lives below the light stage, the pipeline and the renderers (it imports none of them).
 """
 
 from __future__ import annotations
@@ -33,6 +38,10 @@ from dataclasses import dataclass, field
 SUN_RADIUS_DEG = 0.265
 # A lamp given without its size: a household bulb (an A19 bulb is 6 cm across; physical).
 LAMP_RADIUS_M = 0.03
+# The widest light drawn as one (its angular radius, degrees): a cone wider than this
+# lights a floor as the sky does (its shadow is the contact shadow), so the manifest, the
+# renderers' settings and the light model share this bound.
+MAX_RADIUS_DEG = 60.0
 
 
 class Origin(str, enum.Enum):
@@ -48,6 +57,15 @@ class Origin(str, enum.Enum):
 
     def __str__(self) -> str:  # the report's words
         return self.value
+
+    @property
+    def code(self) -> str:
+        """The short name the written light uses (``from: {direction: shadows}``)."""
+        return self.name.lower()
+
+    @classmethod
+    def from_code(cls, code: str) -> "Origin":
+        return cls[str(code).upper()]
 
 
 @dataclass(frozen=True)
@@ -67,9 +85,44 @@ class Param:
     def free(cls, origin: Origin = Origin.FIT) -> "Param":
         return cls(value=None, frozen=False, origin=origin)
 
+    def filled(self, value, origin: Origin | None = None) -> "Param":
+        """This parameter with its value (a free one: fitted), frozen as it was, its
+        origin ``origin`` (None: kept)."""
+        return Param(value=_plain(value), frozen=self.frozen, origin=self.origin if origin is None else origin)
+
+    def fill(self, value, origin: Origin | None = None) -> "Param":
+        """A free parameter ``filled`` with the fit's value; a frozen one as it is."""
+        return self if self.frozen else self.filled(value, origin)
+
     def to_dict(self) -> dict:
-        v = self.value
-        return {"value": list(v) if isinstance(v, tuple) else v, "frozen": self.frozen, "origin": self.origin.name}
+        return {"value": _listed(self.value), "frozen": self.frozen, "origin": self.origin.name}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Param":
+        return cls(value=_plain(d.get("value")), frozen=bool(d.get("frozen")), origin=Origin[d.get("origin", "FIT")])
+
+
+def _plain(v):
+    """A value as the tree keeps it: numbers as floats, vectors and tables as tuples."""
+    if v is None or isinstance(v, (str, bool)):
+        return v
+    try:
+        import numpy as np
+
+        a = np.asarray(v, np.float64)
+    except (TypeError, ValueError):
+        return v
+    if a.ndim == 0:
+        return float(a)
+    return tuple(_plain(x) for x in a) if a.ndim > 1 else tuple(float(x) for x in a)
+
+
+def _listed(v):
+    return [_listed(x) for x in v] if isinstance(v, tuple) else v
+
+
+def _tup(v):
+    return None if v is None else tuple(v)
 
 
 def _vec3(v) -> tuple | None:
@@ -91,10 +144,11 @@ class SunParams:
     up by ``direction_in``); ``radius_deg`` its angular radius; ``irradiance`` W/m^2 on a
     surface facing it (free: fitted); ``share`` the older form, direct over sky on a
     surface facing it (then ``irradiance`` is free and tied to the fitted sky);
-    ``color`` linear RGB multiplier."""
+    ``color`` linear RGB multiplier; ``angles_from`` where the angles came from."""
 
     direction: Param = field(default_factory=Param.free)
     angles: tuple | None = None
+    angles_from: Origin = Origin.MANIFEST
     radius_deg: Param = field(default_factory=Param.free)
     irradiance: Param = field(default_factory=Param.free)
     share: float | None = None
@@ -117,11 +171,23 @@ class SunParams:
     def direction_given(self) -> bool:
         return self.direction.frozen or self.angles is not None
 
+    @property
+    def direction_origin(self) -> Origin:
+        """Where a given direction came from (its own, or its angles')."""
+        return self.direction.origin if self.direction.frozen else self.angles_from
+
     def to_dict(self) -> dict:
         return {"type": "sun", "direction": self.direction.to_dict(),
-                "angles": None if self.angles is None else list(self.angles),
+                "angles": None if self.angles is None else list(self.angles), "angles_from": self.angles_from.name,
                 "radius_deg": self.radius_deg.to_dict(), "irradiance": self.irradiance.to_dict(),
                 "share": self.share, "color": list(self.color)}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "SunParams":
+        return cls(direction=Param.from_dict(d["direction"]), angles=_tup(d.get("angles")),
+                   angles_from=Origin[d.get("angles_from", "MANIFEST")],
+                   radius_deg=Param.from_dict(d["radius_deg"]), irradiance=Param.from_dict(d["irradiance"]),
+                   share=d.get("share"), color=tuple(d.get("color", WHITE)))
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -141,6 +207,11 @@ class LampParams:
         return {"type": "lamp", "position": self.position.to_dict(), "radius_m": self.radius_m.to_dict(),
                 "power": self.power.to_dict(), "facing": None if self.facing is None else list(self.facing),
                 "color": list(self.color)}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "LampParams":
+        return cls(position=Param.from_dict(d["position"]), radius_m=Param.from_dict(d["radius_m"]),
+                   power=Param.from_dict(d["power"]), facing=_tup(d.get("facing")), color=tuple(d.get("color", WHITE)))
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -169,15 +240,45 @@ class ProbeParams:
         return {"type": "probe", "hdr": self.hdr, "rotation_deg": self.rotation_deg, "convention": self.convention,
                 "strength": self.strength}
 
+    @classmethod
+    def from_dict(cls, d: dict) -> "ProbeParams":
+        if d.get("type") == "chrome_ball":
+            return cls(hdr=d["image"], ball_center=_tup(d["center"]), ball_radius=d["radius"],
+                       reflectance=d["reflectance"], strength=d["strength"])
+        return cls(hdr=d["hdr"], rotation_deg=d["rotation_deg"], convention=d["convention"], strength=d["strength"])
+
+
+@dataclass(frozen=True, kw_only=True)
+class SkyParams:
+    """The light from everywhere else (``lightmodel.Sky``): ``radiance_sh`` (9, 3) its
+    radiance's order-2 SH in the ground frame (module docstring), in the photograph's
+    shading units; ``ground`` (3,) the support's radiance seen from below its horizon
+    (free: measured on the photograph). Both free: the sky is fitted (or, with a probe,
+    is the probe's)."""
+
+    radiance_sh: Param = field(default_factory=Param.free)
+    ground: Param = field(default_factory=Param.free)
+
+    def to_dict(self) -> dict:
+        return {"type": "sky", "radiance_sh": self.radiance_sh.to_dict(), "ground": self.ground.to_dict()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "SkyParams":
+        return cls(radiance_sh=Param.from_dict(d["radiance_sh"]), ground=Param.from_dict(d["ground"]))
+
 
 @dataclass(frozen=True, kw_only=True)
 class LightParams:
-    """A scene's light: ``suns``, ``lamps``, at most one ``probe``, and the camera's tilt
-    (``pitch_deg``/``roll_deg``, None: world up read off the support)."""
+    """A scene's light: ``suns``, ``lamps``, at most one ``probe``, the ``sky``, the
+    photograph's ``exposure`` against the lights given in physical units (free: fitted,
+    where such lights are given), and the camera's tilt (``pitch_deg``/``roll_deg``,
+    None: world up read off the support)."""
 
     suns: tuple = ()
     lamps: tuple = ()
     probe: ProbeParams | None = None
+    sky: SkyParams = field(default_factory=SkyParams)
+    exposure: Param = field(default_factory=Param.free)
     pitch_deg: float | None = None
     roll_deg: float | None = None
 
@@ -194,7 +295,8 @@ class LightParams:
     @property
     def given(self) -> bool:
         """Whether the manifest gives a light (else the light is estimated)."""
-        return self.probe is not None or any(s.direction_given for s in self.suns) or bool(self.lamps)
+        return (self.probe is not None or any(s.direction_given for s in self.suns) or bool(self.lamps)
+                or self.sky.radiance_sh.frozen)
 
     @property
     def tilt(self) -> dict:
@@ -205,13 +307,22 @@ class LightParams:
 
     def to_dict(self) -> dict:
         return {"suns": [s.to_dict() for s in self.suns], "lamps": [lp.to_dict() for lp in self.lamps],
-                "probe": None if self.probe is None else self.probe.to_dict(), "pitch_deg": self.pitch_deg,
-                "roll_deg": self.roll_deg}
+                "probe": None if self.probe is None else self.probe.to_dict(), "sky": self.sky.to_dict(),
+                "exposure": self.exposure.to_dict(), "pitch_deg": self.pitch_deg, "roll_deg": self.roll_deg}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "LightParams":
+        return cls(suns=tuple(SunParams.from_dict(x) for x in d.get("suns", ())),
+                   lamps=tuple(LampParams.from_dict(x) for x in d.get("lamps", ())),
+                   probe=None if d.get("probe") is None else ProbeParams.from_dict(d["probe"]),
+                   sky=SkyParams.from_dict(d["sky"]) if d.get("sky") else SkyParams(),
+                   exposure=Param.from_dict(d["exposure"]) if d.get("exposure") else Param.free(),
+                   pitch_deg=d.get("pitch_deg"), roll_deg=d.get("roll_deg"))
 
     def key(self) -> str:
         """Canonical JSON: a cache key for what the light is."""
         return json.dumps(self.to_dict(), sort_keys=True, default=str)
 
 
-__all__ = ["Origin", "Param", "SunParams", "LampParams", "ProbeParams", "LightParams", "SUN_RADIUS_DEG",
-           "LAMP_RADIUS_M", "WHITE"]
+__all__ = ["Origin", "Param", "SunParams", "LampParams", "ProbeParams", "SkyParams", "LightParams", "SUN_RADIUS_DEG",
+           "LAMP_RADIUS_M", "MAX_RADIUS_DEG", "WHITE"]

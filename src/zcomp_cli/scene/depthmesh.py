@@ -37,17 +37,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from zcomp_cli.camera import Camera
-from zcomp_cli.renderers.physical.sampling import length
-from zcomp_cli.renderers.physical.settings import MeshConfig
-
-# The constants are ``settings.MeshConfig``'s, each with its provenance.
-DEFAULT = MeshConfig()
+from zcomp_cli.conventions import unit_normal_mask
+from zcomp_cli.scene.config import MeshConfig
 
 
-def has_geometry(depth: np.ndarray, normals: np.ndarray, cfg: MeshConfig = DEFAULT) -> np.ndarray:
-    """(h, w) bool: the pixels with geometry, a positive depth and a unit normal (within
-    ``cfg.unit_normal_tol``). ``depth`` (h, w) and ``normals`` (h, w, 3) finite."""
-    return (np.asarray(depth) > 0) & (np.abs(length(normals) - 1) < cfg.unit_normal_tol)
+
+def has_geometry(depth: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """(h, w) bool: the pixels with geometry, a positive depth and a unit normal
+    (``conventions.unit_normal_mask``). ``depth`` (h, w) and ``normals`` (h, w, 3)."""
+    return (np.asarray(depth) > 0) & unit_normal_mask(normals)
 
 
 @dataclass(frozen=True)
@@ -79,7 +77,7 @@ class DepthMesh:
     def caster(self):
         """A ``RayCaster`` of what can shadow the scene: the mesh less the support's own
         triangles (a plane does not shadow itself; most of a frame is floor)."""
-        from zcomp_cli.renderers.physical.raycast import RayCaster
+        from zcomp_cli.scene.raycast import RayCaster
 
         h, w = self.shape
         sup = np.concatenate([self.support.ravel(), np.zeros(len(self.vertices) - h * w, bool)])
@@ -87,9 +85,10 @@ class DepthMesh:
         return RayCaster(self.vertices, self.faces[keep])
 
 
-def _continuous(Pa, Na, Pb, Nb, ra, rb, ok, cfg: MeshConfig = DEFAULT):
+def _continuous(Pa, Na, Pb, Nb, ra, rb, ok, cfg: MeshConfig | None = None):
     """(M,) bool: pixels a and b (points P, unit normals N, rays r with z = -1) are
     continuous (module docstring)."""
+    cfg = MeshConfig() if cfg is None else cfg
     za, zb = -Pa[:, 2], -Pb[:, 2]
     zmin = np.maximum(np.minimum(za, zb), 1e-9)
     small = np.abs(za - zb) <= cfg.join_rel * zmin
@@ -123,10 +122,11 @@ def _edges(valid):
 
 
 def support_mask(points: np.ndarray, normals: np.ndarray, valid: np.ndarray, up,
-                 cfg: MeshConfig = DEFAULT) -> tuple[np.ndarray, float]:
+                 cfg: MeshConfig | None = None) -> tuple[np.ndarray, float]:
     """(support (h, w) bool, its height along ``up``): the pixels facing up
     (``cfg.support_deg``) at the most common height of those (within
     ``cfg.support_height_rel`` of their distance)."""
+    cfg = MeshConfig() if cfg is None else cfg
     up = np.asarray(up, np.float64)
     facing = valid & (normals @ up > math.cos(math.radians(cfg.support_deg)))
     if facing.sum() < 3:
@@ -146,7 +146,7 @@ def support_mask(points: np.ndarray, normals: np.ndarray, valid: np.ndarray, up,
 
 
 def build_depth_mesh(depth: np.ndarray, normals: np.ndarray, camera: Camera, up, *, valid=None,
-                     walls=(), cfg: MeshConfig = DEFAULT) -> DepthMesh:
+                     walls=(), cfg: MeshConfig | None = None) -> DepthMesh:
     """The depth map's mesh (module docstring).
 
     Args:
@@ -156,11 +156,12 @@ def build_depth_mesh(depth: np.ndarray, normals: np.ndarray, camera: Camera, up,
         walls: ``planes.Wall`` beyond the frame, added as quads.
         cfg: the mesh's constants (``settings.MeshConfig``).
     """
+    cfg = MeshConfig() if cfg is None else cfg
     d = np.nan_to_num(np.asarray(depth, np.float64), nan=0.0, posinf=0.0, neginf=0.0)
     n = np.nan_to_num(np.asarray(normals, np.float64))
     h, w = d.shape
     nn = np.linalg.norm(n, axis=-1)
-    ok = has_geometry(d, n, cfg) if valid is None else (np.asarray(valid, bool) & (d > 0))
+    ok = has_geometry(d, n) if valid is None else (np.asarray(valid, bool) & (d > 0))
     n = n / np.maximum(nn, 1e-12)[..., None]
     up = np.asarray(up, np.float64)
     up = up / max(float(np.linalg.norm(up)), 1e-12)

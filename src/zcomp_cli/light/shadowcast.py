@@ -35,13 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from zcomp_cli.renderers.physical.settings import SearchConfig
-
-# The constants are ``settings.SearchConfig``'s (``bias_rel``, ``sigma_min``,
-# ``log_floor``), each with its provenance.
-DEFAULT = SearchConfig()
-# (kept for the tests and callers that start rays the way the search does)
-BIAS_REL = DEFAULT.bias_rel
+from zcomp_cli.light.config import SearchConfig
 
 
 @dataclass(frozen=True)
@@ -68,11 +62,13 @@ class Receivers:
         return len(self.ys)
 
 
-def receivers(mesh, evidence, *, max_receivers: int, bias_rel: float = DEFAULT.bias_rel,
-              blocks: int = 12) -> Receivers:  # (FrameConfig.holdout_blocks)
+def receivers(mesh, evidence, *, max_receivers: int, bias_rel: float, blocks: int) -> Receivers:
     """The support's receivers (module docstring): every support pixel where a caster's
     shadow can fall (``evidence.reach``), the rest of the support on a sparser stride,
-    each weighted by the share of the support it stands for, at most ``max_receivers``."""
+    each weighted by the share of the support it stands for, at most ``max_receivers``;
+    their rays start ``bias_rel`` of their depth above the support
+    (``SearchConfig.bias_rel``); ``blocks`` the frame's blocks per long side
+    (``FrameConfig.holdout_blocks``)."""
     ok = mesh.support & (evidence.weight > 0) & np.isfinite(evidence.ratio)
     near = ok & evidence.reach
     far = ok & ~evidence.reach
@@ -139,7 +135,7 @@ class ShadowFit:
     weight: np.ndarray
     ratio: np.ndarray
     blocks: int
-    sigma_min: float = DEFAULT.sigma_min
+    sigma_min: float
 
     @property
     def best_sigma(self) -> float:
@@ -162,7 +158,7 @@ class ShadowFit:
         return -0.5 * self.blocks * mean / sig ** 2
 
 
-def shadow_fit(rec: Receivers, V: np.ndarray, cfg: SearchConfig = DEFAULT) -> ShadowFit:
+def shadow_fit(rec: Receivers, V: np.ndarray, cfg: SearchConfig) -> ShadowFit:
     """Fit ``log s ~ X beta + c (1 - V)`` for every candidate column of ``V`` (R, K)
     (module docstring: ``c = log rho``, exact where V is 0 or 1, the log-linear
     interpolation across a penumbra), ``c <= 0``, by least squares on the residual of
@@ -190,4 +186,4 @@ def shadow_fit(rec: Receivers, V: np.ndarray, cfg: SearchConfig = DEFAULT) -> Sh
     return ShadowFit(resid=resid, weight=w, ratio=np.exp(c), blocks=rec.blocks, sigma_min=cfg.sigma_min)
 
 
-__all__ = ["Receivers", "receivers", "sun_visibility", "lamp_visibility", "ShadowFit", "shadow_fit", "BIAS_REL"]
+__all__ = ["Receivers", "receivers", "sun_visibility", "lamp_visibility", "ShadowFit", "shadow_fit"]

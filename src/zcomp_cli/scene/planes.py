@@ -26,11 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from zcomp_cli.renderers.physical.settings import FrameConfig
+from zcomp_cli.scene.config import FrameConfig
 
-# The constants (a wall's tilt, the vote's bins, the least share, how many) are
-# ``settings.FrameConfig``'s, each with its provenance.
-DEFAULT = FrameConfig()
 
 
 @dataclass(frozen=True)
@@ -49,8 +46,18 @@ class Wall:
         return {"normal_camera": np.asarray(self.normal).tolist(), "offset_m": self.offset,
                 "top_m": None if not math.isfinite(self.top) else self.top}
 
+    def to_dict(self) -> dict:
+        """Every field, exactly (``from_dict`` takes it back; an endless wall's top None)."""
+        return {**self.to_info(), "ground_m": float(self.ground), "up_camera": np.asarray(self.up).tolist()}
 
-def find_walls(points: np.ndarray, normals: np.ndarray, valid: np.ndarray, up, cfg: FrameConfig = DEFAULT) -> tuple:
+    @classmethod
+    def from_dict(cls, d: dict) -> "Wall":
+        return cls(normal=np.asarray(d["normal_camera"], np.float64), offset=float(d["offset_m"]),
+                   top=math.inf if d["top_m"] is None else float(d["top_m"]), ground=float(d["ground_m"]),
+                   up=np.asarray(d["up_camera"], np.float64))
+
+
+def find_walls(points: np.ndarray, normals: np.ndarray, valid: np.ndarray, up, cfg: FrameConfig | None = None) -> tuple:
     """The walls of a frame's geometry (module docstring).
 
     Args:
@@ -59,6 +66,7 @@ def find_walls(points: np.ndarray, normals: np.ndarray, valid: np.ndarray, up, c
     Returns:
         tuple of Wall, the largest first.
     """
+    cfg = FrameConfig() if cfg is None else cfg
     up = np.asarray(up, np.float64)
     h, w = valid.shape
     P = points[valid].astype(np.float64)

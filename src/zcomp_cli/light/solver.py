@@ -35,20 +35,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from zcomp_cli.renderers.physical.settings import SolverConfig
-
-# The constants (Huber's, the noise floor, the iterations, the unseen shadows' share)
-# are ``settings.SolverConfig``'s, each with its provenance.
-DEFAULT = SolverConfig()
+from zcomp_cli.light.config import SolverConfig
 
 
-def _huber_density(r, sig, huber_c: float = DEFAULT.huber_c):
+
+def _huber_density(r, sig, huber_c: float):
     c = huber_c * sig
     a = np.abs(r)
     return np.exp(-np.where(a <= c, 0.5 * (a / sig) ** 2, (c / sig) * (a / sig) - 0.5 * (c / sig) ** 2))
 
 
-def unseen_responsibility(r, d, sigma, pi, huber_c: float = DEFAULT.huber_c):
+def unseen_responsibility(r, d, sigma, pi, huber_c: float):
     """The responsibility of "lit as the model says" for residuals ``r`` (``d`` >= 0 the
     direct part of each prediction) under the mixture of the module docstring: noise
     around the full prediction (1 - pi), or around the prediction less its direct
@@ -68,18 +65,22 @@ def unseen_loss(sigma):
 
 @dataclass(frozen=True)
 class Atom:
-    """One column of the dictionary: ``values`` (N,) grey or (N, 3) coloured; ``name``
-    for reports and lookups."""
+    """One column of the dictionary: ``values`` (N,) grey or (N, 3) coloured; ``prior``
+    the (C,) weight the ridge pulls it toward (None: 0); ``direct``: an unseen occluder
+    can hide it (a sun's or a lamp's light, not the sky's: module docstring); ``name``
+    for messages only."""
 
     name: str
     values: np.ndarray
+    prior: object = None
+    direct: bool = False
 
     @property
     def coloured(self) -> bool:
         return np.ndim(self.values) == 2
 
 
-def huber_weights(r: np.ndarray, sigma: float, huber_c: float = DEFAULT.huber_c) -> tuple[np.ndarray, np.ndarray]:
+def huber_weights(r: np.ndarray, sigma: float, huber_c: float) -> tuple[np.ndarray, np.ndarray]:
     """IRLS weights and per-residual Huber loss of residuals ``r`` at scale ``sigma``."""
     c = huber_c * sigma
     a = np.abs(r)
@@ -95,7 +96,8 @@ def _huber_w(a: np.ndarray, c: float) -> np.ndarray:
     return np.minimum(c / np.maximum(a, 1e-300), 1.0)
 
 
-def robust_scale(r: np.ndarray, data_scale: float, cfg: SolverConfig = DEFAULT) -> float:
+def robust_scale(r: np.ndarray, data_scale: float, cfg: SolverConfig | None = None) -> float:
+    cfg = SolverConfig() if cfg is None else cfg
     return max(cfg.mad_to_sigma * float(np.median(np.abs(r))), cfg.sigma_floor * data_scale, 1e-12)
 
 
@@ -121,30 +123,30 @@ def _design(atoms, channels: int) -> tuple[np.ndarray, list[tuple[int, int]]]:
 
 @dataclass(frozen=True)
 class FitResult:
-    """``weights``: per atom name, (3,) RGB weight (a coloured atom's one weight
-    repeated); ``loss``: mean Huber loss per pixel over the data scale squared, on the
+    """``weights``: per atom, in the atoms' order, (3,) RGB weight (a coloured atom's one
+    weight repeated); ``loss``: mean Huber loss per pixel over the data scale squared, on the
     fit pixels (``train``) and the held-out ones (``held``); ``sigma`` the robust scale."""
 
-    weights: dict
+    weights: list
     loss_train: float
     loss_held: float
     sigma: float
     residual: np.ndarray
 
 
-def fit(atoms, target: np.ndarray, *, train: np.ndarray | None = None, prior: dict | None = None,
-        ridge: float = 0.0, direct=(), cfg: SolverConfig = DEFAULT) -> FitResult:
+def fit(atoms, target: np.ndarray, *, train: np.ndarray | None = None, ridge: float = 0.0,
+        cfg: SolverConfig) -> FitResult:
     """Robust NNLS of ``target`` (N, 3) RGB or (N,) grey on ``atoms``.
 
     Args:
-        atoms: sequence of ``Atom`` over the same N pixels.
+        atoms: sequence of ``Atom`` over the same N pixels (each with its prior and
+            whether an unseen occluder can hide it).
         target: the shading to explain.
         train: (N,) bool, the pixels the weights are fitted on (None: all); the others
             are held out and only scored.
-        prior: per atom name the (C,) weight the ridge pulls toward (missing: 0).
-        ridge: the ridge's strength, per fit pixel, relative to the data's scale.
-        direct: names of the atoms an unseen occluder can hide (module docstring).
-        cfg: the solver's constants (``settings.SolverConfig``).
+        ridge: the ridge's strength toward the atoms' priors, per fit pixel, relative to
+            the data's scale.
+        cfg: the solver's constants (``SolverConfig``).
     """
     from scipy.optimize import nnls
 
@@ -160,16 +162,15 @@ def fit(atoms, target: np.ndarray, *, train: np.ndarray | None = None, prior: di
     scale = max(float(np.median(np.abs(yv[tr]))), 1e-12)
     # the ridge's target: a weight vector in the design's columns
     p0 = np.zeros(X.shape[1])
-    if prior:
-        for a, (c0, k) in zip(atoms, spans):
-            if a.name in prior:
-                p0[c0:c0 + k] = np.broadcast_to(np.asarray(prior[a.name], np.float64), (C,))[:k] \
-                    if k > 1 else float(np.mean(prior[a.name]))
+    for a, (c0, k) in zip(atoms, spans):
+        if a.prior is not None:
+            p0[c0:c0 + k] = np.broadcast_to(np.asarray(a.prior, np.float64), (C,))[:k] \
+                if k > 1 else float(np.mean(a.prior))
     col_scale = np.sqrt(np.maximum((X[tr] ** 2).mean(0), 1e-30))
     lam = np.sqrt(max(ridge, 0.0) * tr.sum()) * col_scale
     is_direct = np.zeros(X.shape[1], bool)
     for a, (c0, k) in zip(atoms, spans):
-        is_direct[c0:c0 + k] = a.name in set(direct)
+        is_direct[c0:c0 + k] = bool(a.direct)
     Xt, yt = X[tr], yv[tr]
     Xs = np.where(is_direct[None], 0.0, Xt)  # an unseen shadow: the sky alone
     mix = bool(is_direct.any())
@@ -215,10 +216,10 @@ def fit(atoms, target: np.ndarray, *, train: np.ndarray | None = None, prior: di
     held = ~train
     lt = float(loss[train].mean()) / scale ** 2
     lh = float(loss[held].mean()) / scale ** 2 if held.any() else lt
-    weights = {}
-    for a, (c0, k) in zip(atoms, spans):
+    weights = []
+    for c0, k in spans:
         v = beta[c0:c0 + k]
-        weights[a.name] = np.repeat(v, 3) if k == 1 else (np.repeat(v, 3 // C) if C == 1 else v.copy())
+        weights.append(np.repeat(v, 3) if k == 1 else (np.repeat(v, 3 // C) if C == 1 else v.copy()))
     res = r_all.reshape(C, N).T if C > 1 else r_all
     return FitResult(weights=weights, loss_train=lt, loss_held=lh, sigma=float(sigma), residual=res)
 
@@ -248,7 +249,7 @@ def solve_spd(A: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def score_candidates(base: np.ndarray, cands: np.ndarray, y: np.ndarray, train: np.ndarray, *,
                      sigma: float | None = None, iters: int | None = None,
-                     cfg: SolverConfig = DEFAULT) -> tuple[np.ndarray, np.ndarray]:
+                     cfg: SolverConfig | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Held-out and training loss of ``y`` (N,) fitted on ``base`` (N, B) plus each
     candidate column of ``cands`` (N, K), for K candidates at once.
 
@@ -263,6 +264,7 @@ def score_candidates(base: np.ndarray, cands: np.ndarray, y: np.ndarray, train: 
     candidates matters). Returns (held-out loss (K,), training loss (K,)), over the data
     scale squared.
     """
+    cfg = SolverConfig() if cfg is None else cfg
     B = np.asarray(base, np.float64)
     D = np.asarray(cands, np.float64)
     y = np.asarray(y, np.float64)
@@ -286,9 +288,13 @@ def score_candidates(base: np.ndarray, cands: np.ndarray, y: np.ndarray, train: 
         A[:, nb, :nb] = bd
         A[:, nb, nb] = (wd * Dt).sum(0)
         # a relative Tikhonov floor: collinear columns (sky lobes on one plane) and a
-        # candidate that lights no pixel leave the normal equations singular
-        diag = np.einsum("kii->ki", A).mean(1)
-        A += (1e-9 * np.maximum(diag, 1e-300))[:, None, None] * np.eye(nb + 1)[None]
+        # candidate that lights no pixel leave the normal equations singular. Relative to
+        # each column's own scale: relative to their mean, a lamp's column (1/r^2: a
+        # million times the sky's in a scene measured in millimetres) set the floor of
+        # all the others, and the light found depended on the depth map's unit (issue 49)
+        diag = np.einsum("kii->ki", A)
+        floor = np.maximum(diag, 1e-12 * diag.mean(1, keepdims=True) + 1e-300)
+        A += (1e-9 * floor)[:, :, None] * np.eye(nb + 1)[None]
         rhs = np.empty((K, nb + 1))
         rhs[:, :nb] = (By.T @ w).T
         rhs[:, nb] = wd.T @ yt
@@ -307,9 +313,10 @@ def score_candidates(base: np.ndarray, cands: np.ndarray, y: np.ndarray, train: 
 
 
 def base_sigma(B: np.ndarray, y: np.ndarray, ridge: np.ndarray | None = None,
-               scale: float | None = None, cfg: SolverConfig = DEFAULT) -> float:
+               scale: float | None = None, cfg: SolverConfig | None = None) -> float:
     """Robust scale of ``y`` (N,) fitted on the columns ``B`` (N, P) alone (Huber IRLS,
     unconstrained): the scale candidates are scored at."""
+    cfg = SolverConfig() if cfg is None else cfg
     B = np.asarray(B, np.float64)
     y = np.asarray(y, np.float64)
     scale = max(float(np.median(np.abs(y))), 1e-12) if scale is None else scale
@@ -325,4 +332,4 @@ def base_sigma(B: np.ndarray, y: np.ndarray, ridge: np.ndarray | None = None,
     return s
 
 
-__all__ = ["Atom", "base_sigma", "FitResult", "fit", "score_candidates", "solve_spd", "huber_weights", "robust_scale", "DEFAULT"]
+__all__ = ["Atom", "base_sigma", "FitResult", "fit", "score_candidates", "solve_spd", "huber_weights", "robust_scale"]

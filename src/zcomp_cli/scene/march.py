@@ -5,11 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from zcomp_cli.camera import Camera
-from zcomp_cli.renderers.physical.settings import TransportConfig
-
-# The march's defaults (its reach, bias and occluder thickness) are
-# ``settings.TransportConfig``'s, each with its provenance; the renderer passes its own.
-DEFAULT = TransportConfig()
+from zcomp_cli.scene.config import MarchConfig
+from zcomp_cli.scene.sampling import length
 
 
 def sample_depth(depth: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -39,9 +36,8 @@ def sample_depth(depth: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndarray,
-                     depth: np.ndarray, camera: Camera, *, steps: int = 24,
-                     max_distance_rel: float = DEFAULT.march_range_rel, bias_rel: float = DEFAULT.march_bias_rel,
-                     thickness_rel: float = DEFAULT.march_thickness_rel, jitter: np.ndarray | None = None,
+                     depth: np.ndarray, camera: Camera, *, cfg: MarchConfig, steps: int,
+                     max_distance_rel: float | None | str = "march", jitter: np.ndarray | None = None,
                      return_distance: bool = False, nearest: bool = False,
                      occluder_mask: np.ndarray | None = None, max_distance=None, walls=()):
     """Binary visibility of points toward directional light(s).
@@ -60,10 +56,11 @@ def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndar
             instead of banding.
         occluder_mask: optional (H, W) bool: only texels where it is True occlude (the
             shadow of one part of the frame, such as an inserted object).
-        max_distance_rel, bias_rel, thickness_rel: ray length, occluder bias and
-            occluder thickness as fractions of the point's own depth (scale-free;
-            defaults ``TransportConfig.march_range_rel``, ``march_bias_rel``,
-            ``march_thickness_rel``); ``max_distance_rel`` None: no relative limit.
+        cfg: the march's reach, bias and occluder thickness (``MarchConfig``: fractions
+            of the point's own depth, scale-free).
+        max_distance_rel: the ray's length as a fraction of the point's depth: "march"
+            (``cfg.march_range_rel``, a shadow ray's), "sky" (``cfg.sky_range_rel``, a
+            sky ray's), a number, or None (no relative limit).
         max_distance: optional (N,) or scalar ray length in metres (a lamp's distance:
             nothing beyond the light occludes it); the shorter of the two limits holds.
         walls: the scene's walls beyond the frame (``planes.Wall``): they occlude too,
@@ -79,6 +76,9 @@ def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndar
     N = len(p)
     if N == 0:
         return (np.zeros(0), np.zeros(0)) if return_distance else np.zeros(0)
+    bias_rel, thickness_rel = cfg.march_bias_rel, cfg.march_thickness_rel
+    if isinstance(max_distance_rel, str):
+        max_distance_rel = {"march": cfg.march_range_rel, "sky": cfg.sky_range_rel}[max_distance_rel]
     z0 = np.maximum(-p[:, 2], 1e-6)
     start = p + n * (bias_rel * z0)[:, None]
     # per component, contiguous (the (N, 3) products and their strided columns cost
@@ -116,10 +116,24 @@ def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndar
             t_hit = np.where(hit & ~occluded, t, t_hit)
         occluded |= hit
     if walls:
-        from zcomp_cli.renderers.physical.planes import walls_block
+        from zcomp_cli.scene.planes import walls_block
 
         wb, wt = walls_block(walls, p + n * (bias_rel * z0)[:, None], l, max_distance)
         t_hit = np.minimum(t_hit, wt)
         occluded |= wb
     vis = (~occluded).astype(np.float64)
     return (vis, t_hit) if return_distance else vis
+
+
+def grid_points(d, n, valid, camera, box, step=1):
+    """Pixels of ``box = (y0, x0, y1, x1)`` on a ``step`` grid: (gy, gx, camera-frame points,
+    unit normals (0 where not ``valid``), valid)."""
+    wy0, wx0, wy1, wx1 = box
+    gy, gx = np.mgrid[wy0:wy1:step, wx0:wx1:step]
+    nv = n[gy, gx].astype(np.float64)
+    ok = valid[gy, gx]
+    nv = np.where(ok[..., None], nv / np.maximum(length(nv), 1e-12)[..., None], 0.0)
+    return gy, gx, camera.ray(gx + 0.5, gy + 0.5) * d[gy, gx][..., None], nv, ok
+
+
+__all__ = ["sample_depth", "march_visibility", "grid_points"]

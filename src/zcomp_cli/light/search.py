@@ -1,4 +1,5 @@
-"""The light from the photograph (DESIGN.md section 8, "The light from the shadows").
+"""The light from the photograph's shadows and shading (DESIGN.md section 8, "The light
+from the shadows").
 
 Where a photograph shows cast shadows, they are what fixes the light's direction; the
 shading of the rest of the frame says little about it and a great deal about things
@@ -6,17 +7,12 @@ the model does not hold (a floor's fall-off, an albedo error, a wall's bounce). 
 direction is read off the shadows first, the rest of the shading is a second, weaker
 witness, and what neither fixes stays uncertain -- and the composite says so.
 
-The steps (``lightfit.fit_light`` runs them for a light whose direction is free; each
-returns a dataclass; every constant is ``settings.PhysicalSettings``'s, with its
-provenance):
+The steps (``fit.fit_light`` runs them on the scene ``prepare`` made, step 1, for a
+light whose direction is free; each returns a dataclass; every constant is
+``LightConfig``'s, with its provenance):
 
-1. ``prepare``: the working copy and its fit pixels (the photometric fit's), the
-   support's bounce, the albedo's offset, the walls beyond the frame, and the scene's
-   **depth mesh** (``depthmesh``: discontinuities cut, occluders extruded backwards)
-   with its ray tracer (``raycast``, Embree): every light ray of the fit is cast
-   through it;
-2. ``search_scorer``: the support's cast-shadow evidence (``shadow_evidence``: dark
-   regions tied to the casters that stand on it) and the scorer of candidate lights;
+2. ``search_scorer``: the support's cast-shadow evidence (``evidence``: dark regions
+   tied to the casters that stand on it) and the scorer of candidate lights;
 3. ``search``: a grid of directions on the hemisphere, refined around the best; each
    scored by **two likelihoods** that multiply -- the support's shading under the
    shadow that direction casts (``shadowcast``: rays from the support's pixels) and the
@@ -32,41 +28,41 @@ provenance):
 5. ``split_from_shadows``: the sun/sky split from the shadows themselves (the
    shadowed/lit ratio across the edges of the most probable light's shadow, Madsen and
    Nielsen), shrunk toward the prior split by the tied shadow that measurement stands
-   on; one robust NNLS then fits the exposure and the sky's shape;
+   on; one robust NNLS then fits the exposure and the sky's shape (``fit``);
 6. ``hedge``: one light at the posterior's mean direction, its angular radius grown to
    cover the posterior's spread (the expectation of its shadow over the posterior,
    under squared error the best composite): a confident posterior gives a crisp shadow,
    a vague one a soft and lighter one from the likely side (the contact shadow stays).
 
 The stated uncertainty (``fit.direction_uncertainty_deg``) is the posterior's RMS angle
-about its mean direction; ``estimate_light_with_posterior`` also returns the posterior
-(``posterior.DirectionPosterior``) for the audit (``benchmarks/audit_light.py``).
+about its mean direction; the fit returns the posterior (``posterior.DirectionPosterior``)
+for the audit (``benchmarks/audit_light.py``).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from zcomp_cli.camera import Camera
-from zcomp_cli.conventions import REC601
-from zcomp_cli.lightparams import Origin
-from zcomp_cli.renderers.physical import atoms as at
-from zcomp_cli.renderers.physical import sh
-from zcomp_cli.renderers.physical.lightmodel import FitSummary, LightModel, ShadowKind, Sky
-from zcomp_cli.renderers.physical.posterior import DirectionPosterior
-from zcomp_cli.renderers.physical.sampling import fine_spiral, hemisphere, spacing_deg
-from zcomp_cli.renderers.physical.shadowcast import shadow_fit, sun_visibility
-from zcomp_cli.renderers.physical.settings import DEFAULTS, PhysicalSettings
-from zcomp_cli.renderers.physical.solver import Atom, base_sigma, fit, score_candidates
+from zcomp_cli.light import atoms as at
+from zcomp_cli.light.config import LightConfig
+from zcomp_cli.light.posterior import DirectionPosterior
+from zcomp_cli.light.prepare import Prepared
+from zcomp_cli.light.shadowcast import shadow_fit, sun_visibility
+from zcomp_cli.light.solver import base_sigma, score_candidates
+from zcomp_cli.scene.lightparams import SUN_RADIUS_DEG, Origin
+from zcomp_cli.scene.sampling import fine_spiral, hemisphere, spacing_deg
 
-@dataclass
+
+@dataclass(frozen=True)
 class FitLight:
-    """A light while the fit runs: ``kind`` sun/lamp, ``param`` direction or position,
-    ``radius`` (deg for a sun, m for a lamp; None: to be chosen), its column, how its
-    size came, a lamp's panel ``facing`` (None: a sphere)."""
+    """A sun or lamp while the fit runs: ``kind`` sun/lamp, ``param`` direction or
+    position (camera frame), ``radius`` (deg for a sun, m for a lamp; None: to be
+    chosen), its ``column`` over the fit pixels (unit strength), how its size came, a
+    lamp's panel ``facing`` (None: a sphere). Frozen: a step returns a new one."""
 
     kind: str
     param: np.ndarray
@@ -74,104 +70,6 @@ class FitLight:
     column: np.ndarray
     radius_from: Origin = Origin.FIT
     facing: np.ndarray | None = None
-
-
-@dataclass(frozen=True)
-class Prepared:
-    """Step 1's products: fit pixels (their rays cast through the depth mesh), their
-    shading (image over the albedo plus its offset) less the bounce (N, 3), the sky
-    seen from them (``atoms.sky_visibility``), the ground's radiance (3,), the ground
-    frame (3, 3), the albedo's offset; the shadow grid (``ShadowGrid``) or None."""
-
-    fp: at.FitPixels
-    shading: np.ndarray
-    sky_vis: tuple
-    ground: np.ndarray
-    frame: np.ndarray
-    albedo_offset: float = 0.0
-    grid: object | None = None
-
-    @property
-    def lum(self) -> np.ndarray:
-        return self.shading @ REC601.astype(np.float64)
-
-    @property
-    def anchor(self) -> np.ndarray:
-        """(3,) the support's centre (median of its fit pixels), where a lamp's direction
-        is measured from."""
-        fp = self.fp
-        pts = fp.points[fp.support] if fp.support.sum() >= 3 else fp.points
-        return np.median(pts, 0) if len(pts) else np.zeros(3)
-
-
-@dataclass(frozen=True)
-class ShadowGrid:
-    """The copy the shadows are read on (``settings.shadow_resolution``): its depth mesh
-    (``depthmesh.DepthMesh``), its ray tracer, the luminance of its shading (image over
-    albedo plus offset), its albedo's luminance and known pixels."""
-
-    mesh: object
-    caster: object
-    shading: np.ndarray
-    albedo: np.ndarray
-    known: np.ndarray
-
-
-def prepare(depth, normals, shading, known, albedo, camera: Camera, up, settings: PhysicalSettings) -> Prepared:
-    """Step 1 (module docstring)."""
-    from zcomp_cli.renderers.physical.depthmesh import build_depth_mesh
-    from zcomp_cli.renderers.physical.planes import find_walls
-    from zcomp_cli.worldframe import ground_frame
-
-    # the shadows' copy: its walls beyond the frame, its mesh
-    d2, n2, s2, k2, a2, cam2 = at.working_copy(depth, normals, shading, known, albedo, camera,
-                                               settings.shadow_resolution)
-    nn = np.linalg.norm(n2, axis=-1)
-    geo = (d2 > 0) & (np.abs(nn - 1) < 0.2)
-    walls = find_walls(cam2.unproject(d2), n2 / np.maximum(nn, 1e-12)[..., None], geo, up, settings.frame)
-    d, n, s, k, a, cam = at.working_copy(depth, normals, shading, known, albedo, camera, settings.max_resolution)
-    fp, S = at.fit_pixels(d, n, s, k, a, cam, up, max_fit_pixels=settings.max_fit_pixels, cfg=settings.frame,
-                          walls=walls)
-    frame = ground_frame(up)
-    if len(fp) == 0:
-        return Prepared(fp=fp, shading=S, sky_vis=(np.zeros((1, 0, 3)), np.zeros((1, 0))), ground=np.zeros(3),
-                        frame=frame)
-    mesh = build_depth_mesh(d2, n2, cam2, up, walls=walls, cfg=settings.mesh)
-    caster = mesh.caster()
-    import dataclasses
-
-    fp = dataclasses.replace(fp, caster=caster)
-    ground = at.ground_radiance(fp, S)
-    vis = at.sky_visibility(fp, settings.transport)
-    S = np.maximum(S - at.bounce(fp, ground), 0.0)
-    lobes = np.stack([at.sky_atom_values(fp, c, vis) for _, c in at.sky_lobes(frame)], 1)
-    g = at.albedo_offset(fp, S, lobes, settings.frame) if fp.train.any() else 0.0
-    # the shadows' shading: the copy's image over its albedo (plus the offset), each
-    # area-averaged apart -- an anti-aliased albedo edge averages out in both, where the
-    # average of per-pixel ratios keeps its error
-    a2l = np.clip(np.nan_to_num(a2), 0, None)
-    img2 = _area_copy(np.nan_to_num(np.asarray(shading, np.float64)) * np.clip(np.nan_to_num(albedo), 0, None),
-                      s2.shape[:2])
-    lum_img, lum_alb = img2 @ REC601, a2l @ REC601
-    s2o = np.where(lum_alb > 1e-4, lum_img / np.maximum(lum_alb + g, 1e-6), np.nan_to_num(s2 @ REC601))
-    grid = ShadowGrid(mesh=mesh, caster=caster, shading=s2o, albedo=lum_alb, known=k2)
-    return Prepared(fp=fp, shading=at.offset_shading(fp, S, g), sky_vis=vis, ground=ground, frame=frame,
-                    albedo_offset=g, grid=grid)
-
-
-def _area_copy(img: np.ndarray, shape) -> np.ndarray:
-    """``img`` (H, W, C) area-averaged to ``shape`` (h, w) (itself when the same size)."""
-    import cv2
-
-    h, w = shape
-    if img.shape[:2] == (h, w):
-        return img
-    return cv2.resize(img.astype(np.float32), (w, h), interpolation=cv2.INTER_AREA).astype(np.float64)
-
-
-def sky_atoms(pp: Prepared) -> list[Atom]:
-    """The sky lobes, grey."""
-    return [Atom(name, at.sky_atom_values(pp.fp, c, pp.sky_vis)) for name, c in at.sky_lobes(pp.frame)]
 
 
 def held_out_blocks(fp: at.FitPixels) -> int:
@@ -222,15 +120,15 @@ class _Scorer:
     """Both likelihoods of candidate lights (module docstring, step 3), sharing the
     receivers, the base dictionary and the noise scales."""
 
-    def __init__(self, pp: Prepared, evidence, settings: PhysicalSettings):
-        from zcomp_cli.renderers.physical.shadowcast import receivers
+    def __init__(self, pp: Prepared, evidence, settings: LightConfig):
+        from zcomp_cli.light.shadowcast import receivers
 
         fp = pp.fp
         self.pp, self.fp, self.settings, self.evidence = pp, fp, settings, evidence
         self.rec = receivers(pp.grid.mesh, evidence, max_receivers=settings.max_receivers,
                              bias_rel=settings.search.bias_rel, blocks=settings.frame.holdout_blocks)
         self.y = pp.lum
-        self.B = np.stack([a.values for a in sky_atoms(pp)], 1)
+        self.B = pp.lobe_columns
         self.scale = max(float(np.median(np.abs(self.y[fp.train]))), 1e-12)
         self.sig = base_sigma(self.B[fp.train], self.y[fp.train], scale=self.scale, cfg=settings.solver)
         self.blocks = held_out_blocks(fp)
@@ -239,7 +137,7 @@ class _Scorer:
 
     def suns(self, dirs, radius_deg: float = 0.0, seed: int = 0):
         """(shadow ShadowFit, photometric held-out losses (K,)) of suns toward ``dirs``."""
-        from zcomp_cli.renderers.physical.sampling import cone_directions
+        from zcomp_cli.scene.sampling import cone_directions
 
         D = np.asarray(dirs, np.float64).reshape(-1, 3)
         if radius_deg > 0:
@@ -279,7 +177,7 @@ class _Scorer:
     def lamps(self, positions):
         """(scored shadow fit, photometric held-out losses, columns) of point lamps at
         ``positions`` (K, 3)."""
-        from zcomp_cli.renderers.physical.shadowcast import lamp_visibility
+        from zcomp_cli.light.shadowcast import lamp_visibility
 
         Q = np.asarray(positions, np.float64).reshape(-1, 3)
         V = lamp_visibility(self.pp.grid.caster, self.rec, Q)
@@ -334,10 +232,10 @@ def _shadow_area_blocks(rec, V) -> np.ndarray:
     return share * rec.blocks
 
 
-def search_scorer(pp: Prepared, settings: PhysicalSettings):
+def search_scorer(pp: Prepared, settings: LightConfig):
     """(the support's shadow evidence, the scorer of candidate lights over it): step 2
     and what step 3 scores with."""
-    from zcomp_cli.renderers.physical.shadow_evidence import shadow_evidence
+    from zcomp_cli.light.evidence import shadow_evidence
 
     mesh = pp.grid.mesh
     ev = shadow_evidence(pp.grid.shading, mesh.support, mesh.casters, mesh.points, mesh.up, known=pp.grid.known,
@@ -369,7 +267,7 @@ def caster_anchor(pp: Prepared, evidence, cfg) -> np.ndarray:
     return np.median(mesh.points[mesh.base & (mesh.labels == best)], 0)
 
 
-def search(pp: Prepared, settings: PhysicalSettings, seed: int = 0) -> tuple[Search, "_Scorer"]:
+def search(pp: Prepared, settings: LightConfig, seed: int = 0) -> tuple[Search, "_Scorer"]:
     """Step 3 (module docstring): the posterior over the light's direction, each
     direction's likelihood marginalised over its distance (a sun, or a lamp at one of
     ``lamp_distances_rel`` along it from the caster's base: a priori a sun and a lamp
@@ -482,23 +380,19 @@ def search(pp: Prepared, settings: PhysicalSettings, seed: int = 0) -> tuple[Sea
                   receivers=sc.rec, map_light=best_light), sc
 
 
-def choose_size(pp: Prepared, sc: _Scorer, light: FitLight, settings: PhysicalSettings, seed: int) -> FitLight:
-    """Step 4 (in place; a lamp is left alone): a sun's angular radius, the one rule for
+def choose_size(pp: Prepared, sc: _Scorer, light: FitLight, settings: LightConfig, seed: int) -> FitLight:
+    """Step 4 (a lamp is returned as it is): a sun's angular radius, the one rule for
     every sun whose size is not given: among the Sun's own (``SUN_RADIUS_DEG``, the
     default) and ``search.radii_deg``, the one whose cone-averaged shadow has the largest summed
     log-likelihood -- unless the default is within one unit of tempered log-likelihood
     of it (the pixels cannot tell: the default stays). The renderer's ``shadow_softness``
     forces one."""
-    from zcomp_cli.lightparams import SUN_RADIUS_DEG
-
     if light.kind != "sun":
         return light
     if settings.shadow_softness is not None:
         r = float(settings.shadow_softness)
-        light.radius, light.radius_from = r, Origin.MANIFEST
-        light.column = at.sun_column(pp.fp, light.param, r, steps=settings.estimate_march_steps,
-                                     cone_samples=settings.cone_samples, seed=seed)
-        return light
+        return dataclasses.replace(light, radius=r, radius_from=Origin.MANIFEST, column=at.sun_column(
+            pp.fp, light.param, r, steps=settings.estimate_march_steps, cone_samples=settings.cone_samples, seed=seed))
     radii = (SUN_RADIUS_DEG,) + tuple(r for r in settings.search.radii_deg if r != SUN_RADIUS_DEG)
     scored = []
     for r in radii:
@@ -510,34 +404,47 @@ def choose_size(pp: Prepared, sc: _Scorer, light: FitLight, settings: PhysicalSe
         best, origin = scored[0], Origin.DEFAULT
     else:
         origin = Origin.FIT
-    light.radius, light.column, light.radius_from = best[1], best[2], origin
-    return light
+    return dataclasses.replace(light, radius=best[1], column=best[2], radius_from=origin)
 
 
-def hedge(pp: Prepared, light: FitLight, spread_deg: float, settings: PhysicalSettings, seed: int) -> bool:
-    """Step 6's hedge (in place): the searched light's angular size grown to cover its
-    posterior's spread (``search.cone_per_rms`` times the RMS angle, at most ``search.max_radius_deg``): the
-    expectation of its shadow over the posterior. Returns whether it grew."""
+def hedge(pp: Prepared, light: FitLight, spread_deg: float, settings: LightConfig, seed: int) -> FitLight | None:
+    """Step 6's hedge: the searched light with its angular size grown to cover its
+    posterior's spread (``search.cone_per_rms`` times the RMS angle, at most
+    ``search.max_radius_deg``): the expectation of its shadow over the posterior. None
+    where it would not grow."""
     fp = pp.fp
     cover = min(settings.search.cone_per_rms * float(spread_deg), settings.search.max_radius_deg)
     if light.kind == "sun":
         if cover <= (light.radius or 0.0):
-            return False
-        light.radius, light.radius_from = float(cover), Origin.PRIOR
-        light.column = at.sun_column(fp, light.param, light.radius, steps=settings.estimate_march_steps,
-                                     cone_samples=settings.cone_samples, seed=seed)
-        return True
+            return None
+        col = at.sun_column(fp, light.param, float(cover), steps=settings.estimate_march_steps,
+                            cone_samples=settings.cone_samples, seed=seed)
+        return dataclasses.replace(light, radius=float(cover), radius_from=Origin.PRIOR, column=col)
     wide = float(np.linalg.norm(light.param - pp.anchor)) * math.tan(math.radians(cover))
     if wide <= (light.radius or 0.0):
-        return False
-    light.radius, light.radius_from = wide, Origin.PRIOR
-    light.column = at.lamp_columns(fp, light.param[None], steps=settings.estimate_march_steps, radius_m=light.radius,
-                                   cone_samples=settings.cone_samples, seed=seed)[:, 0]
-    if light.facing is not None:
-        v = light.param[None] - fp.points
+        return None
+    col = lamp_column(fp, light.param, wide, light.facing, settings, seed)
+    return dataclasses.replace(light, radius=wide, radius_from=Origin.PRIOR, column=col)
+
+
+def sun_column(fp, direction, radius_deg: float, settings: LightConfig, seed: int) -> np.ndarray:
+    """(N,) a sun's column over the fit pixels (``atoms.sun_column``, the fit's samples)."""
+    return at.sun_column(fp, direction, radius_deg, steps=settings.estimate_march_steps,
+                         cone_samples=settings.cone_samples, seed=seed)
+
+
+def lamp_column(fp, position, radius_m: float, facing, settings: LightConfig, seed: int) -> np.ndarray:
+    """(N,) a lamp's column over the fit pixels: a sphere of ``radius_m`` at ``position``
+    (``atoms.lamp_columns``), or a one-sided Lambertian panel facing ``facing`` (its
+    emission profile ``4 max(0, cos)``)."""
+    q = np.asarray(position, np.float64)
+    col = at.lamp_columns(fp, q[None], steps=settings.estimate_march_steps, radius_m=radius_m,
+                          cone_samples=settings.cone_samples, seed=seed)[:, 0]
+    if facing is not None:
+        v = q[None] - fp.points
         d = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-9)
-        light.column = light.column * 4.0 * np.maximum(-(d @ light.facing), 0.0)
-    return True
+        col = col * 4.0 * np.maximum(-(d @ np.asarray(facing, np.float64)), 0.0)
+    return col
 
 
 def _shrunk_share(rho: float, n_eff: float, sigma: float, cfg) -> float:
@@ -557,7 +464,7 @@ def split_from_shadows(sc: "_Scorer", light: FitLight) -> tuple[float, float]:
     overlap with them, in the frame's blocks), shrunk toward the prior
     (``_shrunk_share``, the shadow fit's noise). A shadow that falls on lit floor only
     tells nothing of the split (no overlap, the prior's)."""
-    from zcomp_cli.renderers.physical.shadowcast import lamp_visibility
+    from zcomp_cli.light.shadowcast import lamp_visibility
 
     cfg = sc.settings.search
     q = np.asarray(light.param, np.float64)[None]
@@ -576,79 +483,5 @@ def split_from_shadows(sc: "_Scorer", light: FitLight) -> tuple[float, float]:
     return _shrunk_share(rho, n_eff, sigma, cfg), n_eff
 
 
-def estimate_light(depth, normals, shading, known, albedo, camera: Camera, *, up, up_from: Origin = Origin.SUPPORT,
-                   settings: PhysicalSettings = DEFAULTS, seed: int = 0) -> LightModel:
-    """The light of the photograph's known shading (module docstring): ``lightfit.fit_light``
-    of the tree with every parameter free.
-
-    Args:
-        depth: (H, W) z-depth, 0 invalid. normals: (H, W, 3) camera frame.
-        shading: (H, W, 3) linear image / albedo, used where ``known`` (H, W) bool.
-        albedo: (H, W, 3) linear albedo. camera: the view.
-        up: (3,) world up, camera frame; ``up_from`` where it came from.
-    Returns:
-        LightModel (never raises on degenerate evidence: too few pixels give the prior).
-    """
-    return estimate_light_with_posterior(depth, normals, shading, known, albedo, camera, up=up, up_from=up_from,
-                                         settings=settings, seed=seed)[0]
-
-
-def estimate_light_with_posterior(depth, normals, shading, known, albedo, camera: Camera, *, up,
-                                  up_from: Origin = Origin.SUPPORT, settings: PhysicalSettings = DEFAULTS,
-                                  seed: int = 0) -> tuple[LightModel, DirectionPosterior | None]:
-    """``estimate_light`` and its posterior over directions (None where nothing could be
-    fitted)."""
-    from zcomp_cli.renderers.physical.lightfit import fit_light
-
-    return fit_light(None, depth, normals, shading, known, albedo, camera, up=up, up_from=up_from,
-                     settings=settings, seed=seed)
-
-
-def prior_weights(atoms: list[Atom], pp: Prepared, light_names: list[str], share: float) -> dict:
-    """The prior weights: the support's level split by the sky's ``share`` between the
-    uniform sky and the lights (equally), nothing in the other lobes; a ``fixed`` atom
-    (the manifest's lights in physical units) its own level's exposure."""
-    fp = pp.fp
-    sup = fp.support if fp.support.sum() >= 3 else np.ones(len(fp), bool)
-    level = np.median(pp.shading[sup], axis=0)
-    cols = {a.name: a.values for a in atoms}
-    out = {}
-    if "sky" in cols:
-        unit = max(float(np.median(cols["sky"][sup])), 1e-9)
-        out["sky"] = share * level / unit
-    for name in light_names:
-        unit = float(np.median(cols[name][sup])) if name in cols else 0.0
-        if unit > 1e-9:
-            out[name] = (1.0 - share) * level / unit / max(len(light_names), 1)
-    if "fixed" in cols:
-        f = np.asarray(cols["fixed"], np.float64)
-        ratio = np.median(pp.shading[sup] / np.maximum(f[sup], 1e-9), axis=0)
-        out["fixed"] = float(np.mean(ratio))
-    return out
-
-
-def sky_from_weights(pp: Prepared, weights: dict, extra_sh: np.ndarray | None = None) -> np.ndarray:
-    """(9, 3) sky radiance SH from the lobes' RGB weights."""
-    out = np.zeros((sh.N_COEFFS, 3))
-    for name, c in at.sky_lobes(pp.frame):
-        if name in weights:
-            out += c[:, None] * np.asarray(weights[name])[None]
-    return out if extra_sh is None else out + extra_sh
-
-
-def prior_model(pp: Prepared, up, up_from, note: str) -> LightModel:
-    """The prior's light where nothing can be fitted: the support's level (or 0.5) from
-    a uniform sky, contact shadows."""
-    fp = pp.fp
-    level = (np.median(pp.shading[fp.support], 0) if fp.support.sum() >= 3
-             else np.median(pp.shading, 0) if len(fp) else np.full(3, 0.5))
-    lobe = dict(at.sky_lobes(pp.frame))["sky"]
-    unit = max(float(sh.evaluate(sh.shading_coeffs(lobe[:, None]), np.asarray(up)[None])[0, 0]), 1e-9)
-    sky = Sky(radiance_sh=lobe[:, None] * (level / unit)[None], ground=pp.ground, up=up,
-              strength_from=Origin.PRIOR)
-    return LightModel(sky=sky, shadows=ShadowKind.CONTACT, up_from=up_from, albedo_offset=pp.albedo_offset,
-                      walls=fp.walls, fit=FitSummary(note=note, pixels=len(fp)))
-
-
-__all__ = ["estimate_light", "estimate_light_with_posterior", "prepare", "search", "search_scorer", "choose_size",
-           "hedge", "split_from_shadows", "sky_atoms", "prior_model", "prior_weights"]
+__all__ = ["FitLight", "Search", "search", "search_scorer", "choose_size", "hedge", "split_from_shadows",
+           "sun_column", "lamp_column", "log_elevation_prior"]

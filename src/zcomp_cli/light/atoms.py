@@ -5,7 +5,7 @@ rendered with the same transport the renderer synthesises with (``lightmodel``):
 
 * ``sky_atoms``: non-negative radiance lobes over the upper hemisphere (a uniform sky,
   cosine lobes toward the four ground directions and the zenith), each as SH shading
-  times its visible share (``softshadow.weighted_visibility``: the screen-space
+  times its visible share (``skyvis.weighted_visibility``: the screen-space
   occlusion of each direction weighted by the lobe's radiance there, so a wall hides
   the bright sky behind it and not the dark one);
 * ``sun_column(s)``: ``max(0, n.l) V(p, l)`` averaged over a cone of the light's
@@ -31,19 +31,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from zcomp_cli.camera import Camera
-from zcomp_cli.conventions import REC601
-from zcomp_cli.renderers.physical import sh
-from zcomp_cli.renderers.physical.lightmodel import ground_view
-from zcomp_cli.renderers.physical.settings import FrameConfig, TransportConfig
-from zcomp_cli.renderers.physical.sampling import fibonacci_sphere, orthonormal
-from zcomp_cli.renderers.physical.softshadow import sky_samples, weighted_visibility
-from zcomp_cli.renderers.physical.visibility import march_visibility
-
-# The constants (the support's tolerance, the held-out blocks, the albedo offsets tried)
-# are ``settings.FrameConfig``'s, each with its provenance.
-DEFAULT = FrameConfig()
-# the sky's visibility, as the synthesis sees it (``settings.TransportConfig``)
-DEFAULT_TRANSPORT = TransportConfig()
+from zcomp_cli.conventions import REC601, unit_normal_mask
+from zcomp_cli.scene import sh
+from zcomp_cli.scene.config import FrameConfig, MarchConfig
+from zcomp_cli.scene.lightmodel import ground_view
+from zcomp_cli.scene.march import march_visibility
+from zcomp_cli.scene.sampling import fibonacci_sphere, orthonormal
+from zcomp_cli.scene.skyvis import sky_samples, weighted_visibility
 
 
 @dataclass(frozen=True)
@@ -57,7 +51,9 @@ class FitPixels:
     ``depth`` (h, w) and ``camera`` of the copy; ``up`` (3,); ``walls`` the scene's walls
     beyond the frame (``planes``), which occlude every light's rays; ``caster`` the
     ray tracer of the scene's depth mesh (``depthmesh``), None: the screen-space march;
-    ``blocks`` the frame's blocks per long side (held out in a checkerboard)."""
+    ``blocks`` the frame's blocks per long side (held out in a checkerboard); ``march``
+    the screen-space march's config; ``bias_rel`` a ray's start off its surface, a
+    share of its depth (``SearchConfig.bias_rel``)."""
 
     points: np.ndarray
     normals: np.ndarray
@@ -69,9 +65,11 @@ class FitPixels:
     depth: np.ndarray
     camera: Camera
     up: np.ndarray
+    march: MarchConfig
+    bias_rel: float
+    blocks: int
     walls: tuple = ()
     caster: object | None = None
-    blocks: int = DEFAULT.holdout_blocks
 
     def __len__(self) -> int:
         return len(self.points)
@@ -84,13 +82,9 @@ class FitPixels:
         return dataclasses.replace(self, caster=caster)
 
     def ray_origins(self) -> np.ndarray:
-        """(N, 3) the points moved off their surface along the normal (a share of their
-        depth, ``shadowcast.BIAS_REL``), where shadow rays start."""
-        from zcomp_cli.renderers.physical.shadowcast import BIAS_REL
-
-        return self.points + self.normals * (BIAS_REL * np.maximum(-self.points[:, 2], 1e-6))[:, None]
-
-
+        """(N, 3) the points moved off their surface along the normal (``bias_rel`` of
+        their depth), where shadow rays start."""
+        return self.points + self.normals * (self.bias_rel * np.maximum(-self.points[:, 2], 1e-6))[:, None]
 
 
 def working_copy(depth, normals, shading, known, albedo, camera: Camera, max_res: int):
@@ -113,13 +107,14 @@ def working_copy(depth, normals, shading, known, albedo, camera: Camera, max_res
 
 
 def fit_pixels(depth, normals, shading, known, albedo, camera: Camera, up, *, max_fit_pixels: int,
-               cfg: FrameConfig = DEFAULT, walls=None):
+               cfg: FrameConfig, march: MarchConfig, bias_rel: float, walls=None):
     """(FitPixels, shading (N, 3)) of the valid known pixels (finite positive shading,
     depth and unit normals), a deterministic stride subsample of at most
     ``max_fit_pixels``; ``walls`` the scene's walls beyond the frame (None: found on
-    this copy)."""
+    this copy); ``march`` and ``bias_rel`` their rays' (``FitPixels``)."""
     nn = np.linalg.norm(normals, axis=-1)
-    valid = (known & (depth > 0) & (np.abs(nn - 1) < 0.2) & np.all(np.isfinite(shading), -1)
+    unit = unit_normal_mask(normals)
+    valid = (known & (depth > 0) & unit & np.all(np.isfinite(shading), -1)
              & np.all(shading > 0, -1))
     idx = np.flatnonzero(valid.ravel())
     if len(idx) > max_fit_pixels:
@@ -137,14 +132,14 @@ def fit_pixels(depth, normals, shading, known, albedo, camera: Camera, up, *, ma
     up = np.asarray(up, np.float64)
     support = N @ up > np.cos(np.deg2rad(cfg.support_deg))
     if walls is None:
-        from zcomp_cli.renderers.physical.planes import find_walls
+        from zcomp_cli.scene.planes import find_walls
 
-        geo = (depth > 0) & (np.abs(nn - 1) < 0.2)
+        geo = (depth > 0) & unit
         nrm = normals / np.maximum(nn, 1e-12)[..., None]
         walls = find_walls(pts, nrm, geo, up, cfg)
     fp = FitPixels(points=P, normals=N, ys=ys, xs=xs, albedo=A, train=train, support=support,
                    depth=np.asarray(depth, np.float32), camera=camera, up=up, walls=tuple(walls),
-                   blocks=cfg.holdout_blocks)
+                   blocks=cfg.holdout_blocks, march=march, bias_rel=bias_rel)
     return fp, S
 
 
@@ -161,11 +156,11 @@ def bounce(fp: FitPixels, ground: np.ndarray) -> np.ndarray:
     return ground_view(fp.normals, fp.up)[:, None] * np.asarray(ground, np.float64)[None]
 
 
-def sky_visibility(fp: FitPixels, transport: TransportConfig = DEFAULT_TRANSPORT):
-    """The sky seen from each fit pixel: ``softshadow.sky_samples`` (directions (K, N, 3),
-    visibility (K, N)), with the sky's directions, steps and reach of ``transport``, as
-    the synthesis sees it (``PhysicalSettings.transport``)."""
-    return sky_samples(fp.points, fp.normals, fp.ys, fp.xs, fp.depth, fp.camera, cfg=transport, walls=fp.walls)
+def sky_visibility(fp: FitPixels):
+    """The sky seen from each fit pixel: ``skyvis.sky_samples`` (directions (K, N, 3),
+    visibility (K, N)), with the sky's directions, steps and reach of ``fp.march``, as
+    the synthesis sees it (one sky)."""
+    return sky_samples(fp.points, fp.normals, fp.ys, fp.xs, fp.depth, fp.camera, cfg=fp.march, walls=fp.walls)
 
 
 def sky_lobes(frame) -> list[tuple[str, np.ndarray]]:
@@ -196,21 +191,23 @@ def sky_atom_values(fp: FitPixels, radiance_sh: np.ndarray, samples) -> np.ndarr
     return s[:, 0] if grey else s
 
 
-def albedo_offset(fp: FitPixels, shading: np.ndarray, base: np.ndarray, cfg: FrameConfig = DEFAULT) -> float:
+def albedo_offset(fp: FitPixels, shading: np.ndarray, base: np.ndarray, *, cfg: FrameConfig, solver) -> float:
     """The albedo offset ``g`` (module docstring): among ``cfg.albedo_offsets``, the one
     whose shading ``image / (albedo + g)`` (luminance) the grey columns ``base`` (N, B)
     fit best on the held-out pixels, each larger one kept only when it explains them at
     least ``cfg.offset_min_gain`` better (relative losses, so the shading's scale does
     not count)."""
-    from zcomp_cli.renderers.physical.solver import score_candidates
+    from zcomp_cli.light.solver import score_candidates
 
     a = fp.albedo @ REC601
     ok = a > 1e-3
+    if not (fp.train & ok).any():  # no fit pixel of any albedo: no offset to read (its losses were NaN)
+        return 0.0
     img = (shading @ REC601) * a
     best_g, best_l = 0.0, None
     for g in cfg.albedo_offsets:
         y = np.where(ok, img / np.maximum(a + g, 1e-6), 0.0)
-        lh, _ = score_candidates(base, np.zeros((len(y), 1)), y, fp.train & ok)
+        lh, _ = score_candidates(base, np.zeros((len(y), 1)), y, fp.train & ok, cfg=solver)
         loss = float(lh[0])
         if best_l is None or (best_l - loss) / (loss + 1e-12) >= cfg.offset_min_gain:
             best_g, best_l = g, loss if best_l is None or loss < best_l else best_l
@@ -251,7 +248,7 @@ def sun_columns(fp: FitPixels, dirs: np.ndarray, *, steps: int, chunk: int = 32)
             Pr = np.tile(P, (C, 1))[live]
             Nn = np.tile(Nr, (C, 1))[live]
             Lr = np.repeat(Dc, len(P), 0)[live]
-            v[live] = march_visibility(Pr, Nn, Lr, fp.depth, fp.camera, steps=steps, walls=fp.walls)
+            v[live] = march_visibility(Pr, Nn, Lr, fp.depth, fp.camera, cfg=fp.march, steps=steps, walls=fp.walls)
         out[:, c0:c0 + C] = ndl * v.reshape(C, -1).T
     return out
 
@@ -267,7 +264,7 @@ def sun_column(fp: FitPixels, direction, radius_deg: float, *, steps: int, cone_
                seed: int = 0) -> np.ndarray:
     """(N,) ``max(0, n.l) V(p, l)`` averaged over the cone of ``radius_deg`` around
     ``direction`` (``cone_samples`` directions uniform in solid angle)."""
-    from zcomp_cli.renderers.physical.sampling import cone_directions
+    from zcomp_cli.scene.sampling import cone_directions
 
     k = cone_samples if radius_deg > 0 else 1
     dirs = cone_directions(direction, radius_deg, k, seed=seed)
@@ -313,7 +310,7 @@ def lamp_columns(fp: FitPixels, positions: np.ndarray, *, steps: int | None = No
             if fp.caster is not None:
                 acc += ~fp.caster.occluded(fp.ray_origins()[live], d, tmax=r[live])
             else:
-                acc += march_visibility(P[live], Nr[live], d, fp.depth, fp.camera, steps=steps,
+                acc += march_visibility(P[live], Nr[live], d, fp.depth, fp.camera, cfg=fp.march, steps=steps,
                                         max_distance=r[live], walls=fp.walls)
         out[live, j] = g[live] * acc / (max(1, cone_samples) if u is not None else 1)
     return out

@@ -26,8 +26,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from zcomp_cli.lightparams import Origin
-from zcomp_cli.renderers.physical import sh
+from zcomp_cli.scene import sh
+from zcomp_cli.scene.lightparams import MAX_RADIUS_DEG, Origin
 
 
 class ShadowKind(str, enum.Enum):
@@ -69,11 +69,34 @@ class Sun:
         object.__setattr__(self, "irradiance", _vec(np.maximum(np.nan_to_num(self.irradiance), 0.0)))
         object.__setattr__(self, "radius_deg", float(np.clip(self.radius_deg, 0.0, MAX_RADIUS_DEG)))
 
+    varies = False  # (its direction is the same everywhere)
+
+    def toward(self, points: np.ndarray):
+        """(unit directions (N, 3) from ``points`` to the sun, distances (N,) inf, shading
+        a facing surface gets (N, 3): the irradiance)."""
+        n = len(np.asarray(points).reshape(-1, 3))
+        return np.tile(self.direction, (n, 1)), np.full(n, np.inf), np.tile(self.irradiance, (n, 1))
+
+    def tan_radius(self, points=None):
+        """The tangent of its angular radius (the penumbra's spread per metre)."""
+        return np.tan(np.deg2rad(min(self.radius_deg, 89.0)))
+
     def to_info(self) -> dict:
         return {"kind": "sun", "direction_camera": self.direction.tolist(),
                 "direction_from": str(self.direction_from), "angular_radius_deg": self.radius_deg,
                 "angular_radius_from": str(self.radius_from), "irradiance_rgb": self.irradiance.tolist(),
                 "strength_from": str(self.strength_from)}
+
+    def to_dict(self) -> dict:
+        return {"direction": self.direction.tolist(), "radius_deg": self.radius_deg,
+                "irradiance": self.irradiance.tolist(), "direction_from": self.direction_from.name,
+                "radius_from": self.radius_from.name, "strength_from": self.strength_from.name}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Sun":
+        return cls(direction=d["direction"], radius_deg=d["radius_deg"], irradiance=d["irradiance"],
+                   direction_from=Origin[d["direction_from"]], radius_from=Origin[d["radius_from"]],
+                   strength_from=Origin[d["strength_from"]])
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -113,12 +136,34 @@ class Lamp:
         prof = np.ones(len(d)) if self.facing is None else 4.0 * np.maximum(-(d @ self.facing), 0.0)
         return d, r, (prof / (r * r))[:, None] * self.intensity[None]
 
+    varies = True  # (its direction and size change across the frame)
+
+    def tan_radius(self, points):
+        """(N,) the tangent of its angular radius seen from ``points`` (N, 3) (None: 0)."""
+        if points is None:
+            return 0.0
+        _, r, _ = self.toward(points)
+        s = np.clip(self.radius_m / np.maximum(r, 1e-6), 0.0, 0.99)
+        return s / np.sqrt(1 - s * s)
+
     def to_info(self) -> dict:
         return {"kind": "lamp", "position_camera": self.position.tolist(),
                 "position_from": str(self.position_from), "radius_m": self.radius_m,
                 "radius_from": str(self.radius_from), "intensity_rgb_at_1m": self.intensity.tolist(),
                 "facing_camera": None if self.facing is None else self.facing.tolist(),
                 "strength_from": str(self.strength_from)}
+
+    def to_dict(self) -> dict:
+        return {"position": self.position.tolist(), "radius_m": self.radius_m, "intensity": self.intensity.tolist(),
+                "facing": None if self.facing is None else self.facing.tolist(),
+                "position_from": self.position_from.name, "radius_from": self.radius_from.name,
+                "strength_from": self.strength_from.name}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Lamp":
+        return cls(position=d["position"], radius_m=d["radius_m"], intensity=d["intensity"], facing=d["facing"],
+                   position_from=Origin[d["position_from"]], radius_from=Origin[d["radius_from"]],
+                   strength_from=Origin[d["strength_from"]])
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -154,6 +199,15 @@ class Sky:
                 "shading_up_rgb": self.shading(self.up[None])[0].tolist(),
                 "ground_radiance_rgb": self.ground.tolist(), "strength_from": str(self.strength_from)}
 
+    def to_dict(self) -> dict:
+        return {"radiance_sh": self.radiance_sh.tolist(), "ground": self.ground.tolist(), "up": self.up.tolist(),
+                "strength_from": self.strength_from.name}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Sky":
+        return cls(radiance_sh=d["radiance_sh"], ground=d["ground"], up=d["up"],
+                   strength_from=Origin[d["strength_from"]])
+
 
 def ground_view(normals: np.ndarray, up: np.ndarray) -> np.ndarray:
     """(N,) cosine-weighted share of an infinite support below a surface of normal n,
@@ -161,11 +215,6 @@ def ground_view(normals: np.ndarray, up: np.ndarray) -> np.ndarray:
     return np.clip(0.5 * (1.0 - np.asarray(normals, np.float64) @ np.asarray(up, np.float64)), 0.0, 1.0)
 
 
-# The widest light a shadow is drawn for (a light wider than this is sky): the search
-# config's (``settings.SearchConfig.max_radius_deg``, its provenance there).
-from zcomp_cli.renderers.physical.settings import SearchConfig as _SearchConfig  # noqa: E402
-
-MAX_RADIUS_DEG = _SearchConfig().max_radius_deg
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -195,6 +244,46 @@ class FitSummary:
                 "residual": self.residual, "fit_pixels": self.pixels, "exposure": self.exposure, "note": self.note,
                 "unfixed": self.unfixed}
 
+    @classmethod
+    def from_info(cls, d: dict) -> "FitSummary":
+        return cls(shadow_blocks=d["shadow_blocks"], uncertainty_deg=d["direction_uncertainty_deg"],
+                   residual=d["residual"], pixels=d["fit_pixels"], exposure=d["exposure"], note=d["note"],
+                   unfixed=d["unfixed"])
+
+
+@dataclass(frozen=True, kw_only=True)
+class ProbeRef:
+    """The manifest's probe as the light holds it, for what reads its image again (the
+    glossy prefilter, a path tracer's world): its parameters (``ProbeParams``), the
+    ``scale`` its radiance is drawn at (its strength times the photograph's exposure),
+    the ground ``frame`` (3, 3) it was split in, and the split's config
+    (``ProbeConfig``, as a mapping)."""
+
+    params: object
+    scale: float
+    frame: np.ndarray
+    cfg: dict
+
+    def __post_init__(self):
+        f = np.asarray(self.frame, np.float64).reshape(3, 3)
+        f.setflags(write=False)
+        object.__setattr__(self, "frame", f)
+        object.__setattr__(self, "scale", float(self.scale))
+
+    def __str__(self) -> str:
+        from pathlib import Path
+
+        return f"{Path(self.params.hdr).name} x {self.scale:.4g}"
+
+    def to_dict(self) -> dict:
+        return {"params": self.params.to_dict(), "scale": self.scale, "frame": self.frame.tolist(), "cfg": self.cfg}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ProbeRef":
+        from zcomp_cli.scene.lightparams import ProbeParams
+
+        return cls(params=ProbeParams.from_dict(d["params"]), scale=d["scale"], frame=d["frame"], cfg=d["cfg"])
+
 
 @dataclass(frozen=True, kw_only=True)
 class LightModel:
@@ -202,8 +291,8 @@ class LightModel:
     shadows are drawn; ``source`` "manifest" or "estimated"; ``up_from`` where world up
     came from; ``albedo_offset`` the reflectance the scene's surfaces add to their albedo
     (their specular layer: the image is irradiance x (albedo + offset), ``atoms``);
-    ``probe`` the manifest's
-    prefiltered probe for specular reflections (``probe.PrefilteredProbe``) or None;
+    ``probe`` the manifest's probe (``ProbeRef``: what a glossy reflection or a path
+    tracer's world reads again) or None;
     ``walls`` the scene's walls beyond the frame (``planes.Wall``), found with the fit:
     they hide the sky and the lights from what stands in front of them;
     ``fit`` the fit's own account of itself; ``anchor`` (3,) the support's centre, camera
@@ -268,6 +357,26 @@ class LightModel:
                 "fit": self.fit.to_info(), "probe": None if self.probe is None else str(self.probe),
                 "walls": [w.to_info() for w in self.walls]}
 
+    def to_dict(self) -> dict:
+        """Every value, exactly (JSON: ``from_dict`` gives the same model back)."""
+        return {"suns": [s.to_dict() for s in self.suns], "lamps": [lp.to_dict() for lp in self.lamps],
+                "sky": self.sky.to_dict(), "shadows": self.shadows.name, "source": self.source,
+                "up_from": self.up_from.name, "albedo_offset": float(self.albedo_offset),
+                "probe": None if self.probe is None else self.probe.to_dict(),
+                "walls": [w.to_dict() for w in self.walls], "fit": self.fit.to_info(),
+                "anchor": None if self.anchor is None else self.anchor.tolist()}
 
-__all__ = ["Origin", "ShadowKind", "Sun", "Lamp", "Sky", "FitSummary", "LightModel", "ground_view",
+    @classmethod
+    def from_dict(cls, d: dict) -> "LightModel":
+        from zcomp_cli.scene.planes import Wall
+
+        return cls(suns=tuple(Sun.from_dict(x) for x in d["suns"]), lamps=tuple(Lamp.from_dict(x) for x in d["lamps"]),
+                   sky=Sky.from_dict(d["sky"]), shadows=ShadowKind[d["shadows"]], source=d["source"],
+                   up_from=Origin[d["up_from"]], albedo_offset=d["albedo_offset"],
+                   probe=None if d["probe"] is None else ProbeRef.from_dict(d["probe"]),
+                   walls=tuple(Wall.from_dict(w) for w in d["walls"]), fit=FitSummary.from_info(d["fit"]),
+                   anchor=d["anchor"])
+
+
+__all__ = ["Origin", "ShadowKind", "Sun", "Lamp", "Sky", "FitSummary", "ProbeRef", "LightModel", "ground_view",
            "MAX_RADIUS_DEG"]

@@ -12,21 +12,21 @@ from __future__ import annotations
 
 import numpy as np
 
-from zcomp_cli.renderers.physical.settings import FrameConfig
-from zcomp_cli.renderers.physical.lightmodel import Origin
-from zcomp_cli.renderers.physical.sampling import fibonacci_sphere
+from zcomp_cli.conventions import unit_normal_mask
+from zcomp_cli.scene.config import FrameConfig
+from zcomp_cli.scene.lightparams import Origin
+from zcomp_cli.scene.sampling import fibonacci_sphere
 from zcomp_cli.worldframe import up_from_pitch_roll
 
-# The constants are ``settings.FrameConfig``'s, each with its provenance.
-DEFAULT = FrameConfig()
 
 
-def support_up(normals: np.ndarray, cfg: FrameConfig = DEFAULT) -> np.ndarray | None:
+def support_up(normals: np.ndarray, cfg: FrameConfig | None = None) -> np.ndarray | None:
     """(3,) the support's normal from unit ``normals`` (N, 3), or None when no normal
     lies within ``cfg.max_tilt_deg`` of the camera's +y."""
+    cfg = FrameConfig() if cfg is None else cfg
     n = np.asarray(normals, np.float64).reshape(-1, 3)
     n = n[np.all(np.isfinite(n), 1)]
-    n = n[np.abs(np.linalg.norm(n, axis=1) - 1) < 0.2]
+    n = n[unit_normal_mask(n)]
     cam_up = np.array([0.0, 1.0, 0.0])
     n = n[n @ cam_up > np.cos(np.deg2rad(cfg.max_tilt_deg))]
     if len(n) < cfg.min_support_normals:
@@ -40,10 +40,11 @@ def support_up(normals: np.ndarray, cfg: FrameConfig = DEFAULT) -> np.ndarray | 
 
 
 def scene_up(context: dict | None, normals: np.ndarray, valid: np.ndarray,
-             cfg: FrameConfig = DEFAULT) -> tuple[np.ndarray, Origin]:
+             cfg: FrameConfig | None = None) -> tuple[np.ndarray, Origin]:
     """(world up (3,), where it came from) for a scene: ``context`` the manifest's
     scene light context (``pitch_deg``/``roll_deg`` when given), else the support plane
     of the ``valid`` (H, W) pixels' ``normals`` (H, W, 3), else the camera's +y."""
+    cfg = FrameConfig() if cfg is None else cfg
     ctx = context or {}
     if ctx.get("pitch_deg") is not None:
         return up_from_pitch_roll(float(ctx["pitch_deg"]), float(ctx.get("roll_deg") or 0.0)), Origin.MANIFEST

@@ -81,4 +81,13 @@ def fine_spiral(center, radius_deg: float, k: int = 40, up=None) -> np.ndarray:
     return np.concatenate([c[None], f])
 
 
-__all__ = ["fibonacci_sphere", "hemisphere", "spacing_deg", "orthonormal", "cone_directions", "fine_spiral"]
+def pixel_jitter(ys: np.ndarray, xs: np.ndarray, salt: int = 0) -> np.ndarray:
+    """Deterministic per-pixel value in [0, 1) from integer pixel coordinates (a 4x4
+    ordered-dither matrix, shifted by ``salt``): neighbours get well-spread offsets,
+    and the same pixel always gets the same one (ROI-independent)."""
+    bayer = np.array([[0, 8, 2, 10], [12, 4, 14, 6], [3, 11, 1, 9], [15, 7, 13, 5]], np.float64)
+    return ((bayer[(ys + salt) % 4, (xs + 3 * salt) % 4] + 0.5) / 16.0)
+
+
+__all__ = ["length", "fibonacci_sphere", "hemisphere", "spacing_deg", "orthonormal", "cone_directions", "fine_spiral",
+           "pixel_jitter"]

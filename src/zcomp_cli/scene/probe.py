@@ -1,6 +1,7 @@
-"""An HDR light probe as the renderer's light: its compact bright sources as lights (each
-with its measured direction, size and power), the rest as a sky, and a prefiltered copy
-for the sky's glossy reflection.
+"""An HDR light probe as a scene's light: its compact bright sources as lights (each
+with its measured direction, size and power), the rest as a sky (and, for a glossy
+reflection, ``residual``: the map without its sources, which the physical renderer
+prefilters where an object reads it).
 
 Frames: the probe's up is gravity (``worldframe``), its columns are placed by its
 convention and rotation (``equirect``). Only the upper hemisphere lights the scene: below
@@ -31,13 +32,9 @@ import numpy as np
 
 from zcomp_cli import equirect
 from zcomp_cli.conventions import REC601
-from zcomp_cli.renderers.physical import sh
-from zcomp_cli.renderers.physical.settings import ProbeConfig
+from zcomp_cli.scene import sh
+from zcomp_cli.scene.config import ProbeConfig
 
-# The constants (the sources taken at most and their least share, the widths the probe
-# is read, projected and prefiltered at, the prefilter's roughness levels) are
-# ``settings.ProbeConfig``'s, each with its provenance.
-DEFAULT = ProbeConfig()
 
 
 @dataclass(frozen=True)
@@ -53,75 +50,26 @@ class ProbeSource:
 @dataclass(frozen=True)
 class ProbeLights:
     """A probe split into its ``sources`` (ProbeSource, brightest first) and its sky
-    (``sky_radiance_sh`` (9, 3), upper hemisphere, probe units); ``name`` for reports."""
+    (``sky_radiance_sh`` (9, 3), upper hemisphere, probe units); ``name`` for reports;
+    ``residual`` (H, W, 3) the map with each source's texels set to the sky's level,
+    placed by ``frame``, ``convention`` and ``rotation_deg`` (what a glossy reflection
+    looks up: the sources are reflected each as a light)."""
 
     sources: tuple
     sky_radiance_sh: np.ndarray
     name: str
-    gloss: "PrefilteredProbe"
-
-
-@dataclass(frozen=True)
-class PrefilteredProbe:
-    """The radiance above the horizon (without the compact sources, which are lights of
-    their own) blurred by GGX lobes of several
-    roughness levels: ``maps`` (levels, h, w, 4) equirectangular in the probe's
-    convention, RGB and the lobe's share above the horizon (below it the support is
-    seen: ``lookup``'s ``ground``); ``frame``/``convention``/``rotation_deg`` to look
-    them up; ``scale`` multiplies the radiance (the exposure the fit finds)."""
-
-    maps: np.ndarray
-    roughness: tuple
+    residual: np.ndarray
     frame: np.ndarray
     convention: str
     rotation_deg: float
-    scale: float = 1.0
-    name: str = ""
-
-    def __str__(self) -> str:
-        return f"prefiltered {self.name} ({self.maps.shape[2]}x{self.maps.shape[1]}, {len(self.roughness)} levels)"
-
-    def scaled(self, k: float) -> "PrefilteredProbe":
-        import dataclasses
-
-        return dataclasses.replace(self, scale=float(self.scale * k))
-
-    def lookup(self, directions: np.ndarray, roughness: np.ndarray, ground=None) -> np.ndarray:
-        """(N, 3) prefiltered radiance toward unit ``directions`` (N, 3) for perceptual
-        ``roughness`` (N,) in [0, 1] (bilinear in direction, linear between levels);
-        ``ground`` (3,): the support's radiance, for the lobe's share below the horizon."""
-        d = np.asarray(directions, np.float64).reshape(-1, 3)
-        _, h, w, _ = self.maps.shape
-        u, v = equirect.direction_to_uv(d, self.frame, self.convention, self.rotation_deg)
-        x = u * w - 0.5
-        y = np.clip(v * h - 0.5, 0, h - 1)
-        x0 = np.floor(x).astype(int)
-        y0 = np.floor(y).astype(int)
-        fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-        y1 = np.minimum(y0 + 1, h - 1)
-        x0w, x1w = x0 % w, (x0 + 1) % w
-        r = np.clip(np.asarray(roughness, np.float64).reshape(-1), self.roughness[0], self.roughness[-1])
-        lv = np.interp(r, self.roughness, np.arange(len(self.roughness)))
-        l0 = np.clip(np.floor(lv).astype(int), 0, len(self.roughness) - 2)
-        fl = (lv - l0)[:, None]
-
-        def at(level):
-            m = self.maps
-            return ((1 - fy) * ((1 - fx) * m[level, y0, x0w] + fx * m[level, y0, x1w])
-                    + fy * ((1 - fx) * m[level, y1, x0w] + fx * m[level, y1, x1w]))
-
-        v = (1 - fl) * at(l0) + fl * at(l0 + 1)
-        out = self.scale * v[:, :3]
-        if ground is not None:
-            out = out + np.clip(1.0 - v[:, 3:4], 0.0, 1.0) * np.asarray(ground, np.float64)[None]
-        return out
 
 
-def read_probe(path, cfg: ProbeConfig = DEFAULT) -> np.ndarray:
+def read_probe(path, cfg: ProbeConfig | None = None) -> np.ndarray:
     """(H, W, 3) float64 linear radiance of an equirectangular probe file, non-finite
     and negative values set to 0, at most ``cfg.max_width`` wide (area-averaged) and
     2:1 (resampled when the file is not: ``aspect_ok``). Raises
     ``InputError`` naming the file when nothing in it emits light."""
+    cfg = ProbeConfig() if cfg is None else cfg
     from zcomp_cli.errors import InputError
     from zcomp_cli.imageio import read_image
 
@@ -135,13 +83,13 @@ def read_probe(path, cfg: ProbeConfig = DEFAULT) -> np.ndarray:
     if w > mw or not equirect.aspect_ok(w, h):
         # at most max_width wide and 2:1 (the manifest refuses another aspect; a map
         # handed over otherwise is resampled, so every step is bounded by max_width)
-        img = _area_resize(img, mw).astype(np.float32)
+        img = area_resize(img, mw).astype(np.float32)
     if not float(img.max()) > 0:
         raise InputError(f"{path}: the light probe holds no light (every pixel is 0, negative or not finite)")
     return img.astype(np.float64)
 
 
-def _area_resize(img: np.ndarray, width: int) -> np.ndarray:
+def area_resize(img: np.ndarray, width: int) -> np.ndarray:
     """The map at most ``width`` wide and exactly twice as wide as high (area-averaged
     down, bilinear up): every later step's size is bounded by ``width``, whatever shape
     came in (a 10 x 2000 map made the prefilter's dense matrix 20 000 x 20 000)."""
@@ -157,9 +105,10 @@ def _area_resize(img: np.ndarray, width: int) -> np.ndarray:
 
 
 def split_probe(img: np.ndarray, frame, *, convention: str = equirect.DEFAULT_CONVENTION,
-                rotation_deg: float = 0.0, name: str = "probe", cfg: ProbeConfig = DEFAULT) -> ProbeLights:
+                rotation_deg: float = 0.0, name: str = "probe", cfg: ProbeConfig | None = None) -> ProbeLights:
     """Split an equirectangular radiance map (H, W, 3) into sources and sky (module
     docstring); ``frame`` is the ground frame (``worldframe.ground_frame``)."""
+    cfg = ProbeConfig() if cfg is None else cfg
     from scipy import ndimage
 
     img = np.asarray(img, np.float64)
@@ -211,54 +160,21 @@ def split_probe(img: np.ndarray, frame, *, convention: str = equirect.DEFAULT_CO
         work[region] = np.minimum(work[region], sky_rgb[None])
         wl[region] = work[region] @ REC601
     # the sky: the rest, above the horizon, in SH (from a smaller copy: smooth anyway)
-    small = _area_resize(np.where(above[..., None], work, 0.0), cfg.sky_width)
+    small = area_resize(np.where(above[..., None], work, 0.0), cfg.sky_width)
     h, w = small.shape[:2]
     d_s = equirect.pixel_directions(h, w, frame, convention, rotation_deg)
     om_s = equirect.solid_angles(h, w)
     m = (d_s @ up) > 0
     sky_sh = sh.project(d_s[m], small[m], om_s[m])
-    # the sky's reflection: the sources are reflected each with its own visibility
-    # (``gloss.ggx_direct``), so the prefiltered copy holds the rest
-    gloss = prefilter(work, frame, convention=convention, rotation_deg=rotation_deg, name=name, cfg=cfg)
-    return ProbeLights(sources=tuple(sources), sky_radiance_sh=sky_sh, name=name, gloss=gloss)
-
-
-def _ggx_alpha(roughness):
-    r = np.asarray(roughness, np.float64)
-    return np.maximum(r * r, 1e-4)
-
-
-def prefilter(img: np.ndarray, frame, *, convention: str = equirect.DEFAULT_CONVENTION,
-              rotation_deg: float = 0.0, name: str = "probe", cfg: ProbeConfig = DEFAULT) -> PrefilteredProbe:
-    """The probe (H, W, 3) convolved with GGX lobes of ``cfg.gloss_roughness`` around each
-    reflection direction (the split-sum approximation of Karis 2013: the lobe with
-    n = v = r), on a ``cfg.gloss_width``-wide copy; energy-preserving (each lobe's
-    weights sum to 1)."""
-    small = _area_resize(np.asarray(img, np.float64), cfg.gloss_width)
-    h, w = small.shape[:2]
-    frame = np.asarray(frame, np.float64)
-    d = equirect.pixel_directions(h, w, frame, convention, rotation_deg).reshape(-1, 3)
-    om = equirect.solid_angles(h, w).reshape(-1)
-    above = (d @ frame[1] > 0).astype(np.float64)[:, None]
-    L = np.concatenate([small.reshape(-1, 3) * above, above], 1)
-    cos = np.clip(d @ d.T, -1.0, 1.0)  # (out, in)
-    maps = []
-    for r in cfg.gloss_roughness:
-        a2 = float(_ggx_alpha(r)) ** 2
-        # GGX D(h) with h halfway between r and l, weighted by n.l (n = r), as a
-        # function of cos(r, l): cos(theta_h) = sqrt((1 + cos) / 2)
-        ch2 = np.clip((1.0 + cos) / 2.0, 0.0, 1.0)
-        D = a2 / (math.pi * (ch2 * (a2 - 1.0) + 1.0) ** 2)
-        wgt = D * np.maximum(cos, 0.0) * om[None]
-        wgt /= np.maximum(wgt.sum(1, keepdims=True), 1e-30)
-        maps.append((wgt @ L).reshape(h, w, 4))
-    return PrefilteredProbe(maps=np.stack(maps), roughness=cfg.gloss_roughness, frame=frame,
-                            convention=convention, rotation_deg=float(rotation_deg), name=name)
+    work.setflags(write=False)
+    return ProbeLights(sources=tuple(sources), sky_radiance_sh=sky_sh, name=name, residual=work, frame=frame,
+                       convention=convention, rotation_deg=float(rotation_deg))
 
 
 def load_probe(path, frame, *, convention: str = equirect.DEFAULT_CONVENTION,
-               rotation_deg: float = 0.0, cfg: ProbeConfig = DEFAULT) -> ProbeLights:
+               rotation_deg: float = 0.0, cfg: ProbeConfig | None = None) -> ProbeLights:
     """``split_probe`` of the probe file ``path``."""
+    cfg = ProbeConfig() if cfg is None else cfg
     return split_probe(read_probe(path, cfg), frame, convention=convention, rotation_deg=rotation_deg,
                        name=Path(path).name, cfg=cfg)
 
@@ -266,10 +182,11 @@ def load_probe(path, frame, *, convention: str = equirect.DEFAULT_CONVENTION,
 _WARNED: set = set()
 
 
-def probe_radiance(params, frame, cfg: ProbeConfig = DEFAULT) -> tuple[np.ndarray, str, float]:
+def probe_radiance(params, frame, cfg: ProbeConfig | None = None) -> tuple[np.ndarray, str, float]:
     """A given probe's radiance (``lightparams.ProbeParams``): (image (H, W, 3) float64,
     its convention, its rotation). A probe file is read (``read_probe``); a mirror-ball
     photograph is unwrapped in ``frame`` (``chromeball``: zcomp's convention, rotation 0)."""
+    cfg = ProbeConfig() if cfg is None else cfg
     if not params.is_ball:
         return read_probe(params.hdr, cfg), params.convention, float(params.rotation_deg)
     from zcomp_cli import chromeball
@@ -287,12 +204,35 @@ def probe_radiance(params, frame, cfg: ProbeConfig = DEFAULT) -> tuple[np.ndarra
     return img, equirect.DEFAULT_CONVENTION, 0.0
 
 
-def load_given_probe(params, frame, cfg: ProbeConfig = DEFAULT) -> ProbeLights:
-    """``split_probe`` of a given probe (``probe_radiance``)."""
-    img, convention, rotation = probe_radiance(params, frame, cfg)
-    return split_probe(img, frame, convention=convention, rotation_deg=rotation, name=Path(params.hdr).name,
-                       cfg=cfg)
+# split probes kept in this process (the light stage splits a scene's probe once; the
+# glossy prefilter and a path tracer's world read it again): a few scenes' worth
+_SPLIT: dict = {}
+KEEP_SPLIT = 2
 
 
-__all__ = ["ProbeSource", "ProbeLights", "PrefilteredProbe", "read_probe", "split_probe", "prefilter",
-           "load_probe", "probe_radiance", "load_given_probe"]
+def load_given_probe(params, frame, cfg: ProbeConfig | None = None) -> ProbeLights:
+    """``split_probe`` of a given probe (``probe_radiance``), kept per file content,
+    parameters, frame and config for the process's next asks."""
+    cfg = ProbeConfig() if cfg is None else cfg
+    import os
+
+    f = np.asarray(frame, np.float64)
+    try:
+        st = os.stat(params.hdr)
+        stamp = (st.st_size, st.st_mtime_ns)
+    except OSError:
+        stamp = None
+    key = (repr(params.to_dict()), f.tobytes(), cfg, stamp)
+    hit = _SPLIT.get(key)
+    if hit is not None:
+        return hit
+    img, convention, rotation = probe_radiance(params, f, cfg)
+    out = split_probe(img, f, convention=convention, rotation_deg=rotation, name=Path(params.hdr).name, cfg=cfg)
+    while len(_SPLIT) >= KEEP_SPLIT:
+        _SPLIT.pop(next(iter(_SPLIT)))
+    _SPLIT[key] = out
+    return out
+
+
+__all__ = ["ProbeSource", "ProbeLights", "read_probe", "split_probe", "load_probe", "probe_radiance", "area_resize",
+           "load_given_probe"]

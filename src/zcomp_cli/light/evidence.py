@@ -27,10 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from zcomp_cli.renderers.physical.settings import EvidenceConfig
+from zcomp_cli.light.config import EvidenceConfig
 
-# The constants are ``settings.EvidenceConfig``'s, each with its provenance.
-DEFAULT = EvidenceConfig()
 
 
 @dataclass(frozen=True)
@@ -71,8 +69,7 @@ class ShadowEvidence:
         return out
 
 
-def lit_basis(points, up, ok, albedo=None, albedo_spread: float = DEFAULT.albedo_spread,
-              degree: int = DEFAULT.lit_degree) -> np.ndarray:
+def lit_basis(points, up, ok, albedo=None, *, albedo_spread: float, degree: int) -> np.ndarray:
     """(h, w, P) the lit level's basis: the monomials up to ``degree`` of the pixels'
     ground coordinates (along the ground's right and forward axes, centred and scaled by
     their spread on ``ok``), and, with ``albedo`` (h, w), its log and the log's square (a
@@ -96,11 +93,12 @@ def lit_basis(points, up, ok, albedo=None, albedo_spread: float = DEFAULT.albedo
 
 
 def within_reach(points: np.ndarray, casters: np.ndarray, up, support: np.ndarray,
-                 labels: np.ndarray | None = None, cfg: EvidenceConfig = DEFAULT) -> np.ndarray:
+                 labels: np.ndarray | None = None, cfg: EvidenceConfig | None = None) -> np.ndarray:
     """(h, w) bool: the support's pixels whose distance along the ground from a caster is
     at most ``cfg.reach_heights`` times that caster's height above the support: where its
     shadow can fall under a light at least ``atan(1 / reach_heights)`` above the horizon.
     ``labels``: the casters' components (each with its own height; None: one)."""
+    cfg = EvidenceConfig() if cfg is None else cfg
     from scipy.spatial import cKDTree
 
     from zcomp_cli.worldframe import ground_frame
@@ -131,7 +129,7 @@ def within_reach(points: np.ndarray, casters: np.ndarray, up, support: np.ndarra
 
 def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarray, points: np.ndarray, up,
                     known: np.ndarray | None = None, albedo: np.ndarray | None = None,
-                    labels: np.ndarray | None = None, cfg: EvidenceConfig = DEFAULT) -> ShadowEvidence:
+                    labels: np.ndarray | None = None, cfg: EvidenceConfig | None = None) -> ShadowEvidence:
     """The support's cast-shadow evidence (module docstring).
 
     Args:
@@ -146,6 +144,7 @@ def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarra
             image and the albedo map rarely line up (an anti-aliased edge over a sampled
             one), and the ratio there tells nothing (weight 0).
     """
+    cfg = EvidenceConfig() if cfg is None else cfg
     import cv2
 
     s = np.asarray(shading, np.float64)
@@ -167,7 +166,7 @@ def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarra
                               lit_level=nan, reach=empty, shading=np.asarray(shading, np.float64),
                               basis=np.ones((h, w, 1)))
     logs = np.where(ok, np.log(np.where(ok, s, 1.0)), 0.0)
-    X = lit_basis(points, up, ok, albedo, cfg.albedo_spread, cfg.lit_degree)
+    X = lit_basis(points, up, ok, albedo, albedo_spread=cfg.albedo_spread, degree=cfg.lit_degree)
     lit = ok.copy()
     # the lit level is fitted on the pixels not called dark, called dark at the pixels'
     # own noise (the differences between neighbours on the support: a render's noise, a

@@ -1,0 +1,73 @@
+"""The sky seen from points over the depth map, in screen space (the sky's visibility).
+
+A few cosine-distributed directions per point, turned per pixel (``sampling.pixel_jitter``:
+neighbours take well-spread turns, which a blur averages), each marched through the
+depth map (``march``) up to ``MarchConfig.sky_range_rel`` of the point's depth. The light
+fit's sky atoms and the physical renderer's synthesis read the same samples, weighted
+by the sky's radiance (``weighted_visibility``): a wall hides the bright sky behind it,
+not the dark one.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from zcomp_cli.camera import Camera
+from zcomp_cli.scene.config import MarchConfig
+from zcomp_cli.scene.march import march_visibility
+from zcomp_cli.scene.sampling import length, pixel_jitter
+
+
+def _hemisphere_dirs(normals: np.ndarray, jitter: np.ndarray, k: int) -> list[np.ndarray]:
+    """k cosine-distributed directions around each normal, rotated by ``jitter``."""
+    n = normals
+    a = np.where(np.abs(n[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
+    u = np.cross(n, a)
+    u /= np.maximum(length(u), 1e-12)[:, None]
+    v = np.cross(n, u)
+    out = []
+    for i in range(k):
+        s = (i + 0.5) / k
+        rr = np.sqrt(s)  # cosine-weighted: radius on the unit disc
+        ph = 2 * np.pi * (i * 0.618034 + jitter)
+        ct = np.sqrt(max(1 - rr * rr, 0.0))
+        d = ct * n + rr * (np.cos(ph)[:, None] * u + np.sin(ph)[:, None] * v)
+        out.append(d / np.maximum(length(d), 1e-12)[:, None])
+    return out
+
+
+def sky_samples(points: np.ndarray, normals: np.ndarray, ys: np.ndarray, xs: np.ndarray,
+                depth: np.ndarray, camera: Camera, *, cfg: MarchConfig,
+                occluder_mask: np.ndarray | None = None, walls=()):
+    """The sky seen from (N,) camera-frame points over the depth map (screen space, like
+    the direct shadow), in ``k = cfg.sky_directions`` cosine-distributed directions turned
+    per pixel, each marched ``cfg.sky_steps`` times up to ``cfg.sky_range_rel`` of the
+    depth: (directions (k, N, 3), visibility (k, N) in {0, 1}). ``occluder_mask``: (H, W)
+    bool, the texels that may occlude (None: all); ``walls`` (``planes.Wall``) beyond the
+    frame occlude at any distance. Noisy by design: filter what is made of it."""
+    k = cfg.sky_directions
+    if len(points) == 0:
+        return np.zeros((k, 0, 3)), np.zeros((k, 0))
+    jit = pixel_jitter(ys, xs, salt=1)
+    dirs = _hemisphere_dirs(normals, jit, k)
+    vis = [march_visibility(points, normals, d, depth, camera, cfg=cfg, steps=cfg.sky_steps, max_distance_rel="sky",
+                            jitter=pixel_jitter(ys, xs, salt=i + 2),
+                            nearest=True, occluder_mask=occluder_mask, walls=walls)
+           for i, d in enumerate(dirs)]
+    return np.stack(dirs), np.stack(vis)
+
+
+def weighted_visibility(dirs: np.ndarray, vis: np.ndarray, radiance_sh: np.ndarray) -> np.ndarray:
+    """The visible share of a sky of SH radiance ``radiance_sh`` (9, C) from the samples
+    of ``sky_samples``: sum_k L(w_k) V_k / sum_k L(w_k) (cosine-distributed samples, so
+    this is the irradiance's share): (N, C) in [0, 1]; 1 where the sky sends nothing."""
+    from zcomp_cli.scene import sh
+
+    K, N = vis.shape
+    L = np.maximum(sh.basis(dirs.reshape(-1, 3)) @ np.asarray(radiance_sh, np.float64), 0.0).reshape(K, N, -1)
+    num = (L * vis[..., None]).sum(0)
+    den = L.sum(0)
+    return np.where(den > 1e-12, num / np.maximum(den, 1e-300), 1.0)
+
+
+__all__ = ["sky_samples", "weighted_visibility"]
