@@ -301,10 +301,13 @@ def test_a_builtin_renderers_impossible_output_is_not_called_a_plugins_bug():
 
 
 # ------------------------------------------------------------------ negative pixels
-def test_negative_pixels_are_kept_outside_the_edited_region(tmp_path):
+@pytest.mark.parametrize("level", [1.0, 2.0 ** 20])
+def test_negative_pixels_are_kept_outside_the_edited_region(tmp_path, level):
     """A photograph with negative pixels (an EXR, graded or denoised) was clamped to 0
     everywhere, so the composite's background differed from the photograph outside the
-    edited region. Now it is bit for bit the photograph there, with a note."""
+    edited region. Now it is bit for bit the photograph there, with a note; also for a
+    photograph worked at another level (``Scene.working_scale``, issue 49: 2^20 is
+    outside its range), whose kept pixels are put back after the output is scaled."""
     import numpy as np
     import yaml
 
@@ -315,6 +318,7 @@ def test_negative_pixels_are_kept_outside_the_edited_region(tmp_path):
     img = read_image(project / "scenes/room.png")
     img[:4, :4] = -0.25  # the top-left corner: far from the ball
     img[-1, -1] = -1e-3
+    img *= np.float32(level)  # (a power of two: exact)
     write_exr(project / "scenes/room.exr", img)
     doc = yaml.safe_load((project / "jobs.yaml").read_text())
     doc["scenes"]["room"]["image"] = "scenes/room.exr"
@@ -330,6 +334,7 @@ def test_negative_pixels_are_kept_outside_the_edited_region(tmp_path):
     assert far[:4, :4].all()
     assert np.array_equal(comp[far], img[far])
     assert any("negative" in n for n in json.dumps(rep).split('"') if "pixels of the photograph" in n)
+    assert (rep.get("working_scale", 1.0) != 1.0) == (level != 1.0)
 
 
 # ------------------------------------------------------------------ -v
@@ -388,7 +393,9 @@ def test_report_and_status_survive_hostile_out_content(tmp_path, case):
     assert rep.returncode == 0, rep.stderr
     page = (out / "report.html").read_text(encoding="utf-8")  # valid UTF-8
     if case == "non-utf8-folder":  # shown escaped (the folder's bytes cannot be UTF-8 text)
-        assert "job\\udcff" in [r[2] for r in json.loads(re_blob(page))["rows"]]
+        data = json.loads(re_blob(page))
+        k = [c["key"] for c in data["columns"]].index("job")
+        assert "job\\udcff" in [r[k] for r in data["rows"]]
     if case.endswith("csv"):
         assert "eval.csv" in page and "no metrics shown" in page
     st = subprocess.run([sys.executable, "-m", "zcomp_cli", "status", str(out)], capture_output=True,

@@ -23,6 +23,7 @@ LIMIT_BYTES = 3 << 30  # the child's address space: far above a bounded grid, fa
 
 CHILD = r"""
 import json, sys, tracemalloc
+import numpy as np
 import trimesh
 from zcomp_cli.posed_mesh import PosedMesh
 from zcomp_cli.scene import objectshadow as meshshadow

@@ -320,11 +320,14 @@ def facing_problem(normals, K, select=None) -> str | None:
             "frame than zcomp's (OpenGL camera frame: x right, y up, z toward the viewer, so a surface facing "
             "the camera has n = (0, 0, 1)); a map with z forward (Blender's shader camera space) needs its z "
             "negated, one in OpenCV's frame (y down, z forward) its y and z")
+
+
 def working_scale(image) -> float:
     """The power of two a photograph is divided by to be worked at ``WORKING_LEVEL``
     (the comment of ``WORKING_LEVEL_RANGE``): 1.0 when the median luminance of its
     finite positive pixels lies in ``WORKING_LEVEL_RANGE`` (or none is positive), else
-    ``2 ** round(log2(median / WORKING_LEVEL))``.
+    ``2 ** round(log2(median / WORKING_LEVEL))``, its exponent within float32's normal
+    range (-126 to 127: a photograph of 3e38 asked for 2^130, which float32 holds as inf).
 
     Args:
         image: (H, W, 3) linear RGB.
@@ -338,4 +341,4 @@ def working_scale(image) -> float:
     lo, hi = WORKING_LEVEL_RANGE
     if lo <= level <= hi:
         return 1.0
-    return float(2.0 ** round(np.log2(level / WORKING_LEVEL)))
+    return float(2.0 ** min(127, max(-126, round(np.log2(level / WORKING_LEVEL)))))

@@ -115,6 +115,31 @@ class SceneSpec:
     setting_files: list[Path] = field(default_factory=list)
 
 
+def scene_camera(spec: SceneSpec, resolution: tuple[int, int] | None, native: tuple[int, int] | None = None):
+    """The scene's ``Camera`` at the working ``resolution`` (W, H; None = the image's own
+    size), from its K or horizontal FOV, without reading its pixels. ``native`` is the
+    image's (W, H) when known; else the manifest's, else the image file's header."""
+    from zcomp_cli.camera import DEFAULT_FOV_DEG, Camera
+    from zcomp_cli.errors import InputError
+
+    if native is None:
+        native = (spec.width, spec.height)
+        if not (native[0] and native[1]):
+            from zcomp_cli.imageio import image_header
+
+            try:
+                native = image_header(spec.image)[:2]
+            except ValueError as exc:
+                raise InputError(f"cannot read image: {exc}", where=str(spec.image)) from exc
+    w0, h0 = (int(v) for v in native)
+    if spec.K is not None:
+        camera = Camera(spec.K, w0, h0)
+    else:
+        camera = Camera.from_fov(spec.fov_deg if spec.fov_deg is not None else DEFAULT_FOV_DEG, w0, h0)
+    size = resolution or (w0, h0)
+    return camera.resized(*size) if size != (w0, h0) else camera
+
+
 @dataclass
 class ObjectSpec:
     name: str
@@ -393,8 +418,6 @@ def _no_depth_problem(spec: SceneSpec, jobs, defaults) -> str:
     from zcomp_cli.estimators.ground_suggest import ground_plane_suggestion
 
     try:
-        from zcomp_cli.pipeline.scene import scene_camera
-
         camera = scene_camera(spec, None)
     except Exception:  # noqa: BLE001 - an unreadable image is reported on its own
         return ("no depth: give a depth map file or an estimator (e.g. depth: {proxy: ground_plane, "

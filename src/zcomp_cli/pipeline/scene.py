@@ -11,10 +11,10 @@ from pathlib import Path
 
 import numpy as np
 
-from zcomp_cli.camera import DEFAULT_FOV_DEG, Camera
+from zcomp_cli.camera import Camera
 from zcomp_cli.conventions import WORKING_LEVEL_RANGE, facing_problem, normalize, valid_depth_mask, working_scale
 from zcomp_cli.errors import InputError
-from zcomp_cli.pipeline.manifest import SceneSpec
+from zcomp_cli.pipeline.manifest import SceneSpec, scene_camera  # noqa: F401 (scene_camera re-exported)
 from zcomp_cli.maps import SceneMaps
 
 log = logging.getLogger(__name__)
@@ -108,28 +108,6 @@ def sanitize_maps(image, depth, normals, albedo, where: str) -> tuple[np.ndarray
         log.warning(msg)
         notes.append(msg)
     return image.astype(np.float32), depth, normals, albedo, notes
-
-
-def scene_camera(spec: SceneSpec, resolution: tuple[int, int] | None, native: tuple[int, int] | None = None) -> Camera:
-    """The scene's camera at the working ``resolution`` (W, H; None = the image's own
-    size), from its K or horizontal FOV, without reading its pixels. ``native`` is the
-    image's (W, H) when known; else the manifest's, else the image file's header."""
-    if native is None:
-        native = (spec.width, spec.height)
-        if not (native[0] and native[1]):
-            from zcomp_cli.imageio import image_header
-
-            try:
-                native = image_header(spec.image)[:2]
-            except ValueError as exc:
-                raise InputError(f"cannot read image: {exc}", where=str(spec.image)) from exc
-    w0, h0 = (int(v) for v in native)
-    if spec.K is not None:
-        camera = Camera(spec.K, w0, h0)
-    else:
-        camera = Camera.from_fov(spec.fov_deg if spec.fov_deg is not None else DEFAULT_FOV_DEG, w0, h0)
-    size = resolution or (w0, h0)
-    return camera.resized(*size) if size != (w0, h0) else camera
 
 
 def load_scene(spec: SceneSpec, resolution: tuple[int, int] | None, *, cache_dir=None) -> Scene:
