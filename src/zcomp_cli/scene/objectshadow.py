@@ -187,30 +187,14 @@ def mesh_shadow(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, light_
     return vis, t_hit
 
 
-# The lamp's shadow map at most this many cells, whatever the lamp's place (a lamp 1 cm
-# beside a box made a grid of 11 GB from the tangents of samples near its plane): 4 Mi
-# float64 cells, 32 MB (and as much for the max filter), about what a 2048 x 2048 map
-# of the image costs; the grid covers only the receivers' field, so it is met by
-# coarser cells only where the receivers' field is that much wider than the mesh.
-MAX_LAMP_MAP_CELLS = 1 << 22
-# Samples and receivers within this angle of the lamp's plane are left out of its
-# gnomonic map (their tangents pass 1 / NEAR_PLANE_TAN): at 1e-3, 0.06 deg.
-NEAR_PLANE_TAN = 1e-3
-# One gnomonic map serves a lamp that sees the mesh within this tangent of its centre
-# (45 deg); a lamp nearer (beside the object, inside a lampshade) sees it over a wider
-# field, where one map's cells stretch (a cell at tangent 3 is 10 times narrower than
-# at the centre): it gets a cube map, six faces of tangents within 1.
-ONE_MAP_MAX_TAN = 1.0
-
-
 def mesh_shadow_point(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, position, *,
                       bias_rel: float | None = None, cfg: ObjectShadowConfig | None = None):
     """Visibility of camera-frame ``points`` (N, 3) toward a lamp at ``position`` (3,)
     past the mesh: a perspective shadow map from the lamp (the mesh's samples splatted
     by their direction from it, keeping the nearest to it per cell; ``cfg`` as for
-    ``mesh_shadow``). A lamp that sees the mesh within ``ONE_MAP_MAX_TAN`` of its centre
+    ``mesh_shadow``). A lamp that sees the mesh within ``cfg.lamp_one_map_tan`` of its centre
     gets one map toward it, covering only the field of the receivers in front of it, at
-    most ``MAX_LAMP_MAP_CELLS`` cells; a lamp beside or inside the object (a lampshade)
+    most ``cfg.lamp_map_cells`` cells; a lamp beside or inside the object (a lampshade)
     a cube map (``_cube_heights``): either way the memory is bounded.
 
     Returns:
@@ -245,43 +229,43 @@ def _one_map_heights(mesh, q, Vq, d, axis, dist_c, cfg):
     """One gnomonic map along ``axis`` from the lamp at ``q`` (``Vq``: the vertices,
     ``d``: the receivers, both less ``q``): (heights (N,): minus the distance to the nearest sample toward the
     lamp, -inf where none; the map's cell in tangent units), or None when the lamp sees
-    the mesh wider than ``ONE_MAP_MAX_TAN`` about ``axis`` (or part of it behind)."""
+    the mesh wider than ``cfg.lamp_one_map_tan`` about ``axis`` (or part of it behind)."""
     u, v = orthonormal(axis)
     fwd = Vq @ axis
     if not (fwd > 1e-6).all():
         return None
     tu, tv = (Vq @ u) / fwd, (Vq @ v) / fwd
-    if max(np.abs(tu).max(), np.abs(tv).max()) > ONE_MAP_MAX_TAN:
+    if max(np.abs(tu).max(), np.abs(tv).max()) > cfg.lamp_one_map_tan:
         return None
     # the vertices' extent in tangents sets the cell (the map's resolution across the mesh)
     ext = max(float(np.ptp(tu)), float(np.ptp(tv))) + 1e-9
     cell = ext / cfg.mesh_shadow_cells
     occ = np.full(len(d), -np.inf)
     df = d @ axis
-    front = df > NEAR_PLANE_TAN * np.linalg.norm(d, axis=1)
+    front = df > cfg.lamp_near_plane_tan * np.linalg.norm(d, axis=1)
     smp = _samples(mesh, ext * dist_c, cell * dist_c, cfg) - q
     sf = smp @ axis
-    keep = sf > NEAR_PLANE_TAN * np.linalg.norm(smp, axis=1)  # at or behind the lamp's plane: dropped
+    keep = sf > cfg.lamp_near_plane_tan * np.linalg.norm(smp, axis=1)  # at or behind the lamp's plane: dropped
     if not front.any() or not keep.any():
         return occ, cell
     smp, sf = smp[keep], sf[keep]
     ru, rv = (d[front] @ u) / df[front], (d[front] @ v) / df[front]
-    occ[front], cell = _field_map(smp, (smp @ u) / sf, (smp @ v) / sf, ru, rv, cell)
+    occ[front], cell = _field_map(smp, (smp @ u) / sf, (smp @ v) / sf, ru, rv, cell, cfg.lamp_map_cells)
     return occ, cell
 
 
-def _field_map(smp, su, sv, ru, rv, cell):
+def _field_map(smp, su, sv, ru, rv, cell, max_cells):
     """Heights (minus the distance from the lamp, the nearest sample winning) the
     receivers at tangents (``ru``, ``rv``) look up in a map of samples ``smp`` at
     tangents (``su``, ``sv``): the map covers the samples' box cut to the receivers' (a
     sample no receiver looks at is left out), its ``cell`` grown where that field would
-    pass ``MAX_LAMP_MAP_CELLS``. Returns (heights, the cell used)."""
+    pass ``max_cells``. Returns (heights, the cell used)."""
     out = np.full(len(ru), -np.inf)
     u0, u1 = max(su.min(), ru.min()), min(su.max(), ru.max())
     v0, v1 = max(sv.min(), rv.min()), min(sv.max(), rv.max())
     if u0 > u1 or v0 > v1:  # no receiver looks past the mesh
         return out, cell
-    cell = max(cell, float(np.sqrt((u1 - u0 + 8 * cell) * (v1 - v0 + 8 * cell) / MAX_LAMP_MAP_CELLS)))
+    cell = max(cell, float(np.sqrt((u1 - u0 + 8 * cell) * (v1 - v0 + 8 * cell) / max_cells)))
     m = 2 * cell  # a sample just outside the field still closes a receiver's cell
     ins = (su >= u0 - m) & (su <= u1 + m) & (sv >= v0 - m) & (sv <= v1 + m)
     grid, g0u, g0v = _splat(su[ins], sv[ins], -np.linalg.norm(smp[ins], axis=1), cell)
@@ -310,7 +294,8 @@ def _cube_heights(mesh, q, Vq, d, cfg):
                 continue
             su, sv = smp[sm, o1] / a_s[sm], smp[sm, o2] / a_s[sm]
             cell = max(fine, float(np.sqrt(np.ptp(su) * np.ptp(sv) * cfg.mesh_sample_density / sm.sum())))
-            occ[rec], cell = _field_map(smp[sm], su, sv, d[rec, o1] / a_r[rec], d[rec, o2] / a_r[rec], cell)
+            occ[rec], cell = _field_map(smp[sm], su, sv, d[rec, o1] / a_r[rec], d[rec, o2] / a_r[rec], cell,
+                                        cfg.lamp_map_cells)
             used = max(used, cell)
     return occ, used
 
@@ -333,5 +318,4 @@ def light_shadow(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, light
     return mesh_shadow(mesh, points, normals, light.direction, bias_rel=bias_rel, cfg=cfg)
 
 
-__all__ = ["light_shadow", "area_triangles", "sample_triangles", "mesh_silhouette", "mesh_shadow", "mesh_shadow_point",
-           "MAX_LAMP_MAP_CELLS", "NEAR_PLANE_TAN", "ONE_MAP_MAX_TAN"]
+__all__ = ["light_shadow", "area_triangles", "sample_triangles", "mesh_silhouette", "mesh_shadow", "mesh_shadow_point"]
