@@ -109,7 +109,6 @@ class PhysicalRenderer(Renderer):
         alb = clean(req.maps.albedo, 0.0, 1e6)
         H, W = d.shape
         out_sh = sh.copy()
-        glossy = None
         unknown = ~known
         x0, y0, x1, y1 = (0, 0, W, H) if req.roi is None else req.roi
         x0, y0 = max(0, int(x0)), max(0, int(y0))
@@ -125,12 +124,11 @@ class PhysicalRenderer(Renderer):
             pos = d > 0
             # (per channel: three contiguous gathers, a third of one (N, 3) gather's time)
             alb_mean = np.array([alb[..., c][pos].mean() for c in range(3)]) if pos.any() else np.zeros(3)
-            shade, glossy = self._synthesise(d, n, todo, req.camera, model, alb_mean, req.occluder, unknown,
-                                             alb, cov, req.maps.roughness, req.maps.metallic)
-            out_sh[todo] = shade
+            radiance = self._synthesise(d, n, todo, req.camera, model, alb_mean, req.occluder, unknown,
+                                        alb, cov, req.maps.roughness, req.maps.metallic)
         img = alb * out_sh
-        if glossy is not None and glossy.any():  # (the object's glossy layer: only at the todo pixels)
-            img[todo] += glossy
+        if todo.any():
+            img[todo] = radiance
         img = img.astype(np.float32)
         if not np.all(np.isfinite(img)):
             bad = int((~np.isfinite(img)).sum())
@@ -256,22 +254,57 @@ class PhysicalRenderer(Renderer):
 
     def _synthesise(self, d, n, todo, camera, model: LightModel, albedo_mean, occluder, unknown, albedo, coverage,
                     roughness=None, metallic=None):
-        """(diffuse shading (M, 3), glossy radiance (M, 3)) of the ``todo`` pixels under
-        ``model`` (module docstring, step 3)."""
+        """(M, 3) radiance of the ``todo`` pixels under ``model`` (module docstring, step 3):
+        the diffuse shading filtered as the film does (``pixel.film_filter``) times the
+        albedo (the scene's with its offset); where the object covers a pixel, its own
+        albedo, diffuse and glossy layers, and where it covers it in part, ``m`` of its
+        radiance and ``1 - m`` of the surface's behind it (``pixel.unmix``)."""
+        from zcomp_cli.renderers.physical.pixel import extend, film_filter, unmix
+
+        cfg = self._settings.transport
         ys, xs = np.nonzero(todo)
         ambient, direct, vis_sky, nv, lit = self._parts(d, n, todo, camera, model, albedo_mean, occluder, unknown)
-        out = ambient + direct
-        cov = coverage[ys, xs]
-        if model.albedo_offset > 0:
-            # the scene's specular layer: the image is E (albedo + offset), off the object
-            a = np.clip(albedo[ys, xs], 0.0, None)
-            gain = (a + model.albedo_offset) / np.maximum(a, 1e-3)
-            out = out * (1.0 + (1.0 - cov)[:, None] * (np.where(a > 1e-3, gain, 1.0) - 1.0))
-        glossy = np.zeros((len(ys), 3))
-        if roughness is not None and (cov > 0).any():
-            glossy, keep = self._glossy(model, camera, d, nv, ys, xs, cov, albedo, roughness, metallic, vis_sky, lit)
-            out = out * (1.0 - cov * (1.0 - keep))[:, None]
-        return out, glossy
+        y0, x0, y1, x1 = _window(ys, xs, *d.shape, int(np.ceil(cfg.edge_reach_px)) + 2)
+        ly, lx = ys - y0, xs - x0
+        t = np.zeros((y1 - y0, x1 - x0), bool)
+        t[ly, lx] = True
+
+        def img(v):  # (M, C) at the todo pixels -> the window (h, w, C)
+            o = np.zeros(t.shape + (v.shape[1],))
+            o[ly, lx] = v
+            return o
+
+        cov = np.where(t, coverage[y0:y1, x0:x1], 0.0)
+        obj = t & (cov > 0.5)  # the pixels whose geometry is the object's
+        cls = _depth_classes(d[y0:y1, x0:x1]) * 2 + obj
+        S = film_filter(img(ambient + direct), cls, t, cfg)
+        a = np.clip(albedo[y0:y1, x0:x1], 0.0, None)
+        g = model.albedo_offset  # the scene's specular layer: its image is E (albedo + offset)
+        scene = lambda alb, sh: (alb + np.where(alb > 1e-3, g, 0.0)) * sh
+        rad = scene(a, S)
+        if (cov > 0).any():
+            edge = t & (cov > 0) & (cov < cfg.whole_coverage)
+            a_o, a_s = unmix(a, cov, t, cfg)
+            G, keep = np.zeros_like(S), np.ones(t.shape + (1,))
+            if roughness is not None and obj.any():
+                sel = obj[ly, lx]
+                full = lambda win, m: _pasted(m, win, (y0, x0))
+                rough = full(unmix(np.asarray(roughness)[y0:y1, x0:x1, None], cov, t, cfg)[0][..., 0], roughness)
+                met = None if metallic is None else full(
+                    unmix(np.asarray(metallic)[y0:y1, x0:x1, None], cov, t, cfg)[0][..., 0], metallic)
+                sub = [(li, Ld[sel], E[sel], v[sel]) for li, Ld, E, v in lit]
+                gl, kp = self._glossy(model, camera, d, nv[sel], ys[sel], xs[sel], np.ones(int(sel.sum())),
+                                      full(a_o, albedo), rough, met, vis_sky[sel], sub)
+                both = np.zeros(t.shape + (4,))
+                both[ly[sel], lx[sel]] = np.concatenate([gl, kp[:, None]], 1)
+                both = film_filter(both, cls, obj, cfg)
+                G, keep = both[..., :3], np.where(obj[..., None], both[..., 3:], 1.0)
+            # each layer carried past where it was shaded, to the pixels it covers in part
+            O = extend(a_o * S * keep + G, obj, edge & ~obj, cfg)
+            F = extend(scene(a_s, S), t & ~obj, edge & obj, cfg)
+            m = cov[..., None]
+            rad = np.where((cov > 0)[..., None], m * O + (1.0 - m) * F, rad)
+        return rad[ly, lx]
 
     def _glossy(self, model, camera, d, nv, ys, xs, cov, albedo, roughness, metallic, vis_sky, lit=()):
         """((M, 3) the object's glossy reflection, (M,) the diffuse layer's weight beneath
@@ -311,6 +344,7 @@ class PhysicalRenderer(Renderer):
         H, W = d.shape
         st = 2 if H * W > cfg.full_res_pixels else 1
         wy0, wx0, wy1, wx1 = box
+        march = self._settings.light.march
         gy, gx, P, N, ok = grid_points(d, n, geo_all, camera, box, st)
         L, dist, _ = light.toward(P.reshape(-1, 3))
         L, dist = L.reshape(P.shape), dist.reshape(gy.shape)
@@ -318,28 +352,31 @@ class PhysicalRenderer(Renderer):
         vis = np.zeros(gy.shape)
         t_hit = np.full(gy.shape, np.inf)
         if lit.any():
-            march = self._settings.light.march
             v, t = march_visibility(P[lit], N[lit], L[lit], d, camera, cfg=march,
                                     steps=int(self._settings.march_steps),
                                     jitter=pixel_jitter(gy[lit], gx[lit]), return_distance=True,
                                     nearest=True, occluder_mask=scene_only, max_distance=dist[lit], walls=walls)
-            if occluder is not None:
-                vm, tm = light_shadow(occluder, P[lit], N[lit], light, bias_rel=march.march_bias_rel,
-                                      cfg=cfg.object_shadow)
-                v, t = np.minimum(v, vm), np.minimum(t, tm)
             vis[lit], t_hit[lit] = v, t
         vis = np.where(ok & ~lit, 1.0, vis)  # facing away: n.l = 0 does the shading
         ok_full = geo_all[wy0:wy1, wx0:wx1]
         cls_w = _depth_classes(d[wy0:wy1, wx0:wx1])  # the stride-2 blur's and the penumbra's
         h_, w_ = wy1 - wy0, wx1 - wx0
-        tan_g = light.tan_radius(P.reshape(-1, 3)).reshape(gy.shape) if light.varies else None
         if st == 2:
             up2 = lambda a: np.repeat(np.repeat(a, 2, 0), 2, 1)[:h_, :w_]
             same = up2(ok) & (up2(cls_w[::2, ::2]) == cls_w)
             vis = classwise_blur(up2(vis), cls_w, ok_full & same, 1.0, fill=ok_full)
             t_hit = up2(t_hit)
-            tan_g = None if tan_g is None else up2(tan_g)
-            ok = ok_full
+            gy, gx, P, N, ok = grid_points(d, n, geo_all, camera, box, 1)
+            L = light.toward(P.reshape(-1, 3))[0].reshape(P.shape)
+            lit = ok & (np.sum(N * L, -1) > 0)
+        if occluder is not None and lit.any():
+            # the object's own shadow map at every pixel (a lookup: a stride-2 grid drew
+            # its edge in 2-pixel steps and a thin crescent as isolated 2 x 2 specks)
+            vm, tm = light_shadow(occluder, P[lit], N[lit], light, bias_rel=march.march_bias_rel,
+                                  cfg=cfg.object_shadow)
+            vis[lit], t_hit[lit] = np.minimum(vis[lit], vm), np.minimum(t_hit[lit], tm)
+        tan_g = light.tan_radius(P.reshape(-1, 3)).reshape(gy.shape) if light.varies else None
+        ok = ok_full
         tan_a = float(light.tan_radius(None)) if tan_g is None else tan_g
         # filtered only over the box of the pixels asked for (the window's margin is
         # context for the blurs)
@@ -375,6 +412,14 @@ def _window(ys, xs, H, W, margin, even=False):
         a = 2 if even is True else int(even)
         wy0, wx0 = wy0 - wy0 % a, wx0 - wx0 % a
     return wy0, wx0, min(H, int(ys.max()) + 1 + margin), min(W, int(xs.max()) + 1 + margin)
+
+
+def _pasted(frame: np.ndarray, window: np.ndarray, corner) -> np.ndarray:
+    """A copy of ``frame`` with ``window`` pasted at ``corner`` (y0, x0)."""
+    out = np.array(frame, np.float64)
+    y0, x0 = corner
+    out[y0:y0 + window.shape[0], x0:x0 + window.shape[1]] = window
+    return out
 
 
 def _grown_request(req: RenderRequest, reach: np.ndarray) -> RenderRequest:

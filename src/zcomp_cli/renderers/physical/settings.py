@@ -80,6 +80,19 @@ class TransportConfig:
                                                        "less than its radius / 12.6): a scan's 16x a 20480-face "
                                                        "sphere's cost 0.4 s a job")
 
+    film_sigma_px: float = knob(0.83, "physical", "standard deviation (pixels) of the film's pixel filter the "
+                                                    "synthesised shading is filtered with: Cycles' Blackman-Harris "
+                                                    "window of filter_width 1.5 (Blender's default, the ground "
+                                                    "truth's), which Cycles stretches to +-1.5 px (scene/film.cpp); "
+                                                    "0: shading at the pixel's centre only", lo=0.0, lo_open=False,
+                                hi=8.0)
+    whole_coverage: float = knob(0.999, "sampling", "an object's coverage from this up is whole (the anti-aliased "
+                                                    "mask's own float rounding below 1)", hi=1.0)
+    edge_reach_px: float = knob(2.0, "sampling", "radius (pixels; sigma half of it) over which a partly covered "
+                                                 "pixel takes the object's and the surface's albedo and shading "
+                                                 "from the pixels each covers wholly: a silhouette's anti-aliased "
+                                                 "band is one or two pixels wide", hi=64.0)
+
     def __post_init__(self):
         lv = self.penumbra_levels_px
         if len(lv) < 2 or lv[0] != 0 or any(b <= a for a, b in zip(lv, lv[1:])):
