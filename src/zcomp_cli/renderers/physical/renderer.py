@@ -125,7 +125,8 @@ class PhysicalRenderer(Renderer):
             # (per channel: three contiguous gathers, a third of one (N, 3) gather's time)
             alb_mean = np.array([alb[..., c][pos].mean() for c in range(3)]) if pos.any() else np.zeros(3)
             radiance = self._synthesise(d, n, todo, req.camera, model, alb_mean, req.occluder, unknown,
-                                        alb, cov, req.maps.roughness, req.maps.metallic)
+                                        alb, cov, req.maps.roughness, req.maps.metallic,
+                                        alb * out_sh if req.image is None else req.image)
         img = alb * out_sh
         if todo.any():
             img[todo] = radiance
@@ -218,7 +219,8 @@ class PhysicalRenderer(Renderer):
         """The two parts of the diffuse shading of the ``todo`` pixels: (sky and the
         ground's bounce (M, 3), the suns' and lamps' (M, 3), the sky's visible share
         (M, 3), unit normals (M, 3), each sun and lamp as (light, directions (M, 3),
-        facing shading (M, 3), visibility (M,)))."""
+        facing shading (M, 3), visibility (M,)), the texels that occlude as the scene's
+        (H, W) bool or None)."""
         H, W = d.shape
         ys, xs = np.nonzero(todo)
         geo_all = has_geometry(d, n)
@@ -250,10 +252,10 @@ class PhysicalRenderer(Renderer):
                     v_t = 1.0 - (1.0 - v_t) * fade
                 direct += (np.maximum(0.0, np.sum(nv * L, 1)) * v_t)[:, None] * E
                 lit.append((light, L, E, v_t))
-        return ambient, direct, vis_sky, nv, lit
+        return ambient, direct, vis_sky, nv, lit, scene_only
 
     def _synthesise(self, d, n, todo, camera, model: LightModel, albedo_mean, occluder, unknown, albedo, coverage,
-                    roughness=None, metallic=None):
+                    roughness=None, metallic=None, image=None):
         """(M, 3) radiance of the ``todo`` pixels under ``model`` (module docstring, step 3):
         the diffuse shading filtered as the film does (``pixel.film_filter``) times the
         albedo (the scene's with its offset); where the object covers a pixel, its own
@@ -263,7 +265,8 @@ class PhysicalRenderer(Renderer):
 
         cfg = self._settings.transport
         ys, xs = np.nonzero(todo)
-        ambient, direct, vis_sky, nv, lit = self._parts(d, n, todo, camera, model, albedo_mean, occluder, unknown)
+        ambient, direct, vis_sky, nv, lit, scene_only = self._parts(d, n, todo, camera, model, albedo_mean, occluder,
+                                                                    unknown)
         y0, x0, y1, x1 = _window(ys, xs, *d.shape, int(np.ceil(cfg.edge_reach_px)) + 2)
         ly, lx = ys - y0, xs - x0
         t = np.zeros((y1 - y0, x1 - x0), bool)
@@ -293,8 +296,17 @@ class PhysicalRenderer(Renderer):
                 met = None if metallic is None else full(
                     unmix(np.asarray(metallic)[y0:y1, x0:x1, None], cov, t, cfg)[0][..., 0], metallic)
                 sub = [(li, Ld[sel], E[sel], v[sel]) for li, Ld, E, v in lit]
+                env = None
+                if self._settings.gloss.reflect_rays > 0:
+                    own = np.zeros(d.shape + (3,))
+                    own[y0:y1, x0:x1][obj] = (a_o * S)[obj]
+                    photo = np.nan_to_num(np.array(image, np.float64)[..., :3])
+                    photo[y0:y1, x0:x1][t & ~obj] = rad[t & ~obj]
+                    env = self._environment(model, camera, d, nv[sel], ys[sel], xs[sel], rough, occluder,
+                                            scene_only, (photo, own, _pasted(np.zeros(d.shape), obj, (y0, x0)) > 0),
+                                            cls, obj, (y0, x0))
                 gl, kp = self._glossy(model, camera, d, nv[sel], ys[sel], xs[sel], np.ones(int(sel.sum())),
-                                      full(a_o, albedo), rough, met, vis_sky[sel], sub)
+                                      full(a_o, albedo), rough, met, vis_sky[sel], sub, env=env)
                 both = np.zeros(t.shape + (4,))
                 both[ly[sel], lx[sel]] = np.concatenate([gl, kp[:, None]], 1)
                 both = film_filter(both, cls, obj, cfg)
@@ -306,13 +318,15 @@ class PhysicalRenderer(Renderer):
             rad = np.where((cov > 0)[..., None], m * O + (1.0 - m) * F, rad)
         return rad[ly, lx]
 
-    def _glossy(self, model, camera, d, nv, ys, xs, cov, albedo, roughness, metallic, vis_sky, lit=()):
+    def _glossy(self, model, camera, d, nv, ys, xs, cov, albedo, roughness, metallic, vis_sky, lit=(), env=None):
         """((M, 3) the object's glossy reflection, (M,) the diffuse layer's weight beneath
         it) (``gloss`` module docstring): the prefiltered sky toward the mirror direction
         times the split-sum environment BRDF, occluded by the sky's visibility, plus
         each sun and lamp of ``lit`` (``_parts``) through the GGX BRDF times its own
         visibility; F0 0.04 for a dielectric, the albedo for a metal. The diffuse
-        beneath keeps what the specular layer does not reflect (a metal none)."""
+        beneath keeps what the specular layer does not reflect (a metal none). ``env``
+        (M, 3): the radiance the lobe meets, gathered (``reflect``), instead of the
+        occluded prefiltered sky."""
         from zcomp_cli.renderers.physical.gloss import ggx_direct, prefiltered_light, specular_albedo
 
         pc = self._settings.gloss
@@ -323,8 +337,13 @@ class PhysicalRenderer(Renderer):
         rough = np.clip(np.nan_to_num(np.asarray(roughness, np.float64)[ys, xs]), 0.0, 1.0)
         met = np.zeros(len(ys)) if metallic is None else np.clip(np.nan_to_num(np.asarray(metallic)[ys, xs]), 0, 1)
         f0 = 0.04 * (1.0 - met)[:, None] + np.clip(albedo[ys, xs], 0, 1) * met[:, None]
-        L = prefiltered_light(model, pc).lookup(r, rough, ground=model.sky.ground)
-        out = vis_sky.mean(1, keepdims=True) * L * specular_albedo(rough, ndv, f0, pc)
+        if env is None:
+            pf = prefiltered_light(model, pc)
+            L_sky = pf.lookup(r, rough)
+            # the lobe's share below the horizon sees the support, which the sky's
+            # occluders do not hide
+            env = vis_sky.mean(1, keepdims=True) * L_sky + pf.lookup(r, rough, ground=model.sky.ground) - L_sky
+        out = env * specular_albedo(rough, ndv, f0, pc)
         for light, Ld, E, v_t in lit:
             # E is the shading of a facing surface: its irradiance over pi
             out = out + (np.pi * v_t)[:, None] * E * ggx_direct(nv, v, Ld, rough, f0, light.tan_radius(P), cfg=pc)
@@ -332,6 +351,28 @@ class PhysicalRenderer(Renderer):
         # layer's directional albedo toward the viewer
         keep = (1.0 - met) * (1.0 - specular_albedo(rough, ndv, np.full((len(ys), 1), 0.04), pc)[:, 0])
         return cov[:, None] * out, keep
+
+    def _environment(self, model, camera, d, nv, ys, xs, roughness, occluder, scene_only, images, cls, obj, corner):
+        """(M, 3) the surroundings the object's glossy lobe reflects at pixels (ys, xs)
+        (``reflect.environment``), averaged over the neighbours' rays within the object
+        (``GlossConfig.reflect_blur_px``; ``cls``/``obj`` the window's classes and object
+        pixels, its ``corner`` (y0, x0))."""
+        from zcomp_cli.renderers.physical.gloss import prefiltered_light
+        from zcomp_cli.renderers.physical.reflect import environment
+        from zcomp_cli.renderers.physical.softshadow import classwise_blur
+
+        pc = self._settings.gloss
+        P = camera.ray(xs + 0.5, ys + 0.5) * d[ys, xs][:, None]
+        v = -P / np.maximum(np.linalg.norm(P, axis=1, keepdims=True), 1e-12)
+        rough = np.clip(np.nan_to_num(np.asarray(roughness, np.float64)[ys, xs]), 0.0, 1.0)
+        env = environment(model, camera, d, P, nv, v, rough, ys, xs, occluder=occluder, scene_only=scene_only,
+                          images=images, prefiltered=prefiltered_light(model, pc), gcfg=pc,
+                          march=self._settings.light.march)
+        y0, x0 = corner
+        img = np.zeros(obj.shape + (3,))
+        img[ys - y0, xs - x0] = env
+        img = classwise_blur(img, cls, obj, pc.reflect_blur_px)
+        return img[ys - y0, xs - x0]
 
     def _soft_visibility(self, d, n, geo_all, camera, light, box, ys, xs, occluder,
                          scene_only=None, walls=()) -> np.ndarray:

@@ -136,6 +136,15 @@ class GlossConfig:
                                                   "1e-4 of 64x as many at the median node, 0.025 at the worst "
                                                   "(grazing n.v = 0.03); 0.08 s once per process", hi=65536)
 
+    reflect_rays: int = knob(8, "sampling", "GGX-distributed rays per pixel the object's reflection of its "
+                                            "surroundings is gathered along (the mesh, the scene's texels, the "
+                                            "support, the sky: scene.gather); 0: the prefiltered sky alone, "
+                                            "occluded as the diffuse sky is", lo=0, lo_open=False, hi=256)
+    reflect_steps: int = knob(16, "sampling", "samples per reflected ray through the depth map", hi=4096)
+    reflect_blur_px: float = knob(1.5, "sampling", "radius (pixels; sigma half of it) of the blur over the "
+                                                   "object's pixels that averages the neighbours' rays (each "
+                                                   "pixel's turned apart)", lo=0.0, lo_open=False, hi=64.0)
+
     def __post_init__(self):
         r = self.gloss_roughness
         if len(r) < 2 or any(b <= a for a, b in zip(r, r[1:])) or r[-1] > 1:
