@@ -37,7 +37,6 @@ from zcomp_cli.renderers.physical.softshadow import blur_reach, classwise_blur, 
 from zcomp_cli.scene.depthmesh import has_geometry
 from zcomp_cli.scene.lightmodel import LightModel, ShadowKind
 from zcomp_cli.scene.march import grid_points, march_visibility
-from zcomp_cli.scene.objectshadow import light_shadow
 from zcomp_cli.scene.sampling import length, pixel_jitter
 from zcomp_cli.scene.skyvis import sky_samples, weighted_visibility
 
@@ -136,12 +135,14 @@ class PhysicalRenderer(Renderer):
             raise NumericalError(f"physical renderer produced {bad} non-finite values")
         return img
 
-    def _sky_visibility(self, d, n, todo, camera, occluder, geo_all, albedo_mean, radiance_sh, walls=()):
-        """(the visible share of the sky of SH radiance ``radiance_sh`` (9, 3) at the todo
+    def _sky_visibility(self, d, n, todo, camera, occluder, geo_all, albedo_mean, model: LightModel):
+        """(the visible share of ``model``'s sky (its SH radiance weighs the directions, its
+        walls occlude) at the todo
         pixels (M, 3), the scene-only occluder mask or None): screen-space occlusion on a
         stride-2 grid (4 on large frames), each direction weighted by the sky's radiance
         there (``weighted_visibility``), the object's mesh occlusion where the bundle has
         one, class-aware blur, the bounce off the occluders."""
+        radiance_sh, walls = model.sky.radiance_sh, model.walls
         cfg = self._settings.transport
         H, W = d.shape
         ys, xs = np.nonzero(todo)
@@ -171,16 +172,20 @@ class PhysicalRenderer(Renderer):
                               occluder_mask=scene_only, walls=walls)
             ao_c[ok] = weighted_visibility(*smp, radiance_sh)
             if occluder is not None:
-                # the sky the object hides, from its mesh (``mesh_occlusion``): smooth,
-                # unlimited in range, and no solid slab behind its visible shell
-                from zcomp_cli.renderers.physical.meshshadow import mesh_discs, mesh_occlusion
+                # the sky the object hides, from its mesh: rays drawn where the sky is
+                # bright (``meshrays.sky_occlusion``), unlimited in range, no slab behind
+                # its visible shell; the distance to it sets the fade below
+                from scipy.spatial import cKDTree
+
+                from zcomp_cli.renderers.physical.meshshadow import mesh_discs
+                from zcomp_cli.scene.meshrays import sky_occlusion
 
                 occ_c, dist_c = np.zeros(gy.shape + (3,)), np.zeros(gy.shape)
-                # (the exact near field for the scene's points by the object, not the
-                # object's own: ``refine``; each element hides the sky's radiance behind it)
-                occ_c[ok], dist_c[ok] = mesh_occlusion(mesh_discs(occluder, cfg=cfg), P[ok], N[ok], mesh=occluder,
-                                                       refine=scene_only[gy[ok], gx[ok]], return_distance=True,
-                                                       radiance_sh=radiance_sh, cfg=cfg)
+                bias = cfg.mesh_ray_bias_rel * np.maximum(-P[ok][:, 2], 1e-6)
+                occ_c[ok] = sky_occlusion(occluder, P[ok], N[ok], sky_pool_of(model, self._settings.gloss, cfg),
+                                          cfg.sky_rays, pixel_jitter(gy[ok], gx[ok], salt=5), bias)
+                cen = mesh_discs(occluder, cfg=cfg).centres
+                dist_c[ok] = cKDTree(cen).query(P[ok])[0] if len(cen) else np.inf
         h_, w_ = ay1 - ay0, ax1 - ax0
         up2 = lambda a: np.repeat(np.repeat(a, ao_st, 0), ao_st, 1)[:h_, :w_]
         okf = geo_all[ay0:ay1, ax0:ax1]
@@ -224,8 +229,7 @@ class PhysicalRenderer(Renderer):
         H, W = d.shape
         ys, xs = np.nonzero(todo)
         geo_all = has_geometry(d, n)
-        vis_sky, scene_only = self._sky_visibility(d, n, todo, camera, occluder, geo_all, albedo_mean,
-                                                   model.sky.radiance_sh, model.walls)
+        vis_sky, scene_only = self._sky_visibility(d, n, todo, camera, occluder, geo_all, albedo_mean, model)
         nv = n[ys, xs].astype(np.float64)
         nv = nv / np.maximum(length(nv), 1e-12)[:, None]
         nv[~geo_all[ys, xs]] = 0.0
@@ -410,12 +414,6 @@ class PhysicalRenderer(Renderer):
             gy, gx, P, N, ok = grid_points(d, n, geo_all, camera, box, 1)
             L = light.toward(P.reshape(-1, 3))[0].reshape(P.shape)
             lit = ok & (np.sum(N * L, -1) > 0)
-        if occluder is not None and lit.any():
-            # the object's own shadow map at every pixel (a lookup: a stride-2 grid drew
-            # its edge in 2-pixel steps and a thin crescent as isolated 2 x 2 specks)
-            vm, tm = light_shadow(occluder, P[lit], N[lit], light, bias_rel=march.march_bias_rel,
-                                  cfg=cfg.object_shadow)
-            vis[lit], t_hit[lit] = np.minimum(vis[lit], vm), np.minimum(t_hit[lit], tm)
         tan_g = light.tan_radius(P.reshape(-1, 3)).reshape(gy.shape) if light.varies else None
         ok = ok_full
         tan_a = float(light.tan_radius(None)) if tan_g is None else tan_g
@@ -424,7 +422,19 @@ class PhysicalRenderer(Renderer):
         by0, bx0 = int(ys.min()) - wy0, int(xs.min()) - wx0
         vs = penumbra_filter(vis, t_hit, d[wy0:wy1, wx0:wx1], cls_w, ok, camera.fx, tan_a,
                              box=(by0, bx0, int(ys.max()) + 1 - wy0, int(xs.max()) + 1 - wx0), cfg=cfg)
-        return vs[ys - wy0 - by0, xs - wx0 - bx0]
+        vs = vs[ys - wy0 - by0, xs - wx0 - bx0]
+        if occluder is not None:
+            # the object's own shadow, its light sampled over its disc by rays on the
+            # mesh (``meshrays.light_visibility``): a wide lamp's umbra and penumbra as
+            # they are, every pixel its own (no grid, no shadow map's steps)
+            from zcomp_cli.scene.meshrays import light_visibility
+
+            Pp = camera.ray(xs + 0.5, ys + 0.5) * d[ys, xs][:, None]
+            Np = n[ys, xs].astype(np.float64)
+            Np = Np / np.maximum(length(Np), 1e-12)[:, None]
+            vs = vs * light_visibility(occluder, Pp, Np, light, cfg.light_samples, pixel_jitter(ys, xs, salt=3),
+                                       cfg.mesh_ray_bias_rel * np.maximum(-Pp[:, 2], 1e-6))
+        return vs
 
 
 def _edge_fade(region: np.ndarray, ys, xs, width_px: float, share: float) -> np.ndarray:
@@ -453,6 +463,41 @@ def _window(ys, xs, H, W, margin, even=False):
         a = 2 if even is True else int(even)
         wy0, wx0 = wy0 - wy0 % a, wx0 - wx0 % a
     return wy0, wx0, min(H, int(ys.max()) + 1 + margin), min(W, int(xs.max()) + 1 + margin)
+
+
+_POOLS: dict = {}
+
+
+def sky_pool_of(model: LightModel, gcfg, cfg) -> tuple:
+    """``meshrays.sky_pool`` of the model's sky: its probe's map without the compact
+    sources (the glossy prefilter's), else its SH sky drawn into a map
+    (``gloss.model_radiance_map``); ``cfg.sky_pool`` directions, kept per sky."""
+    from zcomp_cli import equirect
+    from zcomp_cli.renderers.physical.gloss import model_radiance_map
+    from zcomp_cli.scene.meshrays import sky_pool
+    from zcomp_cli.scene.probe import area_resize
+
+    ref = model.probe
+    key = (("probe", repr(ref.params.to_dict()), ref.frame.tobytes(), repr(sorted(ref.cfg.items())))
+           if ref is not None else ("sky", model.sky.radiance_sh.tobytes(), model.up.tobytes()), cfg.sky_pool, gcfg)
+    hit = _POOLS.get(key)
+    if hit is None:
+        if ref is not None:
+            from zcomp_cli.knobs import from_mapping
+            from zcomp_cli.scene.config import ProbeConfig
+            from zcomp_cli.scene.probe import load_given_probe
+
+            sp = load_given_probe(ref.params, ref.frame, cfg=from_mapping(ProbeConfig, ref.cfg, "probe"))
+            img = area_resize(sp.residual, gcfg.model_map_width * 4)
+            dirs = equirect.pixel_directions(*img.shape[:2], sp.frame, sp.convention, sp.rotation_deg)
+        else:
+            img, frame = model_radiance_map(model, cfg=gcfg)
+            dirs = equirect.pixel_directions(*img.shape[:2], frame)
+        hit = sky_pool(img, dirs, equirect.solid_angles(*img.shape[:2]), model.up, cfg.sky_pool)
+        while len(_POOLS) >= 8:
+            _POOLS.pop(next(iter(_POOLS)))
+        _POOLS[key] = hit
+    return hit
 
 
 def _pasted(frame: np.ndarray, window: np.ndarray, corner) -> np.ndarray:

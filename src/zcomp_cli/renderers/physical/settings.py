@@ -80,6 +80,15 @@ class TransportConfig:
                                                        "less than its radius / 12.6): a scan's 16x a 20480-face "
                                                        "sphere's cost 0.4 s a job")
 
+    light_samples: int = knob(16, "sampling", "rays per pixel over a sun's or lamp's disc toward which the "
+                                              "object's mesh is tested (its soft shadow, scene.meshrays)", hi=4096)
+    sky_rays: int = knob(32, "sampling", "rays per point toward the sky the object's mesh may hide, drawn where "
+                                         "the sky is bright", hi=4096)
+    sky_pool: int = knob(512, "sampling", "directions drawn from the sky's map in proportion to its radiance, "
+                                          "which the points share out (sky_rays each, stratified)", hi=65536)
+    mesh_ray_bias_rel: float = knob(1e-3, "sampling", "a ray toward the object's mesh starts this share of its "
+                                                      "point's depth off the surface: float32's precision in "
+                                                      "Embree, far below the depth map's step", hi=1.0)
     film_sigma_px: float = knob(0.83, "physical", "standard deviation (pixels) of the film's pixel filter the "
                                                     "synthesised shading is filtered with: Cycles' Blackman-Harris "
                                                     "window of filter_width 1.5 (Blender's default, the ground "
