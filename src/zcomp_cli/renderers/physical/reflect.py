@@ -26,34 +26,58 @@ def environment(model, camera, depth, P, nv, view, rough, ys, xs, *, occluder, s
     pixels (``ys``, ``xs``); ``images``: (scene radiance (H, W, 3): the photograph, the
     synthesised scene where it was re-shaded; the object's radiance (H, W, 3); the pixels
     showing the object (H, W) bool)."""
-    scene_rad, obj_rad, obj_px = images
     alpha = np.maximum(rough * rough, gcfg.min_alpha)
-    jit = pixel_jitter(ys, xs, salt=7)
-    dirs, w = gather.ggx_directions(nv, view, alpha, int(gcfg.reflect_rays), jit)
+    dirs, w = gather.ggx_directions(nv, view, alpha, int(gcfg.reflect_rays), pixel_jitter(ys, xs, salt=7))
+    L, sky = _met(model, camera, depth, P, nv, dirs, ys, xs, int(gcfg.reflect_steps), occluder, scene_only, images,
+                  march)
+    # the rays that escape see the sky: its prefiltered radiance toward the mirror
+    # direction over the lobe's share above the horizon (one smooth lookup, not the few
+    # rays' own: the split sum's, occluded by what the rays met)
+    r = 2.0 * np.sum(nv * view, 1)[:, None] * nv - view
+    up_share = 1.0 - prefiltered.lookup(r, rough, ground=np.ones(3))[:, :1] + prefiltered.lookup(r, rough)[:, :1]
+    L_sky = prefiltered.lookup(r, rough) / np.maximum(up_share, 0.05)
+    W = np.maximum(w.sum(0), 1e-12)
+    return ((w[..., None] * L).sum(0) + (w * sky).sum(0)[:, None] * L_sky) / W[:, None]
+
+
+def bounce(model, camera, depth, P, nv, ys, xs, *, occluder, scene_only, images, k: int, steps: int,
+           march) -> np.ndarray:
+    """(M, 3) the shading (irradiance over pi) the object's points ``P`` (M, 3) of unit
+    normals ``nv`` (M, 3) receive from what is not sky: ``k`` cosine-distributed rays per
+    point (turned per pixel), each bringing the radiance of what it meets (``_met``: the
+    floor, a wall, the object itself); the rays that escape bring nothing here (the sky's
+    irradiance is counted with its visibility)."""
+    from zcomp_cli.scene.skyvis import hemisphere_directions
+
+    dirs = np.stack(hemisphere_directions(nv, pixel_jitter(ys, xs, salt=9), int(k)))
+    L, _ = _met(model, camera, depth, P, nv, dirs, ys, xs, int(steps), occluder, scene_only, images, march)
+    return L.mean(0)
+
+
+def _met(model, camera, depth, P, nv, dirs, ys, xs, steps, occluder, scene_only, images, march):
+    """((k, M, 3) the radiance each ray ``dirs`` (k, M, 3) meets first, 0 where it escapes
+    to the sky; (k, M) bool, it escapes): the photograph's (or the synthesised scene's) at
+    the texel or support point it meets in the frame, the support's beyond it or a wall
+    beyond the frame as lit as the support, the object's own radiance where it meets the
+    object and that point shows in the frame, else the object's mean."""
+    scene_rad, obj_rad, obj_px = images
     support = None if model.anchor is None else (model.anchor, model.up)
-    seen = gather.trace(P, nv, dirs, depth, camera, cfg=march, steps=int(gcfg.reflect_steps),
-                        jitter=pixel_jitter(ys, xs, salt=8), occluder_mask=scene_only, mesh=occluder,
-                        support=support, walls=model.walls)
-    K, M = w.shape
-    L = np.zeros((K, M, 3))
+    seen = gather.trace(P, nv, dirs, depth, camera, cfg=march, steps=steps, jitter=pixel_jitter(ys, xs, salt=8),
+                        occluder_mask=scene_only, mesh=occluder, support=support, walls=model.walls)
     kind, ty, tx = seen.kind, seen.texel[..., 0], seen.texel[..., 1]
+    L = np.zeros(kind.shape + (3,))
     ground = np.asarray(model.sky.ground, np.float64)
-    obj_mean = obj_rad[obj_px].mean(0) if obj_px.any() else ground
-    sky = kind == gather.SKY
-    rk = np.broadcast_to(rough, (K, M))
-    L[sky] = prefiltered.lookup(dirs[sky], rk[sky], ground=ground)
     at = (ty >= 0) & ((kind == gather.SCENE) | (kind == gather.SUPPORT))
     L[at] = scene_rad[ty[at], tx[at]]
-    L[(kind == gather.SCENE) & (ty < 0)] = ground  # a wall beyond the frame: as lit as the support
-    L[kind == gather.BEYOND] = ground
+    L[((kind == gather.SCENE) & (ty < 0)) | (kind == gather.BEYOND)] = ground
     self_ = kind == gather.OBJECT
-    seen_ = self_ & (ty >= 0)
-    vis = np.zeros_like(self_)
-    vis[seen_] = obj_px[ty[seen_], tx[seen_]] & (np.abs(depth[ty[seen_], tx[seen_]] - seen.depth[seen_])
-                                                  < march.march_thickness_rel * seen.depth[seen_])
-    L[self_] = obj_mean
-    L[vis] = obj_rad[ty[vis], tx[vis]]
-    return (w[..., None] * L).sum(0) / np.maximum(w.sum(0), 1e-12)[:, None]
+    shown = np.zeros_like(self_)
+    s = self_ & (ty >= 0)
+    shown[s] = obj_px[ty[s], tx[s]] & (np.abs(depth[ty[s], tx[s]] - seen.depth[s])
+                                       < march.march_thickness_rel * seen.depth[s])
+    L[self_] = obj_rad[obj_px].mean(0) if obj_px.any() else ground
+    L[shown] = obj_rad[ty[shown], tx[shown]]
+    return L, kind == gather.SKY
 
 
-__all__ = ["environment"]
+__all__ = ["environment", "bounce"]

@@ -292,35 +292,69 @@ class PhysicalRenderer(Renderer):
         if (cov > 0).any():
             edge = t & (cov > 0) & (cov < cfg.whole_coverage)
             a_o, a_s = unmix(a, cov, t, cfg)
-            G, keep = np.zeros_like(S), np.ones(t.shape + (1,))
-            if roughness is not None and obj.any():
-                sel = obj[ly, lx]
-                full = lambda win, m: _pasted(m, win, (y0, x0))
-                rough = full(unmix(np.asarray(roughness)[y0:y1, x0:x1, None], cov, t, cfg)[0][..., 0], roughness)
-                met = None if metallic is None else full(
-                    unmix(np.asarray(metallic)[y0:y1, x0:x1, None], cov, t, cfg)[0][..., 0], metallic)
-                sub = [(li, Ld[sel], E[sel], v[sel]) for li, Ld, E, v in lit]
-                env = None
-                if self._settings.gloss.reflect_rays > 0:
-                    own = np.zeros(d.shape + (3,))
-                    own[y0:y1, x0:x1][obj] = (a_o * S)[obj]
-                    photo = np.nan_to_num(np.array(image, np.float64)[..., :3])
-                    photo[y0:y1, x0:x1][t & ~obj] = rad[t & ~obj]
-                    env = self._environment(model, camera, d, nv[sel], ys[sel], xs[sel], rough, occluder,
-                                            scene_only, (photo, own, _pasted(np.zeros(d.shape), obj, (y0, x0)) > 0),
-                                            cls, obj, (y0, x0))
-                gl, kp = self._glossy(model, camera, d, nv[sel], ys[sel], xs[sel], np.ones(int(sel.sum())),
-                                      full(a_o, albedo), rough, met, vis_sky[sel], sub, env=env)
-                both = np.zeros(t.shape + (4,))
-                both[ly[sel], lx[sel]] = np.concatenate([gl, kp[:, None]], 1)
-                both = film_filter(both, cls, obj, cfg)
-                G, keep = both[..., :3], np.where(obj[..., None], both[..., 3:], 1.0)
+            win = (y0, x0, y1, x1, t, cls, obj)
+            O = self._object_layer(d, camera, model, occluder, scene_only, albedo_mean, roughness, metallic, image,
+                                   win, (ys, xs, nv, vis_sky, lit, ambient, direct), S, rad, a_o, cov)
             # each layer carried past where it was shaded, to the pixels it covers in part
-            O = extend(a_o * S * keep + G, obj, edge & ~obj, cfg)
+            O = extend(O, obj, edge & ~obj, cfg)
             F = extend(scene(a_s, S), t & ~obj, edge & obj, cfg)
             m = cov[..., None]
             rad = np.where((cov > 0)[..., None], m * O + (1.0 - m) * F, rad)
         return rad[ly, lx]
+
+    def _object_layer(self, d, camera, model, occluder, scene_only, albedo_mean, roughness, metallic, image, win,
+                      parts, S, rad, a_o, cov):
+        """(h, w, 3) the object's radiance over the window ``win`` (y0, x0, y1, x1, the todo
+        pixels, the classes, the object's pixels) at its pixels: its albedo ``a_o`` times
+        its diffuse shading -- the scene's and its own bounce gathered along rays
+        (``reflect.bounce``) instead of the support's radiance below the horizon and the
+        occluders' bounce as a share of the scene's albedo -- times what its glossy layer
+        leaves, plus the glossy layer (``_glossy``, reflecting what its lobe meets:
+        ``reflect.environment``)."""
+        from zcomp_cli.renderers.physical.pixel import film_filter, unmix
+        from zcomp_cli.renderers.physical.reflect import bounce
+        from zcomp_cli.scene import sh as shm
+
+        cfg, pc = self._settings.transport, self._settings.gloss
+        y0, x0, y1, x1, t, cls, obj = win
+        ys, xs, nv, vis_sky, lit, ambient, direct = parts
+        ly, lx = ys - y0, xs - x0
+        sel = obj[ly, lx]
+        photo = np.nan_to_num(np.array(image, np.float64)[..., :3])
+        photo[y0:y1, x0:x1][t & ~obj] = rad[t & ~obj]
+        own = np.zeros(d.shape + (3,))
+        own[y0:y1, x0:x1][obj] = (a_o * S)[obj]
+        images = (photo, own, _pasted(np.zeros(d.shape), obj, (y0, x0)) > 0)
+        if cfg.bounce_rays > 0 and sel.any():
+            P = camera.ray(xs[sel] + 0.5, ys[sel] + 0.5) * d[ys[sel], xs[sel]][:, None]
+            got = bounce(model, camera, d, P, nv[sel], ys[sel], xs[sel], occluder=occluder, scene_only=scene_only,
+                         images=images, k=cfg.bounce_rays, steps=self._settings.light.march.sky_steps,
+                         march=self._settings.light.march)
+            # the sky's visibility without the occluders' bounce, which the rays bring
+            rb = float(np.clip(np.mean(albedo_mean), 0.0, 0.9)) * cfg.sky_bounce
+            sky = np.maximum(shm.evaluate(shm.shading_coeffs(model.sky.radiance_sh), nv[sel]), 0.0)
+            raw = np.zeros(t.shape + (3,))
+            raw[ly[sel], lx[sel]] = sky * (vis_sky[sel] - rb) / (1.0 - rb) + got + direct[sel]
+            S = np.where(obj[..., None], film_filter(raw, cls, obj, cfg), S)
+            own[y0:y1, x0:x1][obj] = (a_o * S)[obj]
+        G, keep = np.zeros_like(S), np.ones(t.shape + (1,))
+        if roughness is not None and sel.any():
+            full = lambda w_, m: _pasted(m, w_, (y0, x0))
+            rough = full(unmix(np.asarray(roughness)[y0:y1, x0:x1, None], cov, t, cfg)[0][..., 0], roughness)
+            met = None if metallic is None else full(
+                unmix(np.asarray(metallic)[y0:y1, x0:x1, None], cov, t, cfg)[0][..., 0], metallic)
+            sub = [(li, Ld[sel], E[sel], v[sel]) for li, Ld, E, v in lit]
+            env = None
+            if pc.reflect_rays > 0:
+                env = self._environment(model, camera, d, nv[sel], ys[sel], xs[sel], rough, occluder, scene_only,
+                                        images, cls, obj, (y0, x0))
+            gl, kp = self._glossy(model, camera, d, nv[sel], ys[sel], xs[sel], np.ones(int(sel.sum())),
+                                  full(a_o, np.zeros(d.shape + (3,))), rough, met, vis_sky[sel], sub, env=env)
+            both = np.zeros(t.shape + (4,))
+            both[ly[sel], lx[sel]] = np.concatenate([gl, kp[:, None]], 1)
+            both = film_filter(both, cls, obj, cfg)
+            G, keep = both[..., :3], np.where(obj[..., None], both[..., 3:], 1.0)
+        return a_o * S * keep + G
 
     def _glossy(self, model, camera, d, nv, ys, xs, cov, albedo, roughness, metallic, vis_sky, lit=(), env=None):
         """((M, 3) the object's glossy reflection, (M,) the diffuse layer's weight beneath

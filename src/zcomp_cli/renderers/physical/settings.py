@@ -80,6 +80,11 @@ class TransportConfig:
                                                        "less than its radius / 12.6): a scan's 16x a 20480-face "
                                                        "sphere's cost 0.4 s a job")
 
+    bounce_rays: int = knob(16, "sampling", "cosine-distributed rays per pixel of the object along which the "
+                                            "light of what is not sky (the floor, a wall, itself) is gathered "
+                                            "(reflect.bounce); 0: the support's radiance below its horizon and "
+                                            "the occluders' bounce as a share of the scene's albedo, as the scene's "
+                                            "own pixels get them", lo=0, lo_open=False, hi=4096)
     light_samples: int = knob(16, "sampling", "rays per pixel over a sun's or lamp's disc toward which the "
                                               "object's mesh is tested (its soft shadow, scene.meshrays)", hi=4096)
     sky_rays: int = knob(32, "sampling", "rays per point toward the sky the object's mesh may hide, drawn where "
