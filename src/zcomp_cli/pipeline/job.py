@@ -205,7 +205,7 @@ def prepare_job(
     notes += lamps_inside_object(getattr(scene, "light", None), cam, obj_depth, obj_mask,
                                  apply_alignment(bundle.footprint_depth, alignment))
     requests = [RenderRequest(maps=bg, **common),
-                RenderRequest(maps=comp, **common, occluder=occluder, coverage=m)]
+                RenderRequest(maps=comp, **common, occluder=occluder, coverage=m, object_maps=obj_maps)]
     x0, y0, x1, y1 = roi
     report = {
         "alignment": alignment.to_dict(),

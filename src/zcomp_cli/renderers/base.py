@@ -47,6 +47,11 @@ class RenderRequest:
         coverage: H x W float in [0, 1], the inserted object's visible coverage on the
             composite request (None on the background's): where its own material
             (roughness, metallic) applies.
+        object_maps: the inserted object's own maps (``SceneMaps``: aligned depth,
+            normals, albedo, roughness, metallic; 0 off the object) on the composite
+            request (None on the background's): ``maps`` blends the albedo with the
+            coverage, and a renderer that shades a partly covered pixel's two surfaces
+            apart takes the object's from here.
         debug: the job runs with ``--debug``: the renderer may return debug maps
             (``RenderOutput.debug_maps``); without it, it need not make any.
         aovs: the job runs with ``--aovs``: the renderer may return its own render passes
@@ -64,6 +69,7 @@ class RenderRequest:
     fitted_light: object | None = None
     occluder: object | None = None
     coverage: np.ndarray | None = None
+    object_maps: SceneMaps | None = None
     debug: bool = False
     aovs: bool = False
 
