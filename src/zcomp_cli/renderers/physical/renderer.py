@@ -137,11 +137,11 @@ class PhysicalRenderer(Renderer):
 
     def _sky_visibility(self, d, n, todo, camera, occluder, geo_all, albedo_mean, model: LightModel):
         """(the visible share of ``model``'s sky (its SH radiance weighs the directions, its
-        walls occlude) at the todo
-        pixels (M, 3), the scene-only occluder mask or None): screen-space occlusion on a
-        stride-2 grid (4 on large frames), each direction weighted by the sky's radiance
-        there (``weighted_visibility``), the object's mesh occlusion where the bundle has
-        one, class-aware blur, the bounce off the occluders."""
+        walls occlude) at the todo pixels (M, 3), the scene-only occluder mask or None):
+        the scene's screen-space occlusion on a stride-2 grid (4 on large frames), each
+        direction weighted by the sky's radiance there (``weighted_visibility``),
+        class-aware blur; the object's mesh occlusion at every pixel (``_object_sky``);
+        the bounce off the occluders."""
         radiance_sh, walls = model.sky.radiance_sh, model.walls
         cfg = self._settings.transport
         H, W = d.shape
@@ -166,26 +166,10 @@ class PhysicalRenderer(Renderer):
             from zcomp_cli.scene.objectshadow import mesh_silhouette
 
             scene_only = ~mesh_silhouette(occluder, camera, (H, W))
-        occ_c = dist_c = None
         if ok.any():
             smp = sky_samples(P[ok], N[ok], gy[ok], gx[ok], d, camera, cfg=self._settings.light.march,
                               occluder_mask=scene_only, walls=walls)
             ao_c[ok] = weighted_visibility(*smp, radiance_sh)
-            if occluder is not None:
-                # the sky the object hides, from its mesh: rays drawn where the sky is
-                # bright (``meshrays.sky_occlusion``), unlimited in range, no slab behind
-                # its visible shell; the distance to it sets the fade below
-                from scipy.spatial import cKDTree
-
-                from zcomp_cli.renderers.physical.meshshadow import mesh_discs
-                from zcomp_cli.scene.meshrays import sky_occlusion
-
-                occ_c, dist_c = np.zeros(gy.shape + (3,)), np.zeros(gy.shape)
-                bias = cfg.mesh_ray_bias_rel * np.maximum(-P[ok][:, 2], 1e-6)
-                occ_c[ok] = sky_occlusion(occluder, P[ok], N[ok], sky_pool_of(model, self._settings.gloss, cfg),
-                                          cfg.sky_rays, pixel_jitter(gy[ok], gx[ok], salt=5), bias)
-                cen = mesh_discs(occluder, cfg=cfg).centres
-                dist_c[ok] = cKDTree(cen).query(P[ok])[0] if len(cen) else np.inf
         h_, w_ = ay1 - ay0, ax1 - ax0
         up2 = lambda a: np.repeat(np.repeat(a, ao_st, 0), ao_st, 1)[:h_, :w_]
         okf = geo_all[ay0:ay1, ax0:ax1]
@@ -194,31 +178,49 @@ class PhysicalRenderer(Renderer):
         # (a light rim): only pixels of their anchor's class vouch for it; the
         # normalised blur fills the others from their own class
         same = up2(ok) & (up2(cls[::ao_st, ::ao_st]) == cls)
-        # (the sky's visibility and the mesh's occlusion blurred together: one pass)
-        both = classwise_blur(up2(ao_c if occ_c is None else np.concatenate([ao_c, occ_c], -1)), cls,
-                              okf & same, rad, fill=okf)
-        ao = both[..., :3]
-        if occ_c is not None:
-            occ = both[..., 3:]
-            dist = up2(dist_c)
-            # The sky occlusion reaches past the shading mask (a sphere still hides a
-            # quarter of the sky one radius past its side); cut at the mask's edge it
-            # drew an ellipse. It fades out over the outer ``mesh_ao_fade`` of the mask's
-            # radius, the farthest of its pixels from the mesh (in metres: the mask is
-            # a ball around the object, squeezed on screen below it), after the blur.
-            # Any other mask (an API caller's) ends it within 2 blur radii of its edge.
-            tw = todo[ay0:ay1, ax0:ax1] & okf & np.isfinite(dist)
-            R = float(dist[tw].max()) if tw.any() else 0.0
-            if R > 0:  # (a mesh without area has no elements: nothing hidden)
-                t = np.clip((R - dist) / max(cfg.mesh_ao_fade * R, 1e-9), 0.0, 1.0)
-                px = cv2.distanceTransform(np.pad(todo[ay0:ay1, ax0:ax1], 1).astype(np.uint8),
-                                           cv2.DIST_L2, 5)[1:-1, 1:-1]
-                u = np.clip(px / (2.0 * rad), 0.0, 1.0)
-                ao = ao * (1.0 - occ * (t * t * (3.0 - 2.0 * t) * u * u * (3.0 - 2.0 * u))[..., None])
+        ao = classwise_blur(up2(ao_c), cls, okf & same, rad, fill=okf)[ys - ay0, xs - ax0]
+        if occluder is not None:
+            ao = ao * (1.0 - self._object_sky(d, n, todo, camera, occluder, model, ys, xs, rad))
         # occluded directions still see light bounced off the occluders
         rho = float(np.clip(np.mean(albedo_mean), 0.0, 0.9))
         ao = ao + (1.0 - ao) * rho * cfg.sky_bounce
-        return ao[ys - ay0, xs - ax0], scene_only
+        return ao, scene_only
+
+    def _object_sky(self, d, n, todo, camera, occluder, model, ys, xs, blur_px):
+        """(M, 3) the share of the sky's irradiance the object's mesh hides from the todo
+        pixels (ys, xs), every pixel its own (``meshrays.sky_occlusion``: rays drawn where
+        the sky is bright; a contact's darkness within a pixel of the silhouette, where a
+        grid and a blur spread it), faded out toward the mask's edge.
+
+        The sky occlusion reaches past the shading mask (a sphere still hides a quarter of
+        the sky one radius past its side); cut at the mask's edge it drew an ellipse. It
+        fades out over the outer ``mesh_ao_fade`` of the mask's radius, the farthest of
+        its pixels from the mesh (in metres: the mask is a ball around the object,
+        squeezed on screen below it); any other mask (an API caller's) ends it within
+        two blur radii (``blur_px``) of its edge."""
+        import cv2
+        from scipy.spatial import cKDTree
+
+        from zcomp_cli.renderers.physical.meshshadow import mesh_discs
+        from zcomp_cli.scene.meshrays import sky_occlusion
+
+        cfg = self._settings.transport
+        P = camera.ray(xs + 0.5, ys + 0.5) * d[ys, xs][:, None]
+        N = n[ys, xs].astype(np.float64)
+        N = N / np.maximum(length(N), 1e-12)[:, None]
+        occ = sky_occlusion(occluder, P, N, sky_pool_of(model, self._settings.gloss, cfg), cfg.sky_rays,
+                            pixel_jitter(ys, xs, salt=5), cfg.mesh_ray_bias_rel * np.maximum(-P[:, 2], 1e-6))
+        cen = mesh_discs(occluder, cfg=cfg).centres
+        if not len(cen):
+            return occ
+        dist = cKDTree(cen).query(P)[0]
+        R = float(dist.max())
+        if not R > 0:
+            return occ
+        t = np.clip((R - dist) / max(cfg.mesh_ao_fade * R, 1e-9), 0.0, 1.0)
+        px = cv2.distanceTransform(np.pad(todo, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1][ys, xs]
+        u = np.clip(px / (2.0 * blur_px), 0.0, 1.0)
+        return occ * (t * t * (3.0 - 2.0 * t) * u * u * (3.0 - 2.0 * u))[:, None]
 
     def _parts(self, d, n, todo, camera, model: LightModel, albedo_mean, occluder, unknown=None):
         """The two parts of the diffuse shading of the ``todo`` pixels: (sky and the
