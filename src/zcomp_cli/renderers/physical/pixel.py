@@ -55,6 +55,29 @@ def extend(values: np.ndarray, source: np.ndarray, dest: np.ndarray, cfg: Transp
     return out
 
 
+def split(mixed: np.ndarray, own: np.ndarray | None, m: np.ndarray, valid: np.ndarray, cfg: TransportConfig):
+    """(the object's, the surface's) of a coverage-blended map ``mixed`` (h, w, C): with
+    the object's ``own`` map (h, w, C; unblended, the request's ``object_maps``), the
+    object's is its own where it covers the pixel and the surface's is what the blend
+    leaves (``(mixed - m own) / (1 - m)``), from the pixels the object does not cover
+    wholly enough to leave it measurable (``m < cfg.whole_coverage``) and else from the
+    nearby pixels it covers not at all; without it, ``unmix``."""
+    if own is None:
+        return unmix(mixed, m, valid, cfg)
+    mixed = np.asarray(mixed, np.float64)
+    own = np.asarray(own, np.float64).reshape(mixed.shape)
+    mm = m[..., None]
+    covered = (valid & (m > 0))[..., None]
+    a_o = np.where(covered, own, mixed)
+    srf = valid & (m <= 0.0)
+    near, ok = _spread(mixed, srf, cfg.edge_reach_px)
+    rest = (mixed - mm * own) / np.maximum(1.0 - mm, 1e-6)
+    a_s = np.where((m < cfg.whole_coverage)[..., None], rest, np.where(ok[..., None], near, mixed))
+    lo = 0.0
+    hi = max(1.0, float(mixed.max()) if mixed.size else 1.0)
+    return a_o, np.where(covered, np.clip(a_s, lo, hi), mixed)
+
+
 def unmix(mixed: np.ndarray, m: np.ndarray, valid: np.ndarray, cfg: TransportConfig):
     """(the object's, the surface's) of a coverage-blended map ``mixed`` (h, w, C), ``m``
     (h, w) the coverage, over the ``valid`` pixels: each layer estimated from the nearby
@@ -76,4 +99,4 @@ def unmix(mixed: np.ndarray, m: np.ndarray, valid: np.ndarray, cfg: TransportCon
             np.where(edge, np.clip(a_s + delta, 0.0, 1.0), mixed))
 
 
-__all__ = ["film_filter", "extend", "unmix"]
+__all__ = ["film_filter", "extend", "split", "unmix"]

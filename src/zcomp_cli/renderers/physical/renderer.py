@@ -125,7 +125,7 @@ class PhysicalRenderer(Renderer):
             alb_mean = np.array([alb[..., c][pos].mean() for c in range(3)]) if pos.any() else np.zeros(3)
             radiance = self._synthesise(d, n, todo, req.camera, model, alb_mean, req.occluder, unknown,
                                         alb, cov, req.maps.roughness, req.maps.metallic,
-                                        alb * out_sh if req.image is None else req.image)
+                                        alb * out_sh if req.image is None else req.image, req.object_maps)
         img = alb * out_sh
         if todo.any():
             img[todo] = radiance
@@ -261,13 +261,13 @@ class PhysicalRenderer(Renderer):
         return ambient, direct, vis_sky, nv, lit, scene_only
 
     def _synthesise(self, d, n, todo, camera, model: LightModel, albedo_mean, occluder, unknown, albedo, coverage,
-                    roughness=None, metallic=None, image=None):
+                    roughness=None, metallic=None, image=None, own=None):
         """(M, 3) radiance of the ``todo`` pixels under ``model`` (module docstring, step 3):
         the diffuse shading filtered as the film does (``pixel.film_filter``) times the
         albedo (the scene's with its offset); where the object covers a pixel, its own
         albedo, diffuse and glossy layers, and where it covers it in part, ``m`` of its
-        radiance and ``1 - m`` of the surface's behind it (``pixel.unmix``)."""
-        from zcomp_cli.renderers.physical.pixel import extend, film_filter, unmix
+        radiance and ``1 - m`` of the surface's behind it (``pixel.split``)."""
+        from zcomp_cli.renderers.physical.pixel import extend, film_filter, split
 
         cfg = self._settings.transport
         ys, xs = np.nonzero(todo)
@@ -293,10 +293,11 @@ class PhysicalRenderer(Renderer):
         rad = scene(a, S)
         if (cov > 0).any():
             edge = t & (cov > 0) & (cov < cfg.whole_coverage)
-            a_o, a_s = unmix(a, cov, t, cfg)
+            crop = lambda m_: None if m_ is None else np.asarray(m_, np.float64)[y0:y1, x0:x1]
+            a_o, a_s = split(a, crop(None if own is None else own.albedo), cov, t, cfg)
             win = (y0, x0, y1, x1, t, cls, obj)
             O = self._object_layer(d, camera, model, occluder, scene_only, albedo_mean, roughness, metallic, image,
-                                   win, (ys, xs, nv, vis_sky, lit, ambient, direct), S, rad, a_o, cov)
+                                   win, (ys, xs, nv, vis_sky, lit, ambient, direct), S, rad, a_o, cov, own)
             # each layer carried past where it was shaded, to the pixels it covers in part
             O = extend(O, obj, edge & ~obj, cfg)
             F = extend(scene(a_s, S), t & ~obj, edge & obj, cfg)
@@ -305,7 +306,7 @@ class PhysicalRenderer(Renderer):
         return rad[ly, lx]
 
     def _object_layer(self, d, camera, model, occluder, scene_only, albedo_mean, roughness, metallic, image, win,
-                      parts, S, rad, a_o, cov):
+                      parts, S, rad, a_o, cov, own=None):
         """(h, w, 3) the object's radiance over the window ``win`` (y0, x0, y1, x1, the todo
         pixels, the classes, the object's pixels) at its pixels: its albedo ``a_o`` times
         its diffuse shading -- the scene's and its own bounce gathered along rays
@@ -313,7 +314,7 @@ class PhysicalRenderer(Renderer):
         occluders' bounce as a share of the scene's albedo -- times what its glossy layer
         leaves, plus the glossy layer (``_glossy``, reflecting what its lobe meets:
         ``reflect.environment``)."""
-        from zcomp_cli.renderers.physical.pixel import film_filter, unmix
+        from zcomp_cli.renderers.physical.pixel import film_filter, split
         from zcomp_cli.renderers.physical.reflect import bounce
         from zcomp_cli.scene import sh as shm
 
@@ -324,9 +325,9 @@ class PhysicalRenderer(Renderer):
         sel = obj[ly, lx]
         photo = np.nan_to_num(np.array(image, np.float64)[..., :3])
         photo[y0:y1, x0:x1][t & ~obj] = rad[t & ~obj]
-        own = np.zeros(d.shape + (3,))
-        own[y0:y1, x0:x1][obj] = (a_o * S)[obj]
-        images = (photo, own, _pasted(np.zeros(d.shape), obj, (y0, x0)) > 0)
+        own_rad = np.zeros(d.shape + (3,))
+        own_rad[y0:y1, x0:x1][obj] = (a_o * S)[obj]
+        images = (photo, own_rad, _pasted(np.zeros(d.shape), obj, (y0, x0)) > 0)
         if cfg.bounce_rays > 0 and sel.any():
             P = camera.ray(xs[sel] + 0.5, ys[sel] + 0.5) * d[ys[sel], xs[sel]][:, None]
             got = bounce(model, camera, d, P, nv[sel], ys[sel], xs[sel], occluder=occluder, scene_only=scene_only,
@@ -338,13 +339,18 @@ class PhysicalRenderer(Renderer):
             raw = np.zeros(t.shape + (3,))
             raw[ly[sel], lx[sel]] = sky * (vis_sky[sel] - rb) / (1.0 - rb) + got + direct[sel]
             S = np.where(obj[..., None], film_filter(raw, cls, obj, cfg), S)
-            own[y0:y1, x0:x1][obj] = (a_o * S)[obj]
+            own_rad[y0:y1, x0:x1][obj] = (a_o * S)[obj]
         G, keep = np.zeros_like(S), np.ones(t.shape + (1,))
         if roughness is not None and sel.any():
             full = lambda w_, m: _pasted(m, w_, (y0, x0))
-            rough = full(unmix(np.asarray(roughness)[y0:y1, x0:x1, None], cov, t, cfg)[0][..., 0], roughness)
-            met = None if metallic is None else full(
-                unmix(np.asarray(metallic)[y0:y1, x0:x1, None], cov, t, cfg)[0][..., 0], metallic)
+
+            def layer(mixed, which):  # the object's own roughness or metallic
+                o = None if own is None or getattr(own, which) is None else np.asarray(getattr(own, which))
+                return full(split(np.asarray(mixed)[y0:y1, x0:x1, None], None if o is None else o[y0:y1, x0:x1, None],
+                                  cov, t, cfg)[0][..., 0], mixed)
+
+            rough = layer(roughness, "roughness")
+            met = None if metallic is None else layer(metallic, "metallic")
             sub = [(li, Ld[sel], E[sel], v[sel]) for li, Ld, E, v in lit]
             env = None
             if pc.reflect_rays > 0:
