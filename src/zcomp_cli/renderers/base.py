@@ -86,6 +86,14 @@ class RenderOutput:
     so a long shadow is not cut at the shading mask's edge; the compositor then applies
     the shadow ratio over this mask. None = the requested mask.
 
+    ``object_layers``: optional, one per image (None or missing for an image without
+    one): (H, W, 3) linear, the inserted object's own radiance where the request's
+    ``coverage`` is > 0. Given, the compositor takes the object from it (``m C layer``)
+    and the image there is the surface behind the object (the shadow ratio read from
+    it is the surface's): a partly covered pixel is ``m`` of the one and ``1 - m`` of
+    the other, as a path tracer's pixel is. Without it the image is both (DESIGN.md
+    section 2, equation 5), and the surface behind a partly covered pixel counts twice.
+
     ``debug_maps``: optional maps the renderer read or made (the physical renderer's
     light evidence), name -> (H, W) or (H, W, C) float array at the job's working
     resolution. With ``--debug`` the pipeline writes each as ``debug/<name>.exr`` and
@@ -99,6 +107,7 @@ class RenderOutput:
     info: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
     shading_mask: np.ndarray | None = None
+    object_layers: list = field(default_factory=list)
     debug_maps: dict[str, np.ndarray] = field(default_factory=dict)
     aov_layers: dict[str, np.ndarray] = field(default_factory=dict)
 
