@@ -91,7 +91,7 @@ class PhysicalRenderer(Renderer):
             requests = [_grown_request(req, reach) for req in requests]
         timings["shadow_reach"] = time.perf_counter() - t1
         t1 = time.perf_counter()
-        images = [self._render_one(req, model) for req in requests]
+        images, layers = zip(*[self._render_one(req, model) for req in requests])
         timings["synthesis"] = time.perf_counter() - t1
         light = model.to_info()
         info = {"light": light, "fallback": light["fallback"], "shadow": str(model.shadows),
@@ -100,7 +100,8 @@ class PhysicalRenderer(Renderer):
         if evidence is not None and any(getattr(r, "debug", False) for r in requests):
             # the light's evidence at the job's resolution (``evidence_maps``)
             debug_maps = evidence.maps(np.shape(requests[0].known))
-        return RenderOutput(images=images, info=info, timings=timings, shading_mask=grown, debug_maps=debug_maps)
+        return RenderOutput(images=list(images), info=info, timings=timings, shading_mask=grown, debug_maps=debug_maps,
+                            object_layers=list(layers))
 
     def _render_one(self, req: RenderRequest, model: LightModel) -> np.ndarray:
         # step 3: known pixels reproduce albedo * known shading exactly
@@ -123,17 +124,24 @@ class PhysicalRenderer(Renderer):
             pos = d > 0
             # (per channel: three contiguous gathers, a third of one (N, 3) gather's time)
             alb_mean = np.array([alb[..., c][pos].mean() for c in range(3)]) if pos.any() else np.zeros(3)
-            radiance = self._synthesise(d, n, todo, req.camera, model, alb_mean, req.occluder, unknown,
-                                        alb, cov, req.maps.roughness, req.maps.metallic,
-                                        alb * out_sh if req.image is None else req.image, req.object_maps)
+            radiance, own = self._synthesise(d, n, todo, req.camera, model, alb_mean, req.occluder, unknown,
+                                             alb, cov, req.maps.roughness, req.maps.metallic,
+                                             alb * out_sh if req.image is None else req.image, req.object_maps)
         img = alb * out_sh
+        layer = None
         if todo.any():
             img[todo] = radiance
+            if own is not None:
+                layer = img.copy()
+                layer[todo] = own
+                layer = layer.astype(np.float32)
         img = img.astype(np.float32)
         if not np.all(np.isfinite(img)):
             bad = int((~np.isfinite(img)).sum())
             raise NumericalError(f"physical renderer produced {bad} non-finite values")
-        return img
+        if layer is not None and not np.all(np.isfinite(layer)):
+            raise NumericalError("physical renderer produced non-finite values in the object's layer")
+        return img, layer
 
     def _sky_visibility(self, d, n, todo, camera, occluder, geo_all, albedo_mean, model: LightModel):
         """(the visible share of ``model``'s sky (its SH radiance weighs the directions, its
@@ -262,11 +270,12 @@ class PhysicalRenderer(Renderer):
 
     def _synthesise(self, d, n, todo, camera, model: LightModel, albedo_mean, occluder, unknown, albedo, coverage,
                     roughness=None, metallic=None, image=None, own=None):
-        """(M, 3) radiance of the ``todo`` pixels under ``model`` (module docstring, step 3):
-        the diffuse shading filtered as the film does (``pixel.film_filter``) times the
-        albedo (the scene's with its offset); where the object covers a pixel, its own
-        albedo, diffuse and glossy layers, and where it covers it in part, ``m`` of its
-        radiance and ``1 - m`` of the surface's behind it (``pixel.split``)."""
+        """((M, 3) radiance of the ``todo`` pixels under ``model``, (M, 3) the object's own
+        or None) (module docstring, step 3): the diffuse shading filtered as the film does
+        (``pixel.film_filter``) times the albedo (the scene's with its offset); where the
+        object covers a pixel, its own albedo, diffuse and glossy layers apart, and the
+        radiance there the surface's behind it where the object covers it in part
+        (``pixel.split``: the two albedos), the object's where wholly."""
         from zcomp_cli.renderers.physical.pixel import extend, film_filter, split
 
         cfg = self._settings.transport
@@ -301,9 +310,11 @@ class PhysicalRenderer(Renderer):
             # each layer carried past where it was shaded, to the pixels it covers in part
             O = extend(O, obj, edge & ~obj, cfg)
             F = extend(scene(a_s, S), t & ~obj, edge & obj, cfg)
-            m = cov[..., None]
-            rad = np.where((cov > 0)[..., None], m * O + (1.0 - m) * F, rad)
-        return rad[ly, lx]
+            # the surface where the object covers a pixel in part (its shadow ratio is the
+            # surface's), the object where it covers it wholly; the object apart
+            rad = np.where(edge[..., None], F, np.where((cov > 0)[..., None], O, rad))
+            return rad[ly, lx], O[ly, lx]
+        return rad[ly, lx], None
 
     def _object_layer(self, d, camera, model, occluder, scene_only, albedo_mean, roughness, metallic, image, win,
                       parts, S, rad, a_o, cov, own=None):
