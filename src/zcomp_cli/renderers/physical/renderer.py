@@ -124,16 +124,25 @@ class PhysicalRenderer(Renderer):
             pos = d > 0
             # (per channel: three contiguous gathers, a third of one (N, 3) gather's time)
             alb_mean = np.array([alb[..., c][pos].mean() for c in range(3)]) if pos.any() else np.zeros(3)
-            radiance, own = self._synthesise(d, n, todo, req.camera, model, alb_mean, req.occluder, unknown,
+            # shaded a little past the region asked for: the film filter and the edge's
+            # layers read their neighbours, so a region of interest gets the values the
+            # whole frame would
+            import cv2
+
+            r = int(np.ceil(3 * self._settings.transport.film_sigma_px + self._settings.transport.edge_reach_px))
+            todo_c = cv2.dilate(todo.astype(np.uint8), np.ones((2 * r + 1,) * 2, np.uint8)) > 0
+            todo_c &= unknown
+            radiance, own = self._synthesise(d, n, todo_c, req.camera, model, alb_mean, req.occluder, unknown,
                                              alb, cov, req.maps.roughness, req.maps.metallic,
                                              alb * out_sh if req.image is None else req.image, req.object_maps)
         img = alb * out_sh
         layer = None
         if todo.any():
-            img[todo] = radiance
+            keep = todo[todo_c]
+            img[todo] = radiance[keep]
             if own is not None:
                 layer = img.copy()
-                layer[todo] = own
+                layer[todo] = own[keep]
                 layer = layer.astype(np.float32)
         img = img.astype(np.float32)
         if not np.all(np.isfinite(img)):
@@ -143,7 +152,7 @@ class PhysicalRenderer(Renderer):
             raise NumericalError("physical renderer produced non-finite values in the object's layer")
         return img, layer
 
-    def _sky_visibility(self, d, n, todo, camera, occluder, geo_all, albedo_mean, model: LightModel):
+    def _sky_visibility(self, d, n, todo, camera, occluder, geo_all, albedo_mean, model: LightModel, unknown=None):
         """(the visible share of ``model``'s sky (its SH radiance weighs the directions, its
         walls occlude) at the todo pixels (M, 3), the scene-only occluder mask or None):
         the scene's screen-space occlusion on a stride-2 grid (4 on large frames), each
@@ -188,13 +197,14 @@ class PhysicalRenderer(Renderer):
         same = up2(ok) & (up2(cls[::ao_st, ::ao_st]) == cls)
         ao = classwise_blur(up2(ao_c), cls, okf & same, rad, fill=okf)[ys - ay0, xs - ax0]
         if occluder is not None:
-            ao = ao * (1.0 - self._object_sky(d, n, todo, camera, occluder, model, ys, xs, rad))
+            ao = ao * (1.0 - self._object_sky(d, n, todo, camera, occluder, model, ys, xs, rad,
+                                              todo if unknown is None else unknown))
         # occluded directions still see light bounced off the occluders
         rho = float(np.clip(np.mean(albedo_mean), 0.0, 0.9))
         ao = ao + (1.0 - ao) * rho * cfg.sky_bounce
         return ao, scene_only
 
-    def _object_sky(self, d, n, todo, camera, occluder, model, ys, xs, blur_px):
+    def _object_sky(self, d, n, todo, camera, occluder, model, ys, xs, blur_px, unknown):
         """(M, 3) the share of the sky's irradiance the object's mesh hides from the todo
         pixels (ys, xs), every pixel its own (``meshrays.sky_occlusion``: rays drawn where
         the sky is bright; a contact's darkness within a pixel of the silhouette, where a
@@ -205,12 +215,12 @@ class PhysicalRenderer(Renderer):
         fades out over the outer ``mesh_ao_fade`` of the mask's radius, the farthest of
         its pixels from the mesh (in metres: the mask is a ball around the object,
         squeezed on screen below it); any other mask (an API caller's) ends it within
-        two blur radii (``blur_px``) of its edge."""
+        two blur radii (``blur_px``) of its edge, past the film filter's reach."""
         import cv2
         from scipy.spatial import cKDTree
 
-        from zcomp_cli.renderers.physical.meshshadow import mesh_discs
         from zcomp_cli.scene.meshrays import sky_occlusion
+        from zcomp_cli.scene.objectshadow import area_triangles, sample_triangles
 
         cfg = self._settings.transport
         P = camera.ray(xs + 0.5, ys + 0.5) * d[ys, xs][:, None]
@@ -218,16 +228,21 @@ class PhysicalRenderer(Renderer):
         N = N / np.maximum(length(N), 1e-12)[:, None]
         occ = sky_occlusion(occluder, P, N, sky_pool_of(model, self._settings.gloss, cfg), cfg.sky_rays,
                             pixel_jitter(ys, xs, salt=5), cfg.mesh_ray_bias_rel * np.maximum(-P[:, 2], 1e-6))
-        cen = mesh_discs(occluder, cfg=cfg).centres
-        if not len(cen):
+        tri, _, area, _ = area_triangles(occluder)
+        if not len(tri):
             return occ
-        dist = cKDTree(cen).query(P)[0]
-        R = float(dist.max())
+        cen = sample_triangles(tri, area / area.sum(), cfg.mesh_fade_samples)[1]
+        tree = cKDTree(cen)
+        dist = tree.query(P)[0]
+        # the mask's radius: its farthest pixel from the mesh, whatever region is shaded
+        uy, ux = np.nonzero(unknown)
+        R = float(tree.query(camera.ray(ux + 0.5, uy + 0.5) * d[uy, ux][:, None])[0].max()) if len(uy) else 0.0
         if not R > 0:
             return occ
         t = np.clip((R - dist) / max(cfg.mesh_ao_fade * R, 1e-9), 0.0, 1.0)
-        px = cv2.distanceTransform(np.pad(todo, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1][ys, xs]
-        u = np.clip(px / (2.0 * blur_px), 0.0, 1.0)
+        px = cv2.distanceTransform(np.pad(unknown, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1][ys, xs]
+        # (from the film filter's reach inside the edge: it reads its neighbours)
+        u = np.clip((px - 1.0 - 2.0 * cfg.film_sigma_px) / (2.0 * blur_px), 0.0, 1.0)
         return occ * (t * t * (3.0 - 2.0 * t) * u * u * (3.0 - 2.0 * u))[:, None]
 
     def _parts(self, d, n, todo, camera, model: LightModel, albedo_mean, occluder, unknown=None):
@@ -239,7 +254,8 @@ class PhysicalRenderer(Renderer):
         H, W = d.shape
         ys, xs = np.nonzero(todo)
         geo_all = has_geometry(d, n)
-        vis_sky, scene_only = self._sky_visibility(d, n, todo, camera, occluder, geo_all, albedo_mean, model)
+        vis_sky, scene_only = self._sky_visibility(d, n, todo, camera, occluder, geo_all, albedo_mean, model,
+                                                   unknown)
         nv = n[ys, xs].astype(np.float64)
         nv = nv / np.maximum(length(nv), 1e-12)[:, None]
         nv[~geo_all[ys, xs]] = 0.0

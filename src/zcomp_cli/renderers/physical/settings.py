@@ -6,7 +6,7 @@ physical, <setting>: ...}``, the API's ``PhysicalRenderer(**settings)``) and, ne
 the renderer's knobs as frozen config dataclasses:
 
 * ``TransportConfig``: the synthesis's shadows, the sky's visibility's blur and bounce,
-  the object's posed mesh (``renderer``, ``softshadow``, ``meshshadow``);
+  the object's posed mesh (``renderer``, ``softshadow``, ``scene.meshrays``);
 * ``GlossConfig``: the object's glossy reflection (``gloss``);
 * ``light``: the light stage's ``LightConfig`` (``zcomp_cli.light.config``): the fit of
   the light the renderer draws, and the screen-space march both read (one sky).
@@ -34,7 +34,7 @@ LABEL = "physical renderer setting"
 
 @dataclass(frozen=True, kw_only=True)
 class TransportConfig:
-    """The synthesis's light transport (``renderer``, ``softshadow``, ``meshshadow``): each
+    """The synthesis's light transport (``renderer``, ``softshadow``, ``scene.meshrays``): each
     light's soft shadow (one screen-space march, ``scene.march``, whose reach and
     bias are the light config's ``march``, then the penumbra filter), the sky's
     visibility's blur and bounce, and the object's posed mesh (its shadow map and the
@@ -67,19 +67,9 @@ class TransportConfig:
                                                     "edge over this many sky blur radii (sky_blur_px): the width "
                                                     "over which the compositor's blur would otherwise show the cut", lo=0.0, lo_open=False)
     object_shadow: ObjectShadowConfig = sub(ObjectShadowConfig, "the object's shadow map from each light")
-    mesh_ao_discs: int = knob(512, "sampling", "area elements a mesh is cut into for the sky it hides: 1024, at "
-                                               "twice the cost, scored 0.04 dB more on seed 8128 (shadow IoU "
-                                               "0.387 vs 0.385)", hi=65536)
-    near_field_spacings: float = knob(2.0, "sampling", "within this many element spacings (the square root of an "
-                                                       "element's area) of a point the mesh's own triangles stand in "
-                                                       "for its elements: by a sphere of radius 0.5, 1 and 1.5 "
-                                                       "spacings dipped to 0.71 and 0.54 where 0.80 and 0.63 are "
-                                                       "exact; 2 is within 0.02 everywhere")
-    near_field_triangles: int = knob(1000, "sampling", "triangles a point's near field may hold before the mesh is "
-                                                       "simplified for it (vertex clustering; the surface moves "
-                                                       "less than its radius / 12.6): a scan's 16x a 20480-face "
-                                                       "sphere's cost 0.4 s a job")
-
+    mesh_fade_samples: int = knob(512, "sampling", "surface samples of the object's mesh a pixel's distance to it "
+                                                   "is measured from (the sky occlusion's fade toward the shading "
+                                                   "mask's edge)", hi=65536)
     bounce_rays: int = knob(16, "sampling", "cosine-distributed rays per pixel of the object along which the "
                                             "light of what is not sky (the floor, a wall, itself) is gathered "
                                             "(reflect.bounce); 0: the support's radiance below its horizon and "
