@@ -56,6 +56,17 @@ def _may_hit(P, D, c, R, spread=0.0, tmax=None):
     return d2 <= (R + spread * t) ** 2
 
 
+def _toward_sphere(P, c, R):
+    """((N, 3) unit directions from ``P`` (N, 3) to the sphere's centre ``c``, (N,) the
+    cosine of the half-angle it subtends, -1 where a point is inside it): a ray from a
+    point can meet the sphere only within that cone."""
+    w = c - P
+    dist = length(w)
+    u = w / np.maximum(dist, 1e-12)[:, None]
+    cos_b = np.sqrt(np.clip(1.0 - (R / np.maximum(dist, 1e-12)) ** 2, 0.0, 1.0))
+    return u, np.where(dist > R, cos_b, -1.0)
+
+
 def light_visibility(mesh, points: np.ndarray, normals: np.ndarray, light, k: int, jitter: np.ndarray,
                      bias: np.ndarray) -> np.ndarray:
     """(N,) the share of ``light``'s disc (``lightmodel.Sun`` or ``Lamp``) the points
@@ -83,19 +94,22 @@ def light_visibility(mesh, points: np.ndarray, normals: np.ndarray, light, k: in
         f = Lc
     u, v = orthonormal_rows(f)
     off = disc_samples(int(k), jitter[idx])
-    seen = np.zeros(len(idx))
-    rc = caster(mesh)
-    for j in range(int(k)):
-        if light.varies:
-            q = light.position[None] + light.radius_m * (off[j, :, :1] * u + off[j, :, 1:] * v)
-            d = q - s
-            t = length(d)
-            d = d / np.maximum(t, 1e-12)[:, None]
-        else:
-            d = Lc + ta[:, None] * (off[j, :, :1] * u + off[j, :, 1:] * v)
-            d = d / np.maximum(length(d), 1e-12)[:, None]
-            t = None
-        seen += ~rc.occluded(s, d, t)
+    # every sample of every point in one call to the ray tracer
+    spread = off[..., :1] * u[None] + off[..., 1:] * v[None]  # (k, M, 3)
+    S = np.broadcast_to(s, spread.shape).reshape(-1, 3)
+    if light.varies:
+        d = (light.position[None, None] + light.radius_m * spread - s[None]).reshape(-1, 3)
+        t = length(d)
+        d = d / np.maximum(t, 1e-12)[:, None]
+    else:
+        d = (Lc[None] + ta[None, :, None] * spread).reshape(-1, 3)
+        d = d / np.maximum(length(d), 1e-12)[:, None]
+        t = None
+    near = _may_hit(S, d, c, R, 0.0, t)
+    hit = np.zeros(len(S), bool)
+    if near.any():
+        hit[near] = caster(mesh).occluded(S[near], d[near], None if t is None else t[near])
+    seen = (~hit).reshape(int(k), -1).sum(0)
     vis[idx] = seen / int(k)
     return vis
 
@@ -133,18 +147,19 @@ def sky_occlusion(mesh, points: np.ndarray, normals: np.ndarray, pool, k: int, j
     start = P + Nn * np.asarray(bias, np.float64)[:, None]
     k = max(1, min(int(k), n))
     base = (np.asarray(jitter, np.float64) * (n / k)).astype(np.int64)
-    num = np.zeros((len(P), 3))
-    den = np.zeros((len(P), 3))
-    rc = caster(mesh)
-    for j in range(k):
-        pick = (base + (j * n) // k) % n
-        d = dirs[pick]
-        w = np.maximum(np.sum(Nn * d, 1), 0.0)[:, None] * chroma[pick]
-        den += w
-        cand = (w[:, 0] > 0) & _may_hit(start, d, c, R)
-        if cand.any():
-            hit = rc.occluded(start[cand], d[cand])
-            num[cand] += w[cand] * hit[:, None]
+    pick = (base[None] + (np.arange(k)[:, None] * n) // k) % n  # (k, N)
+    d = dirs[pick]  # (k, N, 3)
+    w = np.maximum(np.sum(Nn[None] * d, -1), 0.0)[..., None] * chroma[pick]  # (k, N, 3)
+    den = w.sum(0)
+    u0, cos_b = _toward_sphere(start, c, R)
+    cand = ((w[..., 0] > 0) & (np.einsum("knj,nj->kn", d, u0) >= cos_b[None])).reshape(-1)
+    S = np.broadcast_to(start, d.shape).reshape(-1, 3)
+    D = d.reshape(-1, 3)
+    W = w.reshape(-1, 3)
+    hit = np.zeros(len(S), bool)
+    if cand.any():
+        hit[cand] = caster(mesh).occluded(S[cand], D[cand])
+    num = (W * hit[:, None]).reshape(k, -1, 3).sum(0)
     ok = den > 1e-12
     out[ok] = num[ok] / den[ok]
     return out
