@@ -142,3 +142,18 @@ def no_ray(monkeypatch):
 
     return lambda: monkeypatch.setattr(builtins, "__import__", blocked)
 
+
+
+@pytest.fixture(scope="session")
+def stability_sweep():
+    """``benchmarks/stability_sweep.py`` as a module: its scenes, cells and CI slice
+    (tests/test_stability_sweep.py, tests/test_working_scale.py)."""
+    import importlib.util
+    import sys
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "stability_sweep.py"
+    spec = importlib.util.spec_from_file_location("stability_sweep", path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["stability_sweep"] = mod
+    spec.loader.exec_module(mod)
+    return mod

@@ -53,7 +53,7 @@ def test_composite_with_learned_normals_albedo_and_depth(tmp_path, marigold_dirs
     jobs = _write(tmp_path, marigold_dirs, depth=depth)
     r = _invoke("composite", jobs, "--out", tmp_path / "out", "--cache-dir", tmp_path / "cache")
     assert r.exit_code == 0, r.output
-    job = next((tmp_path / "out").glob("*/"))
+    job = next(p for p in (tmp_path / "out").glob("*/") if (p / "report.json").is_file())
     rep = json.loads((job / "report.json").read_text())
     src = rep["scene"]["sources"]
     for m in ("depth", "normals", "albedo", "roughness", "metallic"):

@@ -38,6 +38,9 @@ __all__ = [
     "GAMMA",
     "SHADING_EPS",
     "SHADING_MAX",
+    "WORKING_LEVEL_RANGE",
+    "WORKING_LEVEL",
+    "working_scale",
     "CONDITIONING_VARIANTS",
 ]
 
@@ -54,6 +57,19 @@ GAMMA = 2.2
 # (DESIGN.md section 3 and the official conditioning).
 SHADING_EPS = 1e-5
 SHADING_MAX = 1e3
+# The photograph's working level (issue 49). The shading's clamp above and the
+# compositor's ratio epsilon (1e-4) are absolute: a photograph whose radiance sits far
+# from 1 -- an EXR in absolute units, 1e-6 or 1e6 -- lost its light to the clamp (its
+# object drawn 1000 times too dark) or its shadow to the epsilon. A photograph whose
+# median luminance lies outside WORKING_LEVEL_RANGE is worked at WORKING_LEVEL instead
+# (divided by a power of two, exact in floating point) and every output is multiplied
+# back (``working_scale``). The range is where neither bites: at a median luminance of
+# 2^-6 the epsilon moves a shadow's ratio of 1/3 by 0.6 %, and at 2^4 a surface of
+# albedo 0.02 (asphalt) shades at 800, under the clamp; the level is an LDR
+# photograph's (an 18 % grey card exposed as a camera meters it). Photographs inside the
+# range are worked at their own level, as before.
+WORKING_LEVEL_RANGE = (2.0 ** -6, 2.0 ** 4)
+WORKING_LEVEL = 0.18
 # A normal this far from unit length is not one: a map's invalid pixels hold zeros or
 # garbage, and a stored unit normal, even in half floats, is within 1e-3 of 1.
 UNIT_NORMAL_TOL = 0.2
@@ -261,3 +277,24 @@ def conditioning_to_camera_normals(encoded) -> np.ndarray:
         (..., 3) float32 unit camera-frame normals; (0.5, 0.5, 0.5) (zero vector) stays 0.
     """
     return normalize(2.0 * np.asarray(encoded, dtype=np.float32) - 1.0)
+
+
+def working_scale(image) -> float:
+    """The power of two a photograph is divided by to be worked at ``WORKING_LEVEL``
+    (the comment of ``WORKING_LEVEL_RANGE``): 1.0 when the median luminance of its
+    finite positive pixels lies in ``WORKING_LEVEL_RANGE`` (or none is positive), else
+    ``2 ** round(log2(median / WORKING_LEVEL))``.
+
+    Args:
+        image: (H, W, 3) linear RGB.
+    """
+    img = np.asarray(image, np.float64)
+    lum = img.reshape(-1, 3) @ REC601.astype(np.float64)
+    lum = lum[np.isfinite(lum) & (lum > 0)]
+    if lum.size == 0:
+        return 1.0
+    level = float(np.median(lum))
+    lo, hi = WORKING_LEVEL_RANGE
+    if lo <= level <= hi:
+        return 1.0
+    return float(2.0 ** round(np.log2(level / WORKING_LEVEL)))

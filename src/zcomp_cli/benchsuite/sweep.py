@@ -26,7 +26,8 @@ by the same code: a snapshot of the zcomp_cli package taken at the start
 
 Knobs:
 * physical: working ``resolution`` (native, 3/4, 1/2, keeping the aspect),
-  ``march_steps``, ``n_light_candidates``, ``max_resolution`` (of the light estimation);
+  ``march_steps``, ``n_light_candidates``, ``max_resolution`` (of the light estimation),
+  the light fit's ``cone_samples`` and ``estimate_march_steps``;
 * zerocomp: DDIM ``steps`` at full frame and with ``crop``, only when ZCOMP_CONTROLNET
   and ZCOMP_SD_BASE name existing folders (otherwise the skip and its reason are printed);
 * cycles: path ``samples`` with Open Image Denoise (``samples_denoised``) and without
@@ -73,12 +74,18 @@ PHYSICAL_KNOBS_FULL = {
     "march_steps": [8, 16, 32, 64],
     "n_light_candidates": [64, 128, 256],
     "max_resolution": [96, 160, 256],
+    # the light fit's own samples (issue 49: the stability sweep's knobs that trade
+    # accuracy for time): directions per pixel over a light's cone, steps of its march
+    "cone_samples": [2, 4, 8, 16],
+    "estimate_march_steps": [8, 16, 32],
 }
 PHYSICAL_KNOBS_QUICK = {
     "resolution": [1.0, 0.5],
     "march_steps": [8, 32],
     "n_light_candidates": [64, 256],
     "max_resolution": [96, 160],
+    "cone_samples": [4, 8],
+    "estimate_march_steps": [8, 16],
 }
 ZEROCOMP_STEPS_FULL = [1, 2, 4, 8, 20]
 ZEROCOMP_STEPS_QUICK = [1, 4]

@@ -201,6 +201,8 @@ def albedo_offset(fp: FitPixels, shading: np.ndarray, base: np.ndarray, *, cfg: 
 
     a = fp.albedo @ REC601
     ok = a > 1e-3
+    if not (fp.train & ok).any():  # no fit pixel of any albedo: no offset to read (its losses were NaN)
+        return 0.0
     img = (shading @ REC601) * a
     best_g, best_l = 0.0, None
     for g in cfg.albedo_offsets:

@@ -49,8 +49,9 @@ from zcomp_cli.errors import InputError
 from zcomp_cli.light import atoms as at
 from zcomp_cli.light import search as sr
 from zcomp_cli.light.config import LightConfig
+from zcomp_cli.light.ledger import timed
 from zcomp_cli.light.posterior import DirectionPosterior
-from zcomp_cli.light.prepare import Prepared, prepare
+from zcomp_cli.light.prepare import Prepared, prepare, reads_shadows
 from zcomp_cli.light.solver import Atom, fit
 from zcomp_cli.scene import sh
 from zcomp_cli.scene.lightmodel import FitSummary, Lamp, LightModel, ProbeRef, ShadowKind, Sky, Sun
@@ -540,8 +541,12 @@ def fit_light(params: LightParams | None, depth, normals, shading, known, albedo
     """
     params = LightParams.estimate() if params is None else params
     up = np.asarray(up, np.float64)
-    pp = prepare(depth, normals, shading, known, albedo, camera, up, cfg)
+    steps: dict = {}  # each step's seconds (the job's ledger: ``light.ledger``)
+    with timed(steps, "prepare"):
+        pp = prepare(depth, normals, shading, known, albedo, camera, up, cfg, shadows=reads_shadows(params, cfg),
+                     steps=steps)
     ctx = Context(pp=pp, cfg=cfg, seed=seed, up=up, up_from=up_from)
+    ctx.diagnostics["steps"] = steps
     if pp.grid is not None:
         ctx.diagnostics["mesh"] = pp.grid.mesh
     few = cfg.search.few_pixels
@@ -553,15 +558,19 @@ def fit_light(params: LightParams | None, depth, normals, shading, known, albedo
     for t in terms:
         if isinstance(t, SunTerm) and t.searched and not ctx.fitting:
             continue  # nothing to search it with: left out below
-        t.resolve(ctx)
+        with timed(steps, "probe" if isinstance(t, ProbeTerm) else "search" if getattr(t, "searched", False)
+                   else "lights"):
+            t.resolve(ctx)
     terms = [t for t in terms if not (isinstance(t, SunTerm) and t.searched and not ctx.fitting)]
-    _sizes(ctx, terms)
+    with timed(steps, "sizes"):
+        _sizes(ctx, terms)
     for t in terms:
         t.columns(ctx)
     sup = ctx.support
     level = (np.median(pp.shading[sup], axis=0) if len(fp) else np.full(3, 0.5))
-    atoms, share, n_eff, info = _atoms(ctx, terms, level)
-    weights, residual = _solve(ctx, atoms, params.exposure, info)
+    with timed(steps, "solve"):
+        atoms, share, n_eff, info = _atoms(ctx, terms, level)
+        weights, residual = _solve(ctx, atoms, params.exposure, info)
     exposure = float(np.mean(weights[info["exposure"]])) if info["exposure"] is not None else float("nan")
     for i, (tied, w) in enumerate(zip(atoms, weights)):
         for c, m, d in tied.parts:

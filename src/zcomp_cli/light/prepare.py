@@ -7,6 +7,13 @@ the sky seen from each fit pixel (``skyvis``), and the scene's **depth mesh**
 (``depthmesh``: discontinuities cut, occluders extruded backwards) with its ray tracer
 (``raycast``, Embree), through which every light ray of the fit is cast, on a second
 copy (``shadow_resolution``) where the support's cast shadows are read (``ShadowGrid``).
+
+The mesh, its ray tracer and the shadow grid are built only for a fit that reads the
+photograph's shadows (``reads_shadows``: a searched direction, a size to choose, the key
+light's split from the sky; issue 49). A light given whole -- its directions, sizes and
+strengths, or a probe -- is fitted without them: its exposure alone is free, and its
+lights' rays are marched through the depth map (``march``), as the synthesis marches
+them.
 """
 
 from __future__ import annotations
@@ -65,7 +72,25 @@ class ShadowGrid:
     known: np.ndarray
 
 
-def prepare(depth, normals, shading, known, albedo, camera: Camera, up, settings: LightConfig) -> Prepared:
+def reads_shadows(params, settings: LightConfig) -> bool:
+    """Whether fitting the light tree ``params`` (``lightparams.LightParams``) reads the
+    photograph's shadows -- the depth mesh, its ray tracer and the shadow grid
+    (``ShadowGrid``): a sun whose direction is searched, a sun whose angular radius is
+    chosen by its shadows (no ``shadow_softness`` forcing one), or a light of free
+    strength beside a fitted sky (the key light's split, read across its shadows' edges)."""
+    free_sky = params.probe is None and not params.sky.radiance_sh.frozen
+    for s in params.suns:
+        if not s.direction_given:
+            return True
+        if settings.shadow_softness is None and not s.radius_deg.frozen:
+            return True
+    free = [s for s in params.suns if not s.irradiance.frozen and s.share is None]
+    free += [lp for lp in params.lamps if not lp.power.frozen]
+    return bool(free) and free_sky
+
+
+def prepare(depth, normals, shading, known, albedo, camera: Camera, up, settings: LightConfig, *,
+            shadows: bool = True, steps: dict | None = None) -> Prepared:
     """Step 1 (module docstring).
 
     Args:
@@ -73,7 +98,12 @@ def prepare(depth, normals, shading, known, albedo, camera: Camera, up, settings
         shading: (H, W, 3) linear image / albedo, used where ``known`` (H, W) bool.
         albedo: (H, W, 3) linear albedo. camera: the view. up: (3,) world up, camera frame.
         settings: the light stage's config.
+        shadows: build the depth mesh, its ray tracer and the shadow grid
+            (``reads_shadows``); False: the fit pixels' rays are marched, ``grid`` is None.
+        steps: where the seconds of the mesh and its tracer go (``shadows``; the job's
+            ledger, ``light.ledger``), None: not recorded.
     """
+    from zcomp_cli.light.ledger import timed
     from zcomp_cli.scene.depthmesh import build_depth_mesh
     from zcomp_cli.scene.planes import find_walls
     from zcomp_cli.worldframe import ground_frame
@@ -91,14 +121,20 @@ def prepare(depth, normals, shading, known, albedo, camera: Camera, up, settings
     if len(fp) == 0:
         return Prepared(fp=fp, shading=S, sky_vis=(np.zeros((1, 0, 3)), np.zeros((1, 0))), ground=np.zeros(3),
                         frame=frame, lobe_columns=np.zeros((0, len(at.sky_lobes(frame)))))
-    mesh = build_depth_mesh(d2, n2, cam2, up, walls=walls, cfg=settings.mesh)
-    caster = mesh.caster()
-    fp = dataclasses.replace(fp, caster=caster)
+    mesh = caster = None
+    if shadows:
+        with timed({} if steps is None else steps, "shadows"):
+            mesh = build_depth_mesh(d2, n2, cam2, up, walls=walls, cfg=settings.mesh)
+            caster = mesh.caster()
+        fp = dataclasses.replace(fp, caster=caster)
     ground = at.ground_radiance(fp, S)
     vis = at.sky_visibility(fp)
     S = np.maximum(S - at.bounce(fp, ground), 0.0)
     lobes = np.stack([at.sky_atom_values(fp, c, vis) for _, c in at.sky_lobes(frame)], 1)
     g = at.albedo_offset(fp, S, lobes, cfg=settings.frame, solver=settings.solver) if fp.train.any() else 0.0
+    if not shadows:
+        return Prepared(fp=fp, shading=at.offset_shading(fp, S, g), sky_vis=vis, ground=ground, frame=frame,
+                        lobe_columns=lobes, albedo_offset=g)
     # the shadows' shading: the copy's image over its albedo (plus the offset), each
     # area-averaged apart -- an anti-aliased albedo edge averages out in both, where the
     # average of per-pixel ratios keeps its error
@@ -122,4 +158,4 @@ def _area_copy(img: np.ndarray, shape) -> np.ndarray:
     return cv2.resize(img.astype(np.float32), (w, h), interpolation=cv2.INTER_AREA).astype(np.float64)
 
 
-__all__ = ["Prepared", "ShadowGrid", "prepare"]
+__all__ = ["Prepared", "ShadowGrid", "prepare", "reads_shadows"]

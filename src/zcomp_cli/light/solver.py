@@ -288,9 +288,13 @@ def score_candidates(base: np.ndarray, cands: np.ndarray, y: np.ndarray, train: 
         A[:, nb, :nb] = bd
         A[:, nb, nb] = (wd * Dt).sum(0)
         # a relative Tikhonov floor: collinear columns (sky lobes on one plane) and a
-        # candidate that lights no pixel leave the normal equations singular
-        diag = np.einsum("kii->ki", A).mean(1)
-        A += (1e-9 * np.maximum(diag, 1e-300))[:, None, None] * np.eye(nb + 1)[None]
+        # candidate that lights no pixel leave the normal equations singular. Relative to
+        # each column's own scale: relative to their mean, a lamp's column (1/r^2: a
+        # million times the sky's in a scene measured in millimetres) set the floor of
+        # all the others, and the light found depended on the depth map's unit (issue 49)
+        diag = np.einsum("kii->ki", A)
+        floor = np.maximum(diag, 1e-12 * diag.mean(1, keepdims=True) + 1e-300)
+        A += (1e-9 * floor)[:, :, None] * np.eye(nb + 1)[None]
         rhs = np.empty((K, nb + 1))
         rhs[:, :nb] = (By.T @ w).T
         rhs[:, nb] = wd.T @ yt

@@ -25,7 +25,7 @@ import hashlib
 import io
 import json
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -37,8 +37,9 @@ from zcomp_cli.light.posterior import DirectionPosterior
 from zcomp_cli.scene.lightmodel import LightModel
 from zcomp_cli.scene.lightparams import LightParams
 
-# The disk cache's format: an entry written by another format is refitted.
-FORMAT = 1
+# The disk cache's format: an entry written by another format is refitted. (2: a light
+# given whole is fitted without the depth mesh, its rays marched: issue 49.)
+FORMAT = 2
 # Fits kept in memory (per process): a batch visits its scenes in order, so a few are
 # enough; each holds the posterior and the evidence's small maps.
 KEEP_IN_MEMORY = 8
@@ -119,6 +120,7 @@ class FittedLight:
     key: str
     seconds: float
     how: str = "fitted"
+    steps: dict = field(default_factory=dict)  # each step's seconds (``ledger``)
 
     def ledger(self) -> dict:
         """The light stage's line in a job's report."""
@@ -184,7 +186,7 @@ class SceneLight:
                         up_from=up_from, cfg=self.cfg, seed=seed)
         evidence = LightEvidence.from_fit(res.diagnostics.get("evidence"), res.diagnostics.get("mesh"))
         return FittedLight(model=res.model, params=res.params, posterior=res.posterior, evidence=evidence, key=key,
-                           seconds=time.perf_counter() - t0)
+                           seconds=time.perf_counter() - t0, steps=dict(res.diagnostics.get("steps") or {}))
 
     def _remember(self, key: str, fitted: FittedLight) -> None:
         while len(self._memory) >= KEEP_IN_MEMORY:
@@ -205,7 +207,7 @@ class SceneLight:
         from zcomp_cli.imageio import atomic_path
 
         doc = {"format": FORMAT, "model": fitted.model.to_dict(), "params": fitted.params.to_dict(),
-               "seconds": fitted.seconds}
+               "seconds": fitted.seconds, "steps": fitted.steps}
         arrays = {"doc": np.array(json.dumps(doc))}
         p = fitted.posterior
         if p is not None:
@@ -245,7 +247,8 @@ class SceneLight:
                     ev = LightEvidence(soft_mask=z["ev_soft"], confidence=z["ev_conf"], ratio=z["ev_ratio"],
                                        casters=z["ev_casters"])
                 return FittedLight(model=LightModel.from_dict(doc["model"]), params=LightParams.from_dict(doc["params"]),
-                                   posterior=post, evidence=ev, key=key, seconds=float(doc["seconds"]), how="cache")
+                                   posterior=post, evidence=ev, key=key, seconds=float(doc["seconds"]), how="cache",
+                                   steps={k: float(v) for k, v in (doc.get("steps") or {}).items()})
         except Exception:  # noqa: BLE001 - a damaged entry is refitted, never fatal
             return None
 

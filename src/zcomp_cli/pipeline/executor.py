@@ -126,6 +126,7 @@ def run_chunk(ctx: BatchContext, chunk: list[JobWork]) -> list[JobStatus]:
 
 def prepare_chunk(ctx: BatchContext, chunk: list[JobWork]):
     """Steps 1-4 of every job of the chunk -> (prepared, statuses, started, locks)."""
+    from zcomp_cli.light.ledger import light_entries
     from zcomp_cli.pipeline.job import prepare_job
 
     statuses: dict[int, JobStatus] = {}
@@ -136,16 +137,23 @@ def prepare_chunk(ctx: BatchContext, chunk: list[JobWork]):
         t0 = started[w.job.index] = time.perf_counter()
         try:
             locks[w.job.index] = job_lock(ctx.out_root, w.job.name)
+            loads = ctx.scenes.loads
             scene = ctx.scenes.get(w.job.scene)
             t_load = time.perf_counter() - t0
+            w.facts["scene_loaded"] = ctx.scenes.loads > loads
             t1 = time.perf_counter()
             fitted = ctx.lights.get(scene, w.job.seed) if ctx.lights is not None else None
             t_light = time.perf_counter() - t1
+            t2 = time.perf_counter()
             bundle = load_object_bundle(ctx, w, scene)
+            t_object = time.perf_counter() - t2
+            w.facts["glossy"] = bundle.roughness is not None
+            # (the light's ledger entries, not the fitted light: a batch keeps its works)
+            w.facts["light"] = None if fitted is None else light_entries(fitted, getattr(scene, "light", None), t_light)
             prep = prepare_job(scene, bundle, shading_radius=w.job.shading_radius, seed=w.job.seed,
                                debug=ctx.debug, aovs=ctx.aovs, fitted_light=fitted)
-            prep.timings = {"scene_load_s": t_load, **({"light_s": t_light} if fitted is not None else {}),
-                            **prep.timings}
+            prep.timings = {"scene_load_s": t_load, "object_load_s": t_object,
+                            **({"light_s": t_light} if fitted is not None else {}), **prep.timings}
             prepared.append((w, scene, prep))
         except Exception as exc:  # noqa: BLE001 - reported per job
             statuses[w.job.index] = _failed(ctx, w, exc, t0)
@@ -167,6 +175,7 @@ def render_and_finish(ctx: BatchContext, chunk, prepared, statuses, started, loc
 
 def _render_and_finish(ctx: BatchContext, prepared, statuses, started) -> None:
     from zcomp_cli.pipeline.job import finish_job
+    from zcomp_cli.pipeline.ledger import job_ledger
 
     renderer = ctx.renderer
 
@@ -203,6 +212,10 @@ def _render_and_finish(ctx: BatchContext, prepared, statuses, started) -> None:
                                 aovs=ctx.aovs)
             report = job_report(ctx.manifest, w.job, w.fingerprint, scene, w.pose, w.bundle_dir, result,
                                 renderer_spec=ctx.renderer_spec)
+            report["stages"] = job_ledger(report, scene=scene, loaded=w.facts.get("scene_loaded", True),
+                                          object_kind=ctx.manifest.objects[w.job.object].kind,
+                                          rendered=w.facts.get("object"), light=w.facts.get("light"),
+                                          glossy=w.facts.get("glossy", False))
             write_job_outputs(out_dir, scene, result, report, debug=ctx.debug, aovs=ctx.aovs, started=started[w.job.index])
             statuses[w.job.index] = JobStatus(w.job, "done", None, time.perf_counter() - started[w.job.index],
                                               out_dir)

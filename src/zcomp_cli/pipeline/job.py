@@ -279,8 +279,15 @@ def finish_job(prep: PreparedJob, out: RenderOutput, renderer_name: str, rendere
         raise NumericalError("the composite has non-finite values")
     timings["compositor_s"] = time.perf_counter() - t
 
+    # back to the photograph's units (``Scene.working_scale``: a power of two, exact)
+    k = np.float32(getattr(prep.scene, "working_scale", 1.0))
+    x_bg, image = prep.scene.image, res.image
+    if k != 1.0:
+        x_bg, image, f_bg, f_comp = x_bg * k, image * k, f_bg * k, f_comp * k
+        f_object = None if f_object is None else f_object * k
     report = {
         **prep.report,
+        **({"working_scale": float(k)} if k != 1.0 else {}),
         **({"shading_mask_grown_px": int((s & ~prep.shading_mask).sum())} if out.shading_mask is not None else {}),
         "colour_balance": res.balance.tolist(),
         "renderer": {"settings": renderer_settings, "info": out.info, "timings": out.timings},
@@ -291,15 +298,16 @@ def finish_job(prep: PreparedJob, out: RenderOutput, renderer_name: str, rendere
     if debug:
         dbg = {**prep.debug_maps, "shading_mask": s.astype(np.float32), "f_bg": f_bg, "f_comp": f_comp, "ratio": res.ratio,
                "ratio_blurred": res.ratio_blurred, "weight": res.weight}
+        if k != 1.0 and "shading" in dbg:
+            dbg["shading"] = dbg["shading"] * k
         rdbg = check_debug_maps(out.debug_maps, (H, W), renderer_name)
     layers = {}
     if aovs:
         from zcomp_cli.compositing.aovs import aov_layers
 
-        layers = aov_layers(prep.scene.image, f_bg, f_comp, res.ratio_blurred, prep.object_mask, res.balance,
-                            res.image, f_object)
+        layers = aov_layers(x_bg, f_bg, f_comp, res.ratio_blurred, prep.object_mask, res.balance, image, f_object)
         layers.update(check_aov_layers(out.aov_layers, (H, W), renderer_name, set(layers)))
-    return JobOutput(res.image, report, dbg, layers, rdbg)
+    return JobOutput(image, report, dbg, layers, rdbg)
 
 
 def _object_layer(out: RenderOutput, k: int, shape: tuple[int, int], renderer_name: str):

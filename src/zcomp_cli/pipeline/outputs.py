@@ -314,6 +314,9 @@ def write_job_outputs(out_dir: Path, scene, result, report: dict, *, debug: bool
                    and not p.name.startswith("."))
     report["outputs"] = {str(p.relative_to(out_dir)): output_record(p) for p in files}
     report["timings"] = {**report.get("timings", {}), "write_s": t_write}
+    if isinstance(report.get("stages"), list):  # (the job's ledger, ``pipeline.ledger``)
+        report["stages"] = [*report["stages"], {"stage": "write", "status": "run", "why": None,
+                                                "seconds": round(t_write, 4)}]
     if started is not None:
         report["timings"]["job_total_s"] = time.perf_counter() - started
     write_json_atomic(out_dir / REPORT, report)

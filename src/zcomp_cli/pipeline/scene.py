@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from zcomp_cli.camera import DEFAULT_FOV_DEG, Camera
-from zcomp_cli.conventions import normalize, valid_depth_mask
+from zcomp_cli.conventions import WORKING_LEVEL_RANGE, normalize, valid_depth_mask, working_scale
 from zcomp_cli.errors import InputError
 from zcomp_cli.pipeline.manifest import SceneSpec
 from zcomp_cli.maps import SceneMaps
@@ -34,6 +35,10 @@ class Scene:
     light: dict | None = None  # known lighting from the manifest (pipeline/lightspec.py)
     # what the estimators measured: {"fits": {...}, "agreement": (H, W) degrees or None}
     estimated: dict | None = None
+    # the power of two the photograph was divided by to be worked at
+    # (``conventions.working_scale``): ``image`` is the photograph over it, and every job
+    # output is multiplied back by it (1.0: the photograph as it is)
+    working_scale: float = 1.0
 
 
 def _hash_files(paths: list[Path], extra: str) -> str:
@@ -166,8 +171,28 @@ def load_scene(spec: SceneSpec, resolution: tuple[int, int] | None, *, cache_dir
     models = _model_fingerprints(spec.estimators)  # "" without model estimators: keys as before
     key = _hash_files(files, f"{size}|{camera.K.tolist()}|{sorted(spec.estimators.items())!r}"
                              + (f"|{models}" if models else ""))
-    return Scene(spec.name, image, scene_maps, camera, key, sources, notes, timings,
-                 light=getattr(spec, "light", None), estimated=estimated)
+    image, scale = _working_image(image, where, notes)
+    return Scene(spec.name, image, scene_maps, camera, key + (f"@{scale:g}" if scale != 1.0 else ""), sources, notes,
+                 timings, light=getattr(spec, "light", None), estimated=estimated, working_scale=scale)
+
+
+def _working_image(image: np.ndarray, where: str, notes: list) -> tuple[np.ndarray, float]:
+    """(the photograph at its working level, the power of two it was divided by):
+    ``conventions.working_scale``; 1.0 (the photograph as it is) where the division
+    would not be exact (values that would fall below float32's normal range)."""
+    scale = working_scale(image)
+    if scale == 1.0:
+        return image, 1.0
+    s = np.float32(scale)
+    worked = image / s
+    if not np.array_equal(worked * s, image):
+        notes.append(f"{where}: the photograph's level is far from 1 but cannot be rescaled exactly: worked as it is")
+        return image, 1.0
+    lo, hi = WORKING_LEVEL_RANGE
+    notes.append(f"{where}: the photograph's median luminance is outside [{lo:g}, {hi:g}]: worked at "
+                 f"2^{-round(math.log2(scale))} of its radiance (the shading's clamp and the shadow ratio's "
+                 "epsilon are absolute), every output multiplied back")
+    return worked.astype(np.float32), scale
 
 
 def _model_fingerprints(estimators: dict) -> str:
@@ -206,4 +231,4 @@ def _estimate_missing(spec, image, camera, maps, sources, cache_dir):
         if name not in out and getattr(est, name, None) is not None:
             out[name] = getattr(est, name)
             sources[name] = est.sources.get(name, "estimated")
-    return out, sources, {"fits": dict(est.fits), "agreement": est.agreement}
+    return out, sources, {"fits": dict(est.fits), "agreement": est.agreement, "timings": dict(est.timings)}

@@ -18,7 +18,7 @@
 from __future__ import annotations
 
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
@@ -113,21 +113,26 @@ class LightStore:
         from zcomp_cli.light.stage import LightInputs
 
         with self._lock:
+            scale = float(getattr(scene, "working_scale", 1.0))
             shading = shading_from_image(scene.image, scene.maps.albedo)
             inputs = LightInputs.of(scene.maps, shading, None, scene.camera, scene.key)
-            fitted = self.stage.get(inputs, getattr(scene, "light", None), seed)
+            fitted = self.stage.get(inputs, in_photo_units(getattr(scene, "light", None), 1.0 / scale), seed)
             if (scene.name, fitted.key) not in self._written:
                 self._written.add((scene.name, fitted.key))
-                self.write(scene.name, fitted)
+                self.write(scene.name, fitted, scale)
             return fitted
 
-    def write(self, name: str, fitted) -> None:
-        """The fitted light at ``path_of(name)`` (``light.written``); skipped, with a
+    def write(self, name: str, fitted, scale: float = 1.0) -> None:
+        """The fitted light at ``path_of(name)`` (``light.written``), in the photograph's
+        units (its values times the scene's ``working_scale``); skipped, with a
         warning, where its folder is not zcomp's to write into (a file, a link)."""
+        import dataclasses
         import logging
 
         from zcomp_cli.light.written import write_light_yaml
 
+        if scale != 1.0:
+            fitted = dataclasses.replace(fitted, params=in_photo_units(fitted.params, scale, filled=True))
         path = self.path_of(name)
         folder = path.parent
         if folder.is_symlink() or (folder.exists() and not folder.is_dir()):
@@ -141,6 +146,31 @@ class LightStore:
 
 # the folder of an output folder holding each scene's fitted light (``<scene>.yaml``)
 LIGHTS_DIR = "lights"
+
+
+def in_photo_units(params, k: float, *, filled: bool = False):
+    """A light tree whose values in the photograph's units are multiplied by ``k`` -- the
+    exposure (photograph units per physical unit) and the support's radiance -- where
+    they are given (or, ``filled``, fitted): ``1 / working_scale`` takes a manifest's
+    light to a scene's working units (``pipeline.scene.Scene.working_scale``),
+    ``working_scale`` a fitted one back for writing (an exposure nothing fixed is then
+    ``k``: the fitted strengths are in working units). None stays None; k = 1: as it is."""
+    import dataclasses
+
+    from zcomp_cli.scene.lightparams import Origin
+
+    if params is None or k == 1.0:
+        return params
+
+    def times(p, default=None):
+        if p.value is not None and (p.frozen or filled):
+            import numpy as np
+
+            return p.filled(np.asarray(p.value, np.float64) * k)
+        return p.filled(default, Origin.FIT) if default is not None else p
+
+    sky = dataclasses.replace(params.sky, ground=times(params.sky.ground))
+    return dataclasses.replace(params, sky=sky, exposure=times(params.exposure, k if filled else None))
 
 
 def light_config_of(spec: RendererSpec):
@@ -171,6 +201,10 @@ class JobWork:
     pose: object | None = None
     bundle_dir: Path | None = None
     error: str | None = None
+    # what the job's ledger needs to know of the stages before it (``pipeline.ledger``):
+    # ``object`` ({"cached", "seconds"} of its Blender passes), ``scene_loaded``, ``glossy``,
+    # ``light`` (the light stage's entries, ``light.ledger.light_entries``)
+    facts: dict = field(default_factory=dict)
 
 
 def resolve_batch_size(requested: int | None, renderer) -> int:
@@ -287,6 +321,7 @@ def render_objects(ctx: BatchContext, works: list[JobWork], *, session=None) -> 
     results = render_object_intrinsics(requests, cache_dir=ctx.cache_root, samples=ctx.samples, progress=_cb,
                                        session=session)
     for w, res in zip(owners, results):
+        w.facts["object"] = {"cached": bool(getattr(res, "cached", False)), "seconds": float(getattr(res, "seconds", 0))}
         if res.ok:
             w.bundle_dir = res.bundle_dir
         else:

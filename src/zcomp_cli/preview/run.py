@@ -165,7 +165,9 @@ def preview_scene(manifest, scene_name: str, renderer, *, out_dir, work: Path, p
     bh = max(1, box[3] - box[1])
     zoom = float(np.clip(ALONE_MIN_PX / bh, 1.0, MAX_ZOOM))
     ta = time.perf_counter()
+    # (in the photograph's units, as finish_job gives the composite: ``Scene.working_scale``)
     alone = renderer.render_alone(prep.requests[1], seed, box=box, zoom=zoom)
+    alone[..., :3] *= np.float32(scene.working_scale)
     alone_s = time.perf_counter() - ta
     render_s = time.perf_counter() - t
     startup = next((p.get("blender_startup_s") for p in out.info.get("passes", []) if p.get("blender_startup_s")),

@@ -236,7 +236,9 @@ def setup_render(item: dict) -> None:
     if item["denoise"]:
         c.denoiser = "OPENIMAGEDENOISE"
     scene.view_settings.view_transform = "Standard"
-    add_camera(scene, item["camera"], clip_end=1e4)
+    clip_start, clip_end = item.get("clip") or (1e-3, 1e4)  # (the renderer's clip_range)
+    cam = add_camera(scene, item["camera"], clip_end=float(clip_end))
+    cam.data.clip_start = float(clip_start)
     vl = scene.view_layers[0]
     vl.use_pass_combined = True
     light_passes = bool(item.get("light_passes"))

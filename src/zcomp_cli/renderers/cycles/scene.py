@@ -181,13 +181,21 @@ def walls_behind(walls) -> tuple:
 
 # The support's plane beyond the frame: a square this many metres from the camera's foot
 # either way (physical: the light model's support is infinite, ``Sky.ground``; from an
-# object 2 m above it, the plane beyond 100 m is under 1.2 deg of its horizon).
+# object 2 m above it, the plane beyond 100 m is under 1.2 deg of its horizon), and at
+# least GROUND_HALF_HEIGHTS times the camera's height above the support: in metres
+# alone, a scene seen from 100 m up (or measured in centimetres) had a floor smaller than
+# the one in view, and its objects saw the world below the horizon (with the camera's
+# clipping, ``renderer.clip_range``, the 8.8 % of the composite the stability sweep saw at
+# 10 km scale: issue 49). From the camera's own height
+# the plane beyond 50 heights is under 1.2 deg of the horizon, as above.
 GROUND_HALF_M = 100.0
+GROUND_HALF_HEIGHTS = 50.0
 
 
 def with_ground(arrays: dict, mesh, diffuse: np.ndarray) -> dict:
     """``arrays`` (``scene_mesh_arrays``) plus the support's plane beyond the frame: a
-    square of ``GROUND_HALF_M`` about the camera's foot, ``WALL_BEHIND_REL`` of the camera's
+    square of ``GROUND_HALF_M`` (at least ``GROUND_HALF_HEIGHTS`` camera heights) about the
+    camera's foot, ``WALL_BEHIND_REL`` of the camera's
     height below the support (the visible floor hides it wherever the mesh is), coloured
     the support pixels' mean ``diffuse``. Without it, whatever stands on the floor sees the
     world below the horizon where the floor leaves the frame, not the lit floor the
@@ -199,7 +207,7 @@ def with_ground(arrays: dict, mesh, diffuse: np.ndarray) -> dict:
     up = np.asarray(mesh.up, np.float64)
     right, _, fwd = ground_frame(up)
     base = up * (h0 - WALL_BEHIND_REL * abs(h0))
-    L = GROUND_HALF_M
+    L = max(GROUND_HALF_M, GROUND_HALF_HEIGHTS * abs(h0))
     V = np.stack([base + a * L * right + b * L * fwd for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
     F = np.array([[0, 1, 2], [0, 2, 3]], np.int64)
     # faces wound so that the normal is up (Blender shades both sides alike anyway)
@@ -233,5 +241,5 @@ def scene_mesh_arrays(mesh, albedo: np.ndarray, n_walls: int = 0) -> dict[str, n
             "colors": colors[used].astype(np.float32)}
 
 
-__all__ = ["world_rows", "fill_behind", "walls_behind", "with_ground", "WALL_BEHIND_REL", "GROUND_HALF_M", "blender_uv", "sky_image", "probe_image", "lamps_of", "scene_mesh_arrays",
+__all__ = ["world_rows", "fill_behind", "walls_behind", "with_ground", "WALL_BEHIND_REL", "GROUND_HALF_M", "GROUND_HALF_HEIGHTS", "blender_uv", "sky_image", "probe_image", "lamps_of", "scene_mesh_arrays",
            "SUN_WATTS_PER_SHADING", "LAMP_WATTS_PER_SHADING"]

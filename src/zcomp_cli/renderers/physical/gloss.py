@@ -254,6 +254,9 @@ _CACHE: dict = {}
 # prefiltered skies kept in this process (the sky of a scene's light, read by each of its
 # jobs' glossy objects): a few scenes' worth
 KEEP_PREFILTERED = 16
+# the seconds of each prefilter built in this process, in order (a job's ledger reads
+# whether its render built one: issue 49)
+BUILT: list = []
 
 
 def prefiltered_light(model: LightModel, cfg: GlossConfig) -> PrefilteredProbe:
@@ -271,6 +274,9 @@ def prefiltered_light(model: LightModel, cfg: GlossConfig) -> PrefilteredProbe:
         key = ("sky", model.sky.radiance_sh.tobytes(), model.up.tobytes(), cfg)
     pf = _CACHE.get(key)
     if pf is None:
+        import time
+
+        t0 = time.perf_counter()
         if ref is not None:
             from zcomp_cli.scene.probe import load_given_probe
 
@@ -283,6 +289,7 @@ def prefiltered_light(model: LightModel, cfg: GlossConfig) -> PrefilteredProbe:
         while len(_CACHE) >= KEEP_PREFILTERED:
             _CACHE.pop(next(iter(_CACHE)))
         _CACHE[key] = pf
+        BUILT.append(time.perf_counter() - t0)
     return pf if ref is None else pf.scaled(ref.scale)
 
 

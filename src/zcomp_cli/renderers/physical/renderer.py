@@ -91,8 +91,13 @@ class PhysicalRenderer(Renderer):
             requests = [_grown_request(req, reach) for req in requests]
         timings["shadow_reach"] = time.perf_counter() - t1
         t1 = time.perf_counter()
+        from zcomp_cli.renderers.physical.gloss import BUILT
+
+        built = len(BUILT)
         images, layers = zip(*[self._render_one(req, model) for req in requests])
         timings["synthesis"] = time.perf_counter() - t1
+        if len(BUILT) > built:  # (the job's ledger: a glossy prefilter built, not reused)
+            timings["prefilter_built"] = float(sum(BUILT[built:]))
         light = model.to_info()
         info = {"light": light, "fallback": light["fallback"], "shadow": str(model.shadows),
                 "settings": self.settings()}

@@ -64,3 +64,31 @@ def check_finite(x, stage: str):
             "try --dtype fp32 or another device"
         )
     return x
+
+
+# channels per map of the conditioning (``conventions.CONDITIONING_VARIANTS`` names them in order)
+MAP_CHANNELS = {"depth": 1, "normals": 3, "albedo": 3, "shading": 3, "mask": 1, "roughness": 1, "metallic": 1}
+
+
+def check_conditioning(cond, dtype) -> None:
+    """Raise NumericalError, naming the map, where the conditioning (B x C x R x R, float32)
+    does not fit ``dtype``: fp16's largest value is 65504, so a depth map in metres past
+    65 km (or one in millimetres past 65 m) would be Inf and every step after NaN (the
+    error then named the UNet's first step, not the depth)."""
+    import numpy as np
+    import torch
+
+    from zcomp_cli.conventions import CONDITIONING_VARIANTS
+
+    top = float(torch.finfo(dtype).max) if dtype.is_floating_point else float("inf")
+    c = np.asarray(cond)
+    big = np.abs(c) > top
+    if not big.any():
+        return
+    names = [m for m in CONDITIONING_VARIANTS.get(c.shape[1], ()) for _ in range(MAP_CHANNELS[m])]
+    k = int(np.flatnonzero(big.any(axis=(0, 2, 3)))[0])
+    name = names[k] if k < len(names) else f"channel {k}"
+    unit = " m" if name == "depth" else ""
+    raise NumericalError(f"zerocomp: the {name} map reaches {float(np.abs(c[:, k]).max()):.4g}{unit}, past "
+                         f"{dtype}'s largest value ({top:.0f}): it would be Inf in the model; use --dtype bf16 "
+                         "or fp32" + (", or a depth map in metres" if name == "depth" else ""))
