@@ -368,6 +368,12 @@ class PhysicalRenderer(Renderer):
             # the sky's visibility without the occluders' bounce, which the rays bring
             rb = float(np.clip(np.mean(albedo_mean), 0.0, 0.9)) * cfg.sky_bounce
             sky = np.maximum(shm.evaluate(shm.shading_coeffs(model.sky.radiance_sh), nv[sel]), 0.0)
+            from zcomp_cli.renderers.physical.softshadow import classwise_blur
+
+            # (the neighbours' rays averaged: each pixel's are turned apart)
+            gi = np.zeros(t.shape + (3,))
+            gi[ly[sel], lx[sel]] = got
+            got = classwise_blur(gi, cls, obj, cfg.bounce_blur_px)[ly[sel], lx[sel]] if cfg.bounce_blur_px > 0 else got
             raw = np.zeros(t.shape + (3,))
             raw[ly[sel], lx[sel]] = sky * (vis_sky[sel] - rb) / (1.0 - rb) + got + direct[sel]
             S = np.where(obj[..., None], film_filter(raw, cls, obj, cfg), S)

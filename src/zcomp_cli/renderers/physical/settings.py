@@ -75,6 +75,12 @@ class TransportConfig:
                                             "(reflect.bounce); 0: the support's radiance below its horizon and "
                                             "the occluders' bounce as a share of the scene's albedo, as the scene's "
                                             "own pixels get them", lo=0, lo_open=False, hi=4096)
+    bounce_blur_px: float = knob(3.0, "sampling", "radius (pixels; sigma half of it) of the blur over the object's "
+                                                  "pixels that averages the neighbours' bounce rays (each pixel's "
+                                                  "turned apart): the bounce is an irradiance, smooth over the "
+                                                  "surface; 16 rays a pixel under the film's filter alone left a "
+                                                  "grain 8x the sky's and the sun's on a sphere", lo=0.0,
+                                 lo_open=False, hi=64.0)
     light_samples: int = knob(16, "sampling", "rays per pixel over a sun's or lamp's disc toward which the "
                                               "object's mesh is tested (its soft shadow, scene.meshrays)", hi=4096)
     sky_rays: int = knob(32, "sampling", "rays per point toward the sky the object's mesh may hide, drawn where "
