@@ -86,7 +86,7 @@ def light_visibility(mesh, points: np.ndarray, normals: np.ndarray, light, k: in
     if not cand.any():
         return vis
     idx = np.flatnonzero(cand)
-    s, Lc, dc, ta = start[idx], L[idx], dist[idx], tan_a[idx]
+    s, Lc, ta = start[idx], L[idx], tan_a[idx]
     if light.varies and getattr(light, "facing", None) is not None:
         # a panel: its samples lie in its own plane
         f = np.broadcast_to(light.facing, Lc.shape)
