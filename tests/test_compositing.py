@@ -294,3 +294,32 @@ def test_composite_extremes_finite(scale):
     res = composite(xb, fb, fc, s, m)
     assert np.all(np.isfinite(res.image))
     assert res.image.dtype == np.float32
+
+
+def test_composite_takes_the_object_from_its_own_layer_at_a_partly_covered_pixel():
+    """``f_object`` (``RenderOutput.object_layers``): a pixel the object covers by m is m
+    of the object's own radiance and 1 - m of the surface behind it, the surface's shadow
+    ratio read from ``f_comp`` (the surface there). Without it ``f_comp`` is both, and a
+    renderer's anti-aliased edge (m obj + (1 - m) surface) puts the surface in twice: the
+    one-pixel fringe of issue 48."""
+    h, w = 16, 16
+    xb = np.full((h, w, 3), 0.2, np.float32)  # a dim floor
+    fb = xb.copy()
+    obj = np.array([0.8, 0.6, 0.4], np.float32)  # a bright object
+    s = np.zeros((h, w), bool)
+    s[2:14, 2:14] = True
+    m = np.zeros((h, w), np.float32)
+    m[6:10, 6:10] = 1.0
+    m[6:10, 10] = 0.5  # the object's right edge covers half of each pixel
+    f_object = np.zeros((h, w, 3), np.float32)
+    f_object[m > 0] = obj
+    surface = fb.copy()  # the floor behind the object, unshadowed here
+    res = composite(xb, fb, surface, s, m, f_object=f_object)
+    np.testing.assert_allclose(res.image[7, 10], 0.5 * obj + 0.5 * xb[7, 10], rtol=1e-5)
+    np.testing.assert_allclose(res.image[7, 7], obj, rtol=1e-5)
+    # the old contract, the edge's mixed radiance as the image: the floor counted twice
+    mixed = surface.copy()
+    mixed[m > 0] = m[m > 0, None] * obj + (1 - m[m > 0, None]) * surface[m > 0]
+    old = composite(xb, fb, mixed, s, m)
+    # (m of the mixed radiance: the object's own share m^2, the floor's m (1 - m) + (1 - m) R')
+    assert float(np.abs(old.image[7, 10] - res.image[7, 10]).max()) > 0.1

@@ -134,7 +134,9 @@ def test_the_renderers_cast_shadow_from_the_maps_occluder():
         out = PhysicalRenderer().render([bg, dataclasses.replace(comp, occluder=o)], seed=1)
         ratio = out.images[1].mean(-1) / np.maximum(out.images[0].mean(-1), 1e-6)
         assert np.all(np.isfinite(out.images[1]))
-        iou[name] = _iou(region & (ratio < 0.6), true)
+        # (the umbra's own ratio is ambient / (ambient + direct) = 0.59 here: a cut at 0.6
+        # halved it at the slightest penumbra; 0.7 lies between it and the lit floor)
+        iou[name] = _iou(region & (ratio < 0.7), true)
     assert iou["maps"] > 0.75
     assert iou["maps"] > iou["2.5D"] + 0.1
 

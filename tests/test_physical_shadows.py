@@ -220,7 +220,7 @@ def test_mesh_shadow_from_posed_mesh(tmp_path):
 def _sphere_mesh(centre_cam, radius):
     import trimesh
 
-    from zcomp_cli.renderers.physical.meshshadow import PosedMesh
+    from zcomp_cli.posed_mesh import PosedMesh
 
     m = trimesh.creation.icosphere(subdivisions=4, radius=radius)
     return PosedMesh(np.asarray(m.vertices) + np.asarray(centre_cam), np.asarray(m.faces))
@@ -298,116 +298,109 @@ def test_a_thin_objects_shadow_comes_from_its_mesh_not_a_thick_depth_shell():
     assert np.median(ratio[shadowed]) < 0.7  # the real shadow is drawn
 
 
-def test_mesh_occlusion_known_values():
-    """The posed mesh's share of a point's cosine-weighted sky: a sphere wholly above a
-    floor point hides (r / d)^2 cos(theta) of it; faces turned away hide nothing; the
-    winding does not matter; a degenerate mesh hides nothing."""
-    from zcomp_cli.renderers.physical.meshshadow import PosedMesh, mesh_discs, mesh_occlusion
+def _uniform_sky_pool(n=4096):
+    """``meshrays.sky_pool`` of a uniform sky over the hemisphere above +y."""
+    from zcomp_cli import equirect
+    from zcomp_cli.scene.meshrays import sky_pool
+    from zcomp_cli.worldframe import ground_frame
+
+    up = np.array([0.0, 1.0, 0.0])
+    frame = ground_frame(up)
+    d = equirect.pixel_directions(64, 128, frame)
+    return sky_pool(np.ones((64, 128, 3)), d, equirect.solid_angles(64, 128), up, n)
+
+
+def test_sky_occlusion_known_values():
+    """The posed mesh's share of a point's cosine-weighted sky, by rays on the mesh: a
+    sphere wholly above a floor point hides (r / d)^2 cos(theta) of it, by the contact
+    too (where a few area elements read it lighter than a ring around it); faces turned
+    away hide nothing; the winding does not matter; a mesh without area hides nothing."""
+    from zcomp_cli.posed_mesh import PosedMesh
+    from zcomp_cli.scene.meshrays import sky_occlusion
 
     r, c = 0.5, np.array([0.0, 0.5, 0.0])
     sph = _sphere_mesh(c, r)
-    x = np.array([0.7, 1.0, 1.5, 2.0, 4.0])
+    pool = _uniform_sky_pool()
+    x = np.array([0.05, 0.1, 0.3, 0.7, 1.0, 1.5, 2.0])
     P = np.stack([x, np.zeros_like(x), np.zeros_like(x)], 1)
     up = np.tile([0.0, 1.0, 0.0], (len(x), 1))
     dist = np.linalg.norm(c - P, axis=1)
     exact = (r / dist) ** 2 * (0.5 / dist)
-    got = mesh_occlusion(mesh_discs(sph), P, up)
-    assert np.allclose(got, exact, rtol=0.12, atol=0.004), (got, exact)
+    got = sky_occlusion(sph, P, up, pool, 4096, np.zeros(len(x)), np.full(len(x), 1e-4))[:, 0]
+    assert np.allclose(got, exact, atol=0.02), (got, exact)
     inside_out = PosedMesh(sph.vertices, sph.faces[:, ::-1])
-    assert np.allclose(mesh_occlusion(mesh_discs(inside_out), P, up), got, rtol=0.01)
+    assert np.allclose(sky_occlusion(inside_out, P, up, pool, 4096, np.zeros(len(x)), np.full(len(x), 1e-4)),
+                       sky_occlusion(sph, P, up, pool, 4096, np.zeros(len(x)), np.full(len(x), 1e-4)))
+    # a few rays a point, turned apart per pixel, average to the same
+    few = [sky_occlusion(sph, P, up, pool, 32, np.full(len(x), (j + 0.5) / 16), np.full(len(x), 1e-4))[:, 0]
+           for j in range(16)]
+    assert np.allclose(np.mean(few, 0), exact, atol=0.02)
     # turned away from the sphere, or on top of it looking up: nothing hidden
-    away = mesh_occlusion(mesh_discs(sph), np.array([[1.0, 0.5, 0.0], [0.0, 1.0 + 1e-3, 0.0]]),
-                          np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]))
+    away = sky_occlusion(sph, np.array([[1.0, 0.5, 0.0], [0.0, 1.0 + 1e-3, 0.0]]),
+                         np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]), pool, 256, np.zeros(2), np.full(2, 1e-4))
     assert np.all(away < 1e-3)
-    # by the contact, the discs are too sparse; the mesh's triangles (exact form
-    # factors) stand in for them there, and it is dark where the sphere meets the floor
-    xn = np.array([0.02, 0.05, 0.1, 0.2, 0.3])
-    Pn = np.stack([xn, np.zeros_like(xn), np.zeros_like(xn)], 1)
-    upn = np.tile([0.0, 1.0, 0.0], (len(xn), 1))
-    dn = np.linalg.norm(c - Pn, axis=1)
-    exact_n = (r / dn) ** 2 * (0.5 / dn)
-    for m in (sph, inside_out):
-        near = mesh_occlusion(mesh_discs(m), Pn, upn, mesh=m)
-        assert np.allclose(near, exact_n, atol=0.03), (near, exact_n)
-    assert mesh_occlusion(mesh_discs(sph), Pn[:1], upn[:1])[0] < 0.5  # discs alone miss it
     flat = PosedMesh(np.zeros((3, 3)), np.array([[0, 1, 2]]))
-    assert not mesh_occlusion(mesh_discs(flat), P, up).any()
-    assert not mesh_occlusion(mesh_discs(flat), P, up, mesh=flat).any()
-    assert mesh_occlusion(mesh_discs(sph), np.zeros((0, 3)), np.zeros((0, 3))).shape == (0,)
+    assert not sky_occlusion(flat, P, up, pool, 64, np.zeros(len(x)), np.zeros(len(x))).any()
+    assert sky_occlusion(sph, np.zeros((0, 3)), np.zeros((0, 3)), pool, 8, np.zeros(0), np.zeros(0)).shape == (0, 3)
 
 
-def test_mesh_occlusion_of_a_sky_weights_each_element_by_the_radiance_behind_it():
-    """With ``radiance_sh`` each disc hides its form factor times the sky's radiance
-    behind it over the point's sky shading: a uniform sky gives the plain share; a sky
-    brighter on one side is hidden more by an object on that side; and the sum is the
-    direct one (each element's SH radiance from ``sh.basis``) to float32's precision."""
-    from zcomp_cli.scene import sh
-    from zcomp_cli.renderers.physical.meshshadow import mesh_discs, mesh_occlusion
+def test_sky_occlusion_weighs_each_direction_by_the_sky_behind_it():
+    """Directions are drawn where the sky is bright: an object on the bright side of a
+    point hides more of its sky than on the dark side, by the radiance's own share."""
+    from zcomp_cli import equirect
+    from zcomp_cli.scene.meshrays import sky_occlusion, sky_pool
+    from zcomp_cli.worldframe import ground_frame
 
     r, c = 0.5, np.array([0.0, 0.5, 0.0])
     sph = _sphere_mesh(c, r)
-    discs = mesh_discs(sph)
-    x = np.array([0.7, 1.0, 1.5, -1.0, -1.5])
+    up = np.array([0.0, 1.0, 0.0])
+    d = equirect.pixel_directions(64, 128, ground_frame(up))
+    bright = np.where(d[..., :1] < 0, 4.0, 1.0) * np.ones(3)  # brighter toward -x
+    pool = sky_pool(bright, d, equirect.solid_angles(64, 128), up, 4096)
+    P = np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]])
+    n = np.tile(up, (2, 1))
+    plain = sky_occlusion(sph, P, n, _uniform_sky_pool(), 4096, np.zeros(2), np.full(2, 1e-4))[:, 0]
+    side = sky_occlusion(sph, P, n, pool, 4096, np.zeros(2), np.full(2, 1e-4))[:, 0]
+    # seen from +x the sphere stands toward -x, in the bright half
+    assert side[0] > 1.3 * plain[0] and side[1] < 0.8 * plain[1]
+    # a coloured sky is hidden per channel
+    tint = np.where(d[..., :1] < 0, [4.0, 1.0, 1.0], [1.0, 1.0, 1.0])
+    rgb = sky_occlusion(sph, P[:1], n[:1], sky_pool(tint, d, equirect.solid_angles(64, 128), up, 4096), 4096,
+                        np.zeros(1), np.full(1, 1e-4))[0]
+    assert rgb[0] > 1.2 * rgb[1] and np.isclose(rgb[1], rgb[2], atol=1e-9)
+
+
+def test_light_visibility_samples_the_lights_disc():
+    """The share of a light's disc a point sees past the mesh: a sun's penumbra about the
+    geometric shadow's edge, full shadow under a sphere for a small sun and a partial one
+    under a lamp wider than the sphere, an umbra under the sphere where a wide panel lamp
+    sits above it, and no ray cast where none can reach the mesh."""
+    from zcomp_cli.scene.lightmodel import Lamp, Sun
+    from zcomp_cli.scene.meshrays import light_visibility
+
+    r, c = 0.3, np.array([0.0, 1.0, 0.0])
+    sph = _sphere_mesh(c, r)
+    x = np.array([0.0, 0.2, 0.3, 0.4, 1.0])
     P = np.stack([x, np.zeros_like(x), np.zeros_like(x)], 1)
     up = np.tile([0.0, 1.0, 0.0], (len(x), 1))
-    plain = mesh_occlusion(discs, P, up)
-    uniform = mesh_occlusion(discs, P, up, radiance_sh=np.eye(9, 1) * 0.7)
-    assert np.allclose(uniform[:, 0], plain, rtol=1e-4)
-    # a sky brighter toward -x: the sphere (at x = 0) hides more of it from points at +x
-    lop = np.zeros((9, 1))
-    lop[0], lop[3] = 1.0, -1.5  # Y_11 ~ x
-    side = mesh_occlusion(discs, P, up, radiance_sh=lop)[:, 0]
-    assert side[1] > plain[1] and side[3] < plain[3]
-    # the direct sum, element by element
-    from zcomp_cli.renderers.physical.meshshadow import _form_factors
-
-    f, _ = _form_factors(discs, P, up)
-    w = discs.centres[None] - P[:, None]
-    w = w / np.linalg.norm(w, axis=-1, keepdims=True)
-    L = np.maximum(sh.basis(w.reshape(-1, 3)) @ lop, 0.0).reshape(f.shape)
-    total = sh.evaluate(sh.shading_coeffs(lop), up)[:, 0]
-    direct = np.clip((f * L).sum(1) / total, 0.0, 1.0)
-    assert np.allclose(side, direct, rtol=1e-4, atol=1e-6)
-
-
-def test_a_dense_meshs_near_field_is_simplified_and_keeps_its_values():
-    # 81920 faces: more than NEAR_FIELD_TRIANGLES in a point's near field, so the exact
-    # form factors run on a vertex-clustered copy (fewer faces, never the original
-    # 20480-face sphere's); by the contact it still gives the sphere's known occlusion
-    import trimesh
-
-    from zcomp_cli.renderers.physical.meshshadow import PosedMesh, _near_field_mesh, mesh_discs, mesh_occlusion
-    from zcomp_cli.renderers.physical.settings import TransportConfig
-
-    NEAR_SPACINGS = TransportConfig().near_field_spacings
-
-    r, c = 0.5, np.array([0.0, 0.5, 0.0])
-    m = trimesh.creation.icosphere(subdivisions=6, radius=r)
-    dense = PosedMesh(np.asarray(m.vertices) + c, np.asarray(m.faces))
-    discs = mesh_discs(dense)
-    radius = NEAR_SPACINGS * np.sqrt(discs.areas.mean())
-    simple = _near_field_mesh(dense, radius)
-    assert len(simple.faces) < 0.7 * len(dense.faces)
-    light = _sphere_mesh(c, r)  # 5120 faces: left as it is
-    assert _near_field_mesh(light, NEAR_SPACINGS * np.sqrt(mesh_discs(light).areas.mean())) is light
-    # its vertices lie on the sphere to within a cell
-    assert np.abs(np.linalg.norm(simple.vertices - c, axis=1) - r).max() < radius / 12.0
-    xn = np.array([0.02, 0.05, 0.1, 0.2, 0.3])
-    Pn = np.stack([xn, np.zeros_like(xn), np.zeros_like(xn)], 1)
-    upn = np.tile([0.0, 1.0, 0.0], (len(xn), 1))
-    dn = np.linalg.norm(c - Pn, axis=1)
-    near = mesh_occlusion(discs, Pn, upn, mesh=dense)
-    assert np.allclose(near, (r / dn) ** 2 * (0.5 / dn), atol=0.03), near
-    # non-finite vertices: each its own cluster, their faces dropped, the rest unchanged
-    import warnings
-
-    bad = PosedMesh(dense.vertices.copy(), dense.faces)
-    bad.vertices[0] = np.nan
-    bad.vertices[1] = np.inf
-    with warnings.catch_warnings():  # and quietly: no RuntimeWarning from the inf corner
-        warnings.simplefilter("error", RuntimeWarning)
-        got = mesh_occlusion(mesh_discs(bad), Pn, upn, mesh=bad)
-    assert np.all(np.isfinite(got)) and np.allclose(got, near, atol=0.03)
+    bias = np.full(len(x), 1e-4)
+    jit = np.zeros(len(x))
+    sun = Sun(direction=[0.0, 1.0, 0.0], radius_deg=3.0, irradiance=[1.0, 1.0, 1.0])
+    v = light_visibility(sph, P, up, sun, 256, jit, bias)
+    assert v[0] == 0.0 and v[-1] == 1.0
+    # the penumbra: 1 m below the sphere's edge, +-tan(3 deg) * ~1 m wide
+    assert 0.3 < v[2] < 0.7 and v[1] < 0.1 and v[3] > 0.9
+    # a lamp 1 m above the sphere, wider than it: under its centre the sphere hides
+    # part of its disc, not all
+    lamp = Lamp(position=[0.0, 2.0, 0.0], radius_m=0.8, intensity=[1.0, 1.0, 1.0])
+    vl = light_visibility(sph, P, up, lamp, 256, jit, bias)
+    assert 0.05 < vl[0] < 0.95 and vl[-1] > vl[0]
+    panel = Lamp(position=[0.0, 2.0, 0.0], radius_m=0.8, intensity=[1.0, 1.0, 1.0], facing=[0.0, -1.0, 0.0])
+    vp = light_visibility(sph, P, up, panel, 256, jit, bias)
+    assert np.isclose(vp[0], vl[0], atol=0.1)  # a panel facing down is the sphere's disc here
+    # rays that cannot pass near the mesh are not cast: they see the whole light
+    far = light_visibility(sph, np.array([[5.0, 0.0, 0.0]]), up[:1], sun, 16, np.zeros(1), np.full(1, 1e-4))
+    assert far[0] == 1.0
 
 
 def test_the_sky_a_floating_object_hides_comes_from_its_mesh():
@@ -472,7 +465,7 @@ def test_a_degenerate_or_non_finite_occluder_mesh_hides_nothing_and_stays_finite
     vertex: the composite stays finite, and the collapsed one changes nothing."""
     import dataclasses
 
-    from zcomp_cli.renderers.physical.meshshadow import PosedMesh
+    from zcomp_cli.posed_mesh import PosedMesh
 
     s = floor_scene(112, 84, light_dir=SUN, ambient=0.3)
     bg, comp, sel, mask = _insert(s, [0.0, 0.3, -2.6])
@@ -493,89 +486,13 @@ def test_a_degenerate_or_non_finite_occluder_mesh_hides_nothing_and_stays_finite
     assert np.array_equal(img, base)  # as if there were none
 
 
-@pytest.mark.parametrize("ringing", [False, True])
-def test_radiance_weighted_mesh_occlusion_by_moments_equals_the_per_element_sum(ringing):
-    """The sky a posed mesh hides, weighted by the SH radiance behind each element, is
-    summed by moments of the elements' directions where the radiance is provably positive
-    wherever a point counts an element (its hemisphere within the elements' cone; issue
-    39's speed regression): the same values as evaluating and clamping each element's
-    radiance (written out here from ``sh.basis``), for a smooth sky and one whose order 2
-    rings below 0 (there the points facing the ringing keep the per-element sum). Floor
-    points around the object, points on it (inside the elements' bounding sphere) and
-    points facing down and sideways."""
-    import trimesh
-
-    from zcomp_cli.renderers.physical import meshshadow as M
-    from zcomp_cli.scene import sh
-
-    sph = trimesh.creation.icosphere(subdivisions=4, radius=0.3)
-    # a bumpy sphere: its own points see its other elements (concave dents)
-    v = np.asarray(sph.vertices) * (1.0 + 0.15 * np.sin(9.0 * np.asarray(sph.vertices)[:, :1] / 0.3))
-    mesh = M.PosedMesh(v + [0.4, -1.2, -3.0], np.asarray(sph.faces))
-    discs = M.mesh_discs(mesh)
-    xs, zs = np.meshgrid(np.linspace(-1, 2, 30), np.linspace(-4.5, -1.5, 30))
-    floor = np.stack([xs.ravel(), np.full(xs.size, -1.5), zs.ravel()], 1)
-    P = np.concatenate([floor, floor + [0, 0.6, 0], mesh.vertices[::7]])
-    rng = np.random.default_rng(3)
-    N = np.concatenate([np.tile([0.0, 1.0, 0.0], (len(floor), 1)), rng.normal(size=(len(floor), 3)),
-                        np.asarray(sph.vertex_normals)[::7]])
-    N /= np.linalg.norm(N, axis=1, keepdims=True)
-    sky = np.array([[1.0, 0.9, 0.8], [0.3, 0.3, 0.3], [0.5, 0.4, 0.3], [0.2, 0.1, 0.1], [0.05, 0, 0],
-                    [0, 0.05, 0], [0.1, 0.1, 0.1], [0, 0, 0.05], [0.05, 0.05, 0]])
-    if ringing:
-        sky = sky * [[1.0]] + np.array([[0], [1.4], [0.6], [0.7], [0.6], [0.2], [0.7], [0.3], [0.5]])
-    else:  # (its red rings to -0.002 at the least: lifted to stay positive everywhere)
-        sky[0] += 0.1
-    fast = M.mesh_occlusion(discs, P, N, radiance_sh=sky)
-    # the reference: each element's form factor times its clamped radiance
-    f, _ = M._form_factors(discs, P, N)
-    u = discs.centres[None] - P[:, None]
-    u /= np.linalg.norm(u, axis=-1, keepdims=True)
-    L = np.maximum(sh.basis(u.reshape(-1, 3)) @ sky, 0.0).reshape(len(P), -1, 3)
-    total = np.maximum(sh.evaluate(sh.shading_coeffs(sky), N), 1e-9)
-    slow = np.clip(np.einsum("nm,nmc->nc", f, L) / total, 0.0, 1.0)
-    assert slow.max() > 0.05
-    assert (slow[len(floor):] > 1e-3).sum() > 50  # the points off the floor count elements too
-    assert np.abs(fast - slow).max() < 1e-4
-    weigh = M._radiance_weights(sky, N, discs.centres)
-    safe = weigh._safe(P - weigh._origin, np.arange(len(P)))
-    if ringing:  # both paths taken
-        assert 0 < safe.sum() < len(P)
-    else:
-        assert safe.all()
-
-
-def test_negative_cells_bound_the_ringing():
-    """``_negative_cells`` finds every direction where a ringing sky is below 0 (a dense
-    set of directions, each inside a cell found), and none for a sky positive everywhere."""
-    from zcomp_cli.renderers.physical import meshshadow as M
-    from zcomp_cli.scene import sh
-
-    def cells(c):
-        a, b, A = sh.quadratic_form(c)
-        nA = np.array([np.abs(np.linalg.eigvalsh(A[..., k])).max() for k in range(c.shape[1])])
-        return M._negative_cells(a, b, A, nA)
-
-    u = np.random.default_rng(0).normal(size=(200000, 3))
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    ringing = np.array([[1.0], [1.7], [1.0], [0.9], [0.6], [0.2], [0.8], [0.3], [0.5]])
-    neg = (sh.basis(u) @ ringing)[:, 0] < 0
-    assert 0.02 < neg.mean() < 0.5
-    c, t = cells(ringing)
-    inside = (u[neg] @ c.T) >= np.cos(t)[None] - 1e-12
-    assert inside.any(1).all()
-    assert len(c) < 0.7 * 6 * 16 * 16  # and not the whole sphere
-    c, t = cells(np.array([[1.0], [0.3], [0.2], [0.1], [0], [0], [0.05], [0], [0]]))
-    assert len(c) == 0
-
-
 def test_a_meshs_triangle_areas_are_kept_for_its_arrays_only():
     # kept on the mesh for its uses in one render, read-only; new vertex arrays (a new
     # pose) are measured again
-    from zcomp_cli.renderers.physical import meshshadow as M
+    from zcomp_cli.posed_mesh import PosedMesh
     from zcomp_cli.scene.objectshadow import area_triangles as _area_triangles
 
-    mesh = M.PosedMesh(np.array([[0.0, 0, -3], [1, 0, -3], [0, 1, -3], [0, 0, -4]]), np.array([[0, 1, 2], [0, 1, 3]]))
+    mesh = PosedMesh(np.array([[0.0, 0, -3], [1, 0, -3], [0, 1, -3], [0, 0, -4]]), np.array([[0, 1, 2], [0, 1, 3]]))
     tri, cr, area, _ = _area_triangles(mesh)
     assert _area_triangles(mesh)[2] is area
     np.testing.assert_allclose(area, [0.5, 0.5])

@@ -8,7 +8,7 @@ One multi-layer EXR per job (``--aovs``: ``OUT/<job>/aovs.exr``), channels named
 | ``composite`` | R G B | the result, ``composite.exr`` |
 | ``background`` | R G B | the plate x_bg |
 | ``shadow`` | Y | the shadow/opacity ratio R' (1 off the shading mask) |
-| ``object`` | R G B A | the object, premultiplied: ``m C f(i_comp)``, alpha ``m`` |
+| ``object`` | R G B A | the object, premultiplied: ``m C f(i_comp)`` (``m C`` the renderer's object layer where it gives one), alpha ``m`` |
 | ``render_bg`` | R G B | f(i_bg), the renderer's background pass |
 | ``render_comp`` | R G B | f(i_comp), the renderer's composite pass |
 
@@ -27,17 +27,18 @@ import numpy as np
 LAYERS = ("composite", "background", "shadow", "object", "render_bg", "render_comp")
 
 
-def aov_layers(x_bg, f_bg, f_comp, ratio_blurred, obj_mask, balance, composite) -> dict:
+def aov_layers(x_bg, f_bg, f_comp, ratio_blurred, obj_mask, balance, composite, f_object=None) -> dict:
     """The layers of the table above: ``{layer: (H, W, C) float32}``.
 
     Args:
         x_bg, f_bg, f_comp, composite: (H, W, 3) linear RGB.
         ratio_blurred: (H, W) R'. obj_mask: (H, W) coverage m in [0, 1].
         balance: (3,) the colour balance C.
+        f_object: the renderer's object layer (``compositor.composite``), or None.
     """
     m = np.clip(np.asarray(obj_mask, np.float64), 0.0, 1.0)[..., None]
     C = np.asarray(balance, np.float64).reshape(1, 1, 3)
-    obj = m * C * np.asarray(f_comp, np.float64)
+    obj = m * C * np.asarray(f_comp if f_object is None else f_object, np.float64)
     out = {"composite": composite, "background": x_bg, "shadow": np.asarray(ratio_blurred)[..., None],
            "object": np.concatenate([obj, m], -1), "render_bg": f_bg, "render_comp": f_comp}
     return {k: np.ascontiguousarray(np.asarray(v, np.float32)) for k, v in out.items()}

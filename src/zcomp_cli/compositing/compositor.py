@@ -111,7 +111,7 @@ class CompositeResult:
     notes: list = field(default_factory=list)
 
 
-def composite(x_bg, f_bg, f_comp, shading_mask, obj_mask, *, balance_region=None) -> CompositeResult:
+def composite(x_bg, f_bg, f_comp, shading_mask, obj_mask, *, balance_region=None, f_object=None) -> CompositeResult:
     """The final composite (equations 4-5).
 
     Args:
@@ -120,6 +120,9 @@ def composite(x_bg, f_bg, f_comp, shading_mask, obj_mask, *, balance_region=None
         shading_mask: (H, W) bool s.
         obj_mask: (H, W) object coverage m in [0, 1] (after occlusion).
         balance_region: (H, W) bool where C is measured; default: off-object pixels.
+        f_object: optional (H, W, 3), the object's own radiance where ``obj_mask`` > 0
+            (``RenderOutput.object_layers``): the object term is ``m C f_object`` and
+            ``f_comp`` there is the surface behind it; None: ``f_comp`` is both.
     Returns:
         CompositeResult; ``image`` is float32 and finite for finite inputs.
     """
@@ -132,7 +135,7 @@ def composite(x_bg, f_bg, f_comp, shading_mask, obj_mask, *, balance_region=None
     region = (m == 0) if balance_region is None else (np.asarray(balance_region, bool) & (m == 0))
     C, note = colour_balance(xb, f_bg, region)
     notes = [note] if note else []
-    fc = np.asarray(f_comp, dtype=np.float32)
+    fc = np.asarray(f_comp if f_object is None else f_object, dtype=np.float32)
     obj_term = m[..., None] * (fc * C.astype(np.float32)[None, None, :])
     bg_term = (1.0 - m)[..., None] * Rb[..., None] * xb
     out = np.where((m > 0)[..., None], bg_term + obj_term, Rb[..., None] * xb)

@@ -225,7 +225,7 @@ def prepare_job(
     notes += lamps_inside_object(getattr(scene, "light", None), cam, obj_depth, obj_mask,
                                  apply_alignment(bundle.footprint_depth, alignment))
     requests = [RenderRequest(maps=bg, **common),
-                RenderRequest(maps=comp, **common, occluder=occluder, coverage=m)]
+                RenderRequest(maps=comp, **common, occluder=occluder, coverage=m, object_maps=obj_maps)]
     x0, y0, x1, y1 = roi
     report = {
         "alignment": alignment.to_dict(),
@@ -290,6 +290,7 @@ def finish_job(prep: PreparedJob, out: RenderOutput, renderer_name: str, rendere
                                  f"radiance is in [0, {MAX_RADIANCE:g}] ({_whose_bug(renderer_name)}; the job is "
                                  "not composited from it)")
 
+    f_object = _object_layer(out, len(images) - 1, (H, W), renderer_name)
     # 6. Compositor.
     timings = dict(prep.timings)
     t = time.perf_counter()
@@ -303,7 +304,8 @@ def finish_job(prep: PreparedJob, out: RenderOutput, renderer_name: str, rendere
             raise NumericalError(f"renderer returned a shading mask of shape {grown.shape}, expected {(H, W)}")
         # the renderer re-shaded more (an object's long shadow): the ratio applies there too
         s = s | grown
-    res = composite(prep.scene.image, f_bg, f_comp, s, prep.object_mask, balance_region=region & ~s)
+    res = composite(prep.scene.image, f_bg, f_comp, s, prep.object_mask, balance_region=region & ~s,
+                    f_object=f_object)
     if not np.all(np.isfinite(res.image)):
         raise NumericalError("the composite has non-finite values")
     timings["compositor_s"] = time.perf_counter() - t
@@ -313,6 +315,7 @@ def finish_job(prep: PreparedJob, out: RenderOutput, renderer_name: str, rendere
     x_bg, image = prep.scene.image, res.image
     if k != 1.0:
         x_bg, image, f_bg, f_comp = x_bg * k, image * k, f_bg * k, f_comp * k
+        f_object = None if f_object is None else f_object * k
     if prep.scene.photo is not None:  # its negative pixels, in its own units: kept where nothing is edited
         x_bg = prep.scene.photo
         image = keep_untouched(image, x_bg, res.weight, prep.object_mask)
@@ -336,9 +339,24 @@ def finish_job(prep: PreparedJob, out: RenderOutput, renderer_name: str, rendere
     if aovs:
         from zcomp_cli.compositing.aovs import aov_layers
 
-        layers = aov_layers(x_bg, f_bg, f_comp, res.ratio_blurred, prep.object_mask, res.balance, image)
+        layers = aov_layers(x_bg, f_bg, f_comp, res.ratio_blurred, prep.object_mask, res.balance, image, f_object)
         layers.update(check_aov_layers(out.aov_layers, (H, W), renderer_name, set(layers)))
     return JobOutput(image, report, dbg, layers, rdbg)
+
+
+def _object_layer(out: RenderOutput, k: int, shape: tuple[int, int], renderer_name: str):
+    """The renderer's object layer of image ``k`` (``RenderOutput.object_layers``), checked
+    as its images are (float, (H, W, 3), finite, in radiance's range), or None."""
+    layers = list(getattr(out, "object_layers", None) or [])
+    lay = layers[k] if k < len(layers) else None
+    if lay is None:
+        return None
+    a = np.asarray(lay)
+    if a.dtype.kind != "f" or a.shape != (*shape, 3) or not np.all(np.isfinite(a)) or (
+            a.size and (float(a.min()) < -RADIANCE_TOL or float(a.max()) > MAX_RADIANCE)):
+        raise NumericalError(f"renderer {renderer_name} returned an object layer of {a.dtype} {a.shape}: expected "
+                             f"finite float linear radiance of shape {(*shape, 3)}")
+    return a.astype(np.float32)
 
 
 def check_aov_layers(layers, shape: tuple[int, int], renderer_name: str, taken: set) -> dict[str, np.ndarray]:

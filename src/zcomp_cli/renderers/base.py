@@ -47,6 +47,11 @@ class RenderRequest:
         coverage: H x W float in [0, 1], the inserted object's visible coverage on the
             composite request (None on the background's): where its own material
             (roughness, metallic) applies.
+        object_maps: the inserted object's own maps (``SceneMaps``: aligned depth,
+            normals, albedo, roughness, metallic; 0 off the object) on the composite
+            request (None on the background's): ``maps`` blends the albedo with the
+            coverage, and a renderer that shades a partly covered pixel's two surfaces
+            apart takes the object's from here.
         debug: the job runs with ``--debug``: the renderer may return debug maps
             (``RenderOutput.debug_maps``); without it, it need not make any.
         aovs: the job runs with ``--aovs``: the renderer may return its own render passes
@@ -64,6 +69,7 @@ class RenderRequest:
     fitted_light: object | None = None
     occluder: object | None = None
     coverage: np.ndarray | None = None
+    object_maps: SceneMaps | None = None
     debug: bool = False
     aovs: bool = False
 
@@ -80,6 +86,14 @@ class RenderOutput:
     so a long shadow is not cut at the shading mask's edge; the compositor then applies
     the shadow ratio over this mask. None = the requested mask.
 
+    ``object_layers``: optional, one per image (None or missing for an image without
+    one): (H, W, 3) linear, the inserted object's own radiance where the request's
+    ``coverage`` is > 0. Given, the compositor takes the object from it (``m C layer``)
+    and the image there is the surface behind the object (the shadow ratio read from
+    it is the surface's): a partly covered pixel is ``m`` of the one and ``1 - m`` of
+    the other, as a path tracer's pixel is. Without it the image is both (DESIGN.md
+    section 2, equation 5), and the surface behind a partly covered pixel counts twice.
+
     ``debug_maps``: optional maps the renderer read or made (the physical renderer's
     light evidence), name -> (H, W) or (H, W, C) float array at the job's working
     resolution. With ``--debug`` the pipeline writes each as ``debug/<name>.exr`` and
@@ -93,6 +107,7 @@ class RenderOutput:
     info: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
     shading_mask: np.ndarray | None = None
+    object_layers: list = field(default_factory=list)
     debug_maps: dict[str, np.ndarray] = field(default_factory=dict)
     aov_layers: dict[str, np.ndarray] = field(default_factory=dict)
 

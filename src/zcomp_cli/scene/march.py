@@ -39,7 +39,8 @@ def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndar
                      depth: np.ndarray, camera: Camera, *, cfg: MarchConfig, steps: int,
                      max_distance_rel: float | None | str = "march", jitter: np.ndarray | None = None,
                      return_distance: bool = False, nearest: bool = False,
-                     occluder_mask: np.ndarray | None = None, max_distance=None, walls=()):
+                     occluder_mask: np.ndarray | None = None, max_distance=None, walls=(),
+                     return_texel: bool = False):
     """Binary visibility of points toward directional light(s).
 
     Args:
@@ -68,14 +69,18 @@ def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndar
     Returns:
         (N,) float64 in {0, 1}; 1 = lit. A ray leaving the frame or passing behind the
         camera counts as unoccluded from there on. With ``return_distance``, also (N,)
-        the distance along the ray to the first occluder (inf where lit).
+        the distance along the ray to the first occluder (inf where lit); with
+        ``return_texel`` also (N, 2) int the (row, column) of the texel the ray first
+        met in the depth map (-1 where it met none, or only a wall beyond the frame).
     """
     p = np.asarray(points, np.float64)
     n = np.asarray(normals, np.float64)
     l = np.broadcast_to(np.asarray(light_dir, np.float64), p.shape)
     N = len(p)
     if N == 0:
-        return (np.zeros(0), np.zeros(0)) if return_distance else np.zeros(0)
+        out = (np.zeros(0),) + ((np.zeros(0),) if return_distance else ()) + (
+            (np.zeros((0, 2), np.int64),) if return_texel else ())
+        return out if len(out) > 1 else out[0]
     bias_rel, thickness_rel = cfg.march_bias_rel, cfg.march_thickness_rel
     if isinstance(max_distance_rel, str):
         max_distance_rel = {"march": cfg.march_range_rel, "sky": cfg.sky_range_rel}[max_distance_rel]
@@ -94,6 +99,7 @@ def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndar
     if not np.all(np.isfinite(dmax)):
         raise ValueError("march_visibility: give max_distance_rel or a finite max_distance")
     jit = 0.0 if jitter is None else np.asarray(jitter, np.float64) - 0.5
+    texel = np.full((N, 2), -1, np.int64) if return_texel else None
     for k in range(1, steps + 1):
         t = dmax * (np.minimum(np.maximum(k + jit, 0.25), steps) / steps) ** 2
         qz = -(sz + lz * t)
@@ -114,6 +120,9 @@ def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndar
             hit &= occluder_mask[iy, ix]
         if return_distance:
             t_hit = np.where(hit & ~occluded, t, t_hit)
+        if return_texel:
+            first = hit & ~occluded
+            texel[first] = np.stack([iy[first], ix[first]], 1)
         occluded |= hit
     if walls:
         from zcomp_cli.scene.planes import walls_block
@@ -122,7 +131,9 @@ def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndar
         t_hit = np.minimum(t_hit, wt)
         occluded |= wb
     vis = (~occluded).astype(np.float64)
-    return (vis, t_hit) if return_distance else vis
+    out = (vis, t_hit) if return_distance else (vis,)
+    out = out + (texel,) if return_texel else out
+    return out if len(out) > 1 else vis
 
 
 def grid_points(d, n, valid, camera, box, step=1):

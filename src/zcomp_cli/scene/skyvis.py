@@ -18,7 +18,7 @@ from zcomp_cli.scene.march import march_visibility
 from zcomp_cli.scene.sampling import length, pixel_jitter
 
 
-def _hemisphere_dirs(normals: np.ndarray, jitter: np.ndarray, k: int) -> list[np.ndarray]:
+def hemisphere_directions(normals: np.ndarray, jitter: np.ndarray, k: int) -> list[np.ndarray]:
     """k cosine-distributed directions around each normal, rotated by ``jitter``."""
     n = normals
     a = np.where(np.abs(n[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
@@ -49,7 +49,7 @@ def sky_samples(points: np.ndarray, normals: np.ndarray, ys: np.ndarray, xs: np.
     if len(points) == 0:
         return np.zeros((k, 0, 3)), np.zeros((k, 0))
     jit = pixel_jitter(ys, xs, salt=1)
-    dirs = _hemisphere_dirs(normals, jit, k)
+    dirs = hemisphere_directions(normals, jit, k)
     vis = [march_visibility(points, normals, d, depth, camera, cfg=cfg, steps=cfg.sky_steps, max_distance_rel="sky",
                             jitter=pixel_jitter(ys, xs, salt=i + 2),
                             nearest=True, occluder_mask=occluder_mask, walls=walls)
@@ -70,4 +70,4 @@ def weighted_visibility(dirs: np.ndarray, vis: np.ndarray, radiance_sh: np.ndarr
     return np.where(den > 1e-12, num / np.maximum(den, 1e-300), 1.0)
 
 
-__all__ = ["sky_samples", "weighted_visibility"]
+__all__ = ["hemisphere_directions", "sky_samples", "weighted_visibility"]

@@ -37,7 +37,6 @@ from zcomp_cli.renderers.physical.softshadow import blur_reach, classwise_blur, 
 from zcomp_cli.scene.depthmesh import has_geometry
 from zcomp_cli.scene.lightmodel import LightModel, ShadowKind
 from zcomp_cli.scene.march import grid_points, march_visibility
-from zcomp_cli.scene.objectshadow import light_shadow
 from zcomp_cli.scene.sampling import length, pixel_jitter
 from zcomp_cli.scene.skyvis import sky_samples, weighted_visibility
 
@@ -95,7 +94,7 @@ class PhysicalRenderer(Renderer):
         from zcomp_cli.renderers.physical.gloss import BUILT
 
         built = len(BUILT)
-        images = [self._render_one(req, model) for req in requests]
+        images, layers = zip(*[self._render_one(req, model) for req in requests])
         timings["synthesis"] = time.perf_counter() - t1
         if len(BUILT) > built:  # (the job's ledger: a glossy prefilter built, not reused)
             timings["prefilter_built"] = float(sum(BUILT[built:]))
@@ -106,7 +105,8 @@ class PhysicalRenderer(Renderer):
         if evidence is not None and any(getattr(r, "debug", False) for r in requests):
             # the light's evidence at the job's resolution (``evidence_maps``)
             debug_maps = evidence.maps(np.shape(requests[0].known))
-        return RenderOutput(images=images, info=info, timings=timings, shading_mask=grown, debug_maps=debug_maps)
+        return RenderOutput(images=list(images), info=info, timings=timings, shading_mask=grown, debug_maps=debug_maps,
+                            object_layers=list(layers))
 
     def _render_one(self, req: RenderRequest, model: LightModel) -> np.ndarray:
         # step 3: known pixels reproduce albedo * known shading exactly
@@ -114,7 +114,6 @@ class PhysicalRenderer(Renderer):
         alb = clean(req.maps.albedo, 0.0, 1e6)
         H, W = d.shape
         out_sh = sh.copy()
-        glossy = None
         unknown = ~known
         x0, y0, x1, y1 = (0, 0, W, H) if req.roi is None else req.roi
         x0, y0 = max(0, int(x0)), max(0, int(y0))
@@ -130,24 +129,42 @@ class PhysicalRenderer(Renderer):
             pos = d > 0
             # (per channel: three contiguous gathers, a third of one (N, 3) gather's time)
             alb_mean = np.array([alb[..., c][pos].mean() for c in range(3)]) if pos.any() else np.zeros(3)
-            shade, glossy = self._synthesise(d, n, todo, req.camera, model, alb_mean, req.occluder, unknown,
-                                             alb, cov, req.maps.roughness, req.maps.metallic)
-            out_sh[todo] = shade
+            # shaded a little past the region asked for: the film filter and the edge's
+            # layers read their neighbours, so a region of interest gets the values the
+            # whole frame would
+            import cv2
+
+            r = int(np.ceil(3 * self._settings.transport.film_sigma_px + self._settings.transport.edge_reach_px))
+            todo_c = cv2.dilate(todo.astype(np.uint8), np.ones((2 * r + 1,) * 2, np.uint8)) > 0
+            todo_c &= unknown
+            radiance, own = self._synthesise(d, n, todo_c, req.camera, model, alb_mean, req.occluder, unknown,
+                                             alb, cov, req.maps.roughness, req.maps.metallic,
+                                             alb * out_sh if req.image is None else req.image, req.object_maps)
         img = alb * out_sh
-        if glossy is not None and glossy.any():  # (the object's glossy layer: only at the todo pixels)
-            img[todo] += glossy
+        layer = None
+        if todo.any():
+            keep = todo[todo_c]
+            img[todo] = radiance[keep]
+            if own is not None:
+                layer = img.copy()
+                layer[todo] = own[keep]
+                layer = layer.astype(np.float32)
         img = img.astype(np.float32)
         if not np.all(np.isfinite(img)):
             bad = int((~np.isfinite(img)).sum())
             raise NumericalError(f"physical renderer produced {bad} non-finite values")
-        return img
+        if layer is not None and not np.all(np.isfinite(layer)):
+            raise NumericalError("physical renderer produced non-finite values in the object's layer")
+        return img, layer
 
-    def _sky_visibility(self, d, n, todo, camera, occluder, geo_all, albedo_mean, radiance_sh, walls=()):
-        """(the visible share of the sky of SH radiance ``radiance_sh`` (9, 3) at the todo
-        pixels (M, 3), the scene-only occluder mask or None): screen-space occlusion on a
-        stride-2 grid (4 on large frames), each direction weighted by the sky's radiance
-        there (``weighted_visibility``), the object's mesh occlusion where the bundle has
-        one, class-aware blur, the bounce off the occluders."""
+    def _sky_visibility(self, d, n, todo, camera, occluder, geo_all, albedo_mean, model: LightModel, unknown=None):
+        """(the visible share of ``model``'s sky (its SH radiance weighs the directions, its
+        walls occlude) at the todo pixels (M, 3), the scene-only occluder mask or None):
+        the scene's screen-space occlusion on a stride-2 grid (4 on large frames), each
+        direction weighted by the sky's radiance there (``weighted_visibility``),
+        class-aware blur; the object's mesh occlusion at every pixel (``_object_sky``);
+        the bounce off the occluders."""
+        radiance_sh, walls = model.sky.radiance_sh, model.walls
         cfg = self._settings.transport
         H, W = d.shape
         ys, xs = np.nonzero(todo)
@@ -171,22 +188,10 @@ class PhysicalRenderer(Renderer):
             from zcomp_cli.scene.objectshadow import mesh_silhouette
 
             scene_only = ~mesh_silhouette(occluder, camera, (H, W))
-        occ_c = dist_c = None
         if ok.any():
             smp = sky_samples(P[ok], N[ok], gy[ok], gx[ok], d, camera, cfg=self._settings.light.march,
                               occluder_mask=scene_only, walls=walls)
             ao_c[ok] = weighted_visibility(*smp, radiance_sh)
-            if occluder is not None:
-                # the sky the object hides, from its mesh (``mesh_occlusion``): smooth,
-                # unlimited in range, and no solid slab behind its visible shell
-                from zcomp_cli.renderers.physical.meshshadow import mesh_discs, mesh_occlusion
-
-                occ_c, dist_c = np.zeros(gy.shape + (3,)), np.zeros(gy.shape)
-                # (the exact near field for the scene's points by the object, not the
-                # object's own: ``refine``; each element hides the sky's radiance behind it)
-                occ_c[ok], dist_c[ok] = mesh_occlusion(mesh_discs(occluder, cfg=cfg), P[ok], N[ok], mesh=occluder,
-                                                       refine=scene_only[gy[ok], gx[ok]], return_distance=True,
-                                                       radiance_sh=radiance_sh, cfg=cfg)
         h_, w_ = ay1 - ay0, ax1 - ax0
         up2 = lambda a: np.repeat(np.repeat(a, ao_st, 0), ao_st, 1)[:h_, :w_]
         okf = geo_all[ay0:ay1, ax0:ax1]
@@ -195,42 +200,67 @@ class PhysicalRenderer(Renderer):
         # (a light rim): only pixels of their anchor's class vouch for it; the
         # normalised blur fills the others from their own class
         same = up2(ok) & (up2(cls[::ao_st, ::ao_st]) == cls)
-        # (the sky's visibility and the mesh's occlusion blurred together: one pass)
-        both = classwise_blur(up2(ao_c if occ_c is None else np.concatenate([ao_c, occ_c], -1)), cls,
-                              okf & same, rad, fill=okf)
-        ao = both[..., :3]
-        if occ_c is not None:
-            occ = both[..., 3:]
-            dist = up2(dist_c)
-            # The sky occlusion reaches past the shading mask (a sphere still hides a
-            # quarter of the sky one radius past its side); cut at the mask's edge it
-            # drew an ellipse. It fades out over the outer ``mesh_ao_fade`` of the mask's
-            # radius, the farthest of its pixels from the mesh (in metres: the mask is
-            # a ball around the object, squeezed on screen below it), after the blur.
-            # Any other mask (an API caller's) ends it within 2 blur radii of its edge.
-            tw = todo[ay0:ay1, ax0:ax1] & okf & np.isfinite(dist)
-            R = float(dist[tw].max()) if tw.any() else 0.0
-            if R > 0:  # (a mesh without area has no elements: nothing hidden)
-                t = np.clip((R - dist) / max(cfg.mesh_ao_fade * R, 1e-9), 0.0, 1.0)
-                px = cv2.distanceTransform(np.pad(todo[ay0:ay1, ax0:ax1], 1).astype(np.uint8),
-                                           cv2.DIST_L2, 5)[1:-1, 1:-1]
-                u = np.clip(px / (2.0 * rad), 0.0, 1.0)
-                ao = ao * (1.0 - occ * (t * t * (3.0 - 2.0 * t) * u * u * (3.0 - 2.0 * u))[..., None])
+        ao = classwise_blur(up2(ao_c), cls, okf & same, rad, fill=okf)[ys - ay0, xs - ax0]
+        if occluder is not None:
+            ao = ao * (1.0 - self._object_sky(d, n, todo, camera, occluder, model, ys, xs, rad,
+                                              todo if unknown is None else unknown))
         # occluded directions still see light bounced off the occluders
         rho = float(np.clip(np.mean(albedo_mean), 0.0, 0.9))
         ao = ao + (1.0 - ao) * rho * cfg.sky_bounce
-        return ao[ys - ay0, xs - ax0], scene_only
+        return ao, scene_only
+
+    def _object_sky(self, d, n, todo, camera, occluder, model, ys, xs, blur_px, unknown):
+        """(M, 3) the share of the sky's irradiance the object's mesh hides from the todo
+        pixels (ys, xs), every pixel its own (``meshrays.sky_occlusion``: rays drawn where
+        the sky is bright; a contact's darkness within a pixel of the silhouette, where a
+        grid and a blur spread it), faded out toward the mask's edge.
+
+        The sky occlusion reaches past the shading mask (a sphere still hides a quarter of
+        the sky one radius past its side); cut at the mask's edge it drew an ellipse. It
+        fades out over the outer ``mesh_ao_fade`` of the mask's radius, the farthest of
+        its pixels from the mesh (in metres: the mask is a ball around the object,
+        squeezed on screen below it); any other mask (an API caller's) ends it within
+        two blur radii (``blur_px``) of its edge, past the film filter's reach."""
+        import cv2
+        from scipy.spatial import cKDTree
+
+        from zcomp_cli.scene.meshrays import sky_occlusion
+        from zcomp_cli.scene.objectshadow import area_triangles, sample_triangles
+
+        cfg = self._settings.transport
+        P = camera.ray(xs + 0.5, ys + 0.5) * d[ys, xs][:, None]
+        N = n[ys, xs].astype(np.float64)
+        N = N / np.maximum(length(N), 1e-12)[:, None]
+        occ = sky_occlusion(occluder, P, N, sky_pool_of(model, self._settings.gloss, cfg), cfg.sky_rays,
+                            pixel_jitter(ys, xs, salt=5), cfg.mesh_ray_bias_rel * np.maximum(-P[:, 2], 1e-6))
+        tri, _, area, _ = area_triangles(occluder)
+        if not len(tri):
+            return occ
+        cen = sample_triangles(tri, area / area.sum(), cfg.mesh_fade_samples)[1]
+        tree = cKDTree(cen)
+        dist = tree.query(P)[0]
+        # the mask's radius: its farthest pixel from the mesh, whatever region is shaded
+        uy, ux = np.nonzero(unknown)
+        R = float(tree.query(camera.ray(ux + 0.5, uy + 0.5) * d[uy, ux][:, None])[0].max()) if len(uy) else 0.0
+        if not R > 0:
+            return occ
+        t = np.clip((R - dist) / max(cfg.mesh_ao_fade * R, 1e-9), 0.0, 1.0)
+        px = cv2.distanceTransform(np.pad(unknown, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1][ys, xs]
+        # (from the film filter's reach inside the edge: it reads its neighbours)
+        u = np.clip((px - 1.0 - 2.0 * cfg.film_sigma_px) / (2.0 * blur_px), 0.0, 1.0)
+        return occ * (t * t * (3.0 - 2.0 * t) * u * u * (3.0 - 2.0 * u))[:, None]
 
     def _parts(self, d, n, todo, camera, model: LightModel, albedo_mean, occluder, unknown=None):
         """The two parts of the diffuse shading of the ``todo`` pixels: (sky and the
         ground's bounce (M, 3), the suns' and lamps' (M, 3), the sky's visible share
         (M, 3), unit normals (M, 3), each sun and lamp as (light, directions (M, 3),
-        facing shading (M, 3), visibility (M,)))."""
+        facing shading (M, 3), visibility (M,)), the texels that occlude as the scene's
+        (H, W) bool or None)."""
         H, W = d.shape
         ys, xs = np.nonzero(todo)
         geo_all = has_geometry(d, n)
-        vis_sky, scene_only = self._sky_visibility(d, n, todo, camera, occluder, geo_all, albedo_mean,
-                                                   model.sky.radiance_sh, model.walls)
+        vis_sky, scene_only = self._sky_visibility(d, n, todo, camera, occluder, geo_all, albedo_mean, model,
+                                                   unknown)
         nv = n[ys, xs].astype(np.float64)
         nv = nv / np.maximum(length(nv), 1e-12)[:, None]
         nv[~geo_all[ys, xs]] = 0.0
@@ -257,34 +287,130 @@ class PhysicalRenderer(Renderer):
                     v_t = 1.0 - (1.0 - v_t) * fade
                 direct += (np.maximum(0.0, np.sum(nv * L, 1)) * v_t)[:, None] * E
                 lit.append((light, L, E, v_t))
-        return ambient, direct, vis_sky, nv, lit
+        return ambient, direct, vis_sky, nv, lit, scene_only
 
     def _synthesise(self, d, n, todo, camera, model: LightModel, albedo_mean, occluder, unknown, albedo, coverage,
-                    roughness=None, metallic=None):
-        """(diffuse shading (M, 3), glossy radiance (M, 3)) of the ``todo`` pixels under
-        ``model`` (module docstring, step 3)."""
-        ys, xs = np.nonzero(todo)
-        ambient, direct, vis_sky, nv, lit = self._parts(d, n, todo, camera, model, albedo_mean, occluder, unknown)
-        out = ambient + direct
-        cov = coverage[ys, xs]
-        if model.albedo_offset > 0:
-            # the scene's specular layer: the image is E (albedo + offset), off the object
-            a = np.clip(albedo[ys, xs], 0.0, None)
-            gain = (a + model.albedo_offset) / np.maximum(a, 1e-3)
-            out = out * (1.0 + (1.0 - cov)[:, None] * (np.where(a > 1e-3, gain, 1.0) - 1.0))
-        glossy = np.zeros((len(ys), 3))
-        if roughness is not None and (cov > 0).any():
-            glossy, keep = self._glossy(model, camera, d, nv, ys, xs, cov, albedo, roughness, metallic, vis_sky, lit)
-            out = out * (1.0 - cov * (1.0 - keep))[:, None]
-        return out, glossy
+                    roughness=None, metallic=None, image=None, own=None):
+        """((M, 3) radiance of the ``todo`` pixels under ``model``, (M, 3) the object's own
+        or None) (module docstring, step 3): the diffuse shading filtered as the film does
+        (``pixel.film_filter``) times the albedo (the scene's with its offset); where the
+        object covers a pixel, its own albedo, diffuse and glossy layers apart, and the
+        radiance there the surface's behind it where the object covers it in part
+        (``pixel.split``: the two albedos), the object's where wholly."""
+        from zcomp_cli.renderers.physical.pixel import extend, film_filter, split
 
-    def _glossy(self, model, camera, d, nv, ys, xs, cov, albedo, roughness, metallic, vis_sky, lit=()):
+        cfg = self._settings.transport
+        ys, xs = np.nonzero(todo)
+        ambient, direct, vis_sky, nv, lit, scene_only = self._parts(d, n, todo, camera, model, albedo_mean, occluder,
+                                                                    unknown)
+        y0, x0, y1, x1 = _window(ys, xs, *d.shape, int(np.ceil(cfg.edge_reach_px)) + 2)
+        ly, lx = ys - y0, xs - x0
+        t = np.zeros((y1 - y0, x1 - x0), bool)
+        t[ly, lx] = True
+
+        def img(v):  # (M, C) at the todo pixels -> the window (h, w, C)
+            o = np.zeros(t.shape + (v.shape[1],))
+            o[ly, lx] = v
+            return o
+
+        cov = np.where(t, coverage[y0:y1, x0:x1], 0.0)
+        obj = t & (cov > 0.5)  # the pixels whose geometry is the object's
+        cls = _depth_classes(d[y0:y1, x0:x1]) * 2 + obj
+        S = film_filter(img(ambient + direct), cls, t, cfg)
+        a = np.clip(albedo[y0:y1, x0:x1], 0.0, None)
+        g = model.albedo_offset  # the scene's specular layer: its image is E (albedo + offset)
+        scene = lambda alb, sh: (alb + np.where(alb > 1e-3, g, 0.0)) * sh
+        rad = scene(a, S)
+        if (cov > 0).any():
+            edge = t & (cov > 0) & (cov < cfg.whole_coverage)
+            crop = lambda m_: None if m_ is None else np.asarray(m_, np.float64)[y0:y1, x0:x1]
+            a_o, a_s = split(a, crop(None if own is None else own.albedo), cov, t, cfg)
+            win = (y0, x0, y1, x1, t, cls, obj)
+            O = self._object_layer(d, camera, model, occluder, scene_only, albedo_mean, roughness, metallic, image,
+                                   win, (ys, xs, nv, vis_sky, lit, ambient, direct), S, rad, a_o, cov, own)
+            # each layer carried past where it was shaded, to the pixels it covers in part
+            O = extend(O, obj, edge & ~obj, cfg)
+            F = extend(scene(a_s, S), t & ~obj, edge & obj, cfg)
+            # the surface where the object covers a pixel in part (its shadow ratio is the
+            # surface's), the object where it covers it wholly; the object apart
+            rad = np.where(edge[..., None], F, np.where((cov > 0)[..., None], O, rad))
+            return rad[ly, lx], O[ly, lx]
+        return rad[ly, lx], None
+
+    def _object_layer(self, d, camera, model, occluder, scene_only, albedo_mean, roughness, metallic, image, win,
+                      parts, S, rad, a_o, cov, own=None):
+        """(h, w, 3) the object's radiance over the window ``win`` (y0, x0, y1, x1, the todo
+        pixels, the classes, the object's pixels) at its pixels: its albedo ``a_o`` times
+        its diffuse shading -- the scene's and its own bounce gathered along rays
+        (``reflect.bounce``) instead of the support's radiance below the horizon and the
+        occluders' bounce as a share of the scene's albedo -- times what its glossy layer
+        leaves, plus the glossy layer (``_glossy``, reflecting what its lobe meets:
+        ``reflect.environment``)."""
+        from zcomp_cli.renderers.physical.pixel import film_filter, split
+        from zcomp_cli.renderers.physical.reflect import bounce
+        from zcomp_cli.scene import sh as shm
+
+        cfg, pc = self._settings.transport, self._settings.gloss
+        y0, x0, y1, x1, t, cls, obj = win
+        ys, xs, nv, vis_sky, lit, ambient, direct = parts
+        ly, lx = ys - y0, xs - x0
+        sel = obj[ly, lx]
+        photo = np.nan_to_num(np.array(image, np.float64)[..., :3])
+        photo[y0:y1, x0:x1][t & ~obj] = rad[t & ~obj]
+        own_rad = np.zeros(d.shape + (3,))
+        own_rad[y0:y1, x0:x1][obj] = (a_o * S)[obj]
+        images = (photo, own_rad, _pasted(np.zeros(d.shape), obj, (y0, x0)) > 0)
+        if cfg.bounce_rays > 0 and sel.any():
+            P = camera.ray(xs[sel] + 0.5, ys[sel] + 0.5) * d[ys[sel], xs[sel]][:, None]
+            got = bounce(model, camera, d, P, nv[sel], ys[sel], xs[sel], occluder=occluder, scene_only=scene_only,
+                         images=images, k=cfg.bounce_rays, steps=self._settings.light.march.sky_steps,
+                         march=self._settings.light.march)
+            # the sky's visibility without the occluders' bounce, which the rays bring
+            rb = float(np.clip(np.mean(albedo_mean), 0.0, 0.9)) * cfg.sky_bounce
+            sky = np.maximum(shm.evaluate(shm.shading_coeffs(model.sky.radiance_sh), nv[sel]), 0.0)
+            from zcomp_cli.renderers.physical.softshadow import classwise_blur
+
+            # (the neighbours' rays averaged: each pixel's are turned apart)
+            gi = np.zeros(t.shape + (3,))
+            gi[ly[sel], lx[sel]] = got
+            got = classwise_blur(gi, cls, obj, cfg.bounce_blur_px)[ly[sel], lx[sel]] if cfg.bounce_blur_px > 0 else got
+            raw = np.zeros(t.shape + (3,))
+            raw[ly[sel], lx[sel]] = sky * (vis_sky[sel] - rb) / (1.0 - rb) + got + direct[sel]
+            S = np.where(obj[..., None], film_filter(raw, cls, obj, cfg), S)
+            own_rad[y0:y1, x0:x1][obj] = (a_o * S)[obj]
+        G, keep = np.zeros_like(S), np.ones(t.shape + (1,))
+        if roughness is not None and sel.any():
+            full = lambda w_, m: _pasted(m, w_, (y0, x0))
+
+            def layer(mixed, which):  # the object's own roughness or metallic
+                o = None if own is None or getattr(own, which) is None else np.asarray(getattr(own, which))
+                return full(split(np.asarray(mixed)[y0:y1, x0:x1, None], None if o is None else o[y0:y1, x0:x1, None],
+                                  cov, t, cfg)[0][..., 0], mixed)
+
+            rough = layer(roughness, "roughness")
+            met = None if metallic is None else layer(metallic, "metallic")
+            sub = [(li, Ld[sel], E[sel], v[sel]) for li, Ld, E, v in lit]
+            env = None
+            if pc.reflect_rays > 0:
+                env = self._environment(model, camera, d, nv[sel], ys[sel], xs[sel], rough, occluder, scene_only,
+                                        images, cls, obj, (y0, x0))
+            gl, kp = self._glossy(model, camera, d, nv[sel], ys[sel], xs[sel], np.ones(int(sel.sum())),
+                                  full(a_o, np.zeros(d.shape + (3,))), rough, met, vis_sky[sel], sub, env=env)
+            both = np.zeros(t.shape + (4,))
+            both[ly[sel], lx[sel]] = np.concatenate([gl, kp[:, None]], 1)
+            both = film_filter(both, cls, obj, cfg)
+            G, keep = both[..., :3], np.where(obj[..., None], both[..., 3:], 1.0)
+        return a_o * S * keep + G
+
+    def _glossy(self, model, camera, d, nv, ys, xs, cov, albedo, roughness, metallic, vis_sky, lit=(), env=None):
         """((M, 3) the object's glossy reflection, (M,) the diffuse layer's weight beneath
         it) (``gloss`` module docstring): the prefiltered sky toward the mirror direction
         times the split-sum environment BRDF, occluded by the sky's visibility, plus
         each sun and lamp of ``lit`` (``_parts``) through the GGX BRDF times its own
         visibility; F0 0.04 for a dielectric, the albedo for a metal. The diffuse
-        beneath keeps what the specular layer does not reflect (a metal none)."""
+        beneath keeps what the specular layer does not reflect (a metal none). ``env``
+        (M, 3): the radiance the lobe meets, gathered (``reflect``), instead of the
+        occluded prefiltered sky."""
         from zcomp_cli.renderers.physical.gloss import ggx_direct, prefiltered_light, specular_albedo
 
         pc = self._settings.gloss
@@ -295,8 +421,13 @@ class PhysicalRenderer(Renderer):
         rough = np.clip(np.nan_to_num(np.asarray(roughness, np.float64)[ys, xs]), 0.0, 1.0)
         met = np.zeros(len(ys)) if metallic is None else np.clip(np.nan_to_num(np.asarray(metallic)[ys, xs]), 0, 1)
         f0 = 0.04 * (1.0 - met)[:, None] + np.clip(albedo[ys, xs], 0, 1) * met[:, None]
-        L = prefiltered_light(model, pc).lookup(r, rough, ground=model.sky.ground)
-        out = vis_sky.mean(1, keepdims=True) * L * specular_albedo(rough, ndv, f0, pc)
+        if env is None:
+            pf = prefiltered_light(model, pc)
+            L_sky = pf.lookup(r, rough)
+            # the lobe's share below the horizon sees the support, which the sky's
+            # occluders do not hide
+            env = vis_sky.mean(1, keepdims=True) * L_sky + pf.lookup(r, rough, ground=model.sky.ground) - L_sky
+        out = env * specular_albedo(rough, ndv, f0, pc)
         for light, Ld, E, v_t in lit:
             # E is the shading of a facing surface: its irradiance over pi
             out = out + (np.pi * v_t)[:, None] * E * ggx_direct(nv, v, Ld, rough, f0, light.tan_radius(P), cfg=pc)
@@ -304,6 +435,28 @@ class PhysicalRenderer(Renderer):
         # layer's directional albedo toward the viewer
         keep = (1.0 - met) * (1.0 - specular_albedo(rough, ndv, np.full((len(ys), 1), 0.04), pc)[:, 0])
         return cov[:, None] * out, keep
+
+    def _environment(self, model, camera, d, nv, ys, xs, roughness, occluder, scene_only, images, cls, obj, corner):
+        """(M, 3) the surroundings the object's glossy lobe reflects at pixels (ys, xs)
+        (``reflect.environment``), averaged over the neighbours' rays within the object
+        (``GlossConfig.reflect_blur_px``; ``cls``/``obj`` the window's classes and object
+        pixels, its ``corner`` (y0, x0))."""
+        from zcomp_cli.renderers.physical.gloss import prefiltered_light
+        from zcomp_cli.renderers.physical.reflect import environment
+        from zcomp_cli.renderers.physical.softshadow import classwise_blur
+
+        pc = self._settings.gloss
+        P = camera.ray(xs + 0.5, ys + 0.5) * d[ys, xs][:, None]
+        v = -P / np.maximum(np.linalg.norm(P, axis=1, keepdims=True), 1e-12)
+        rough = np.clip(np.nan_to_num(np.asarray(roughness, np.float64)[ys, xs]), 0.0, 1.0)
+        env = environment(model, camera, d, P, nv, v, rough, ys, xs, occluder=occluder, scene_only=scene_only,
+                          images=images, prefiltered=prefiltered_light(model, pc), gcfg=pc,
+                          march=self._settings.light.march)
+        y0, x0 = corner
+        img = np.zeros(obj.shape + (3,))
+        img[ys - y0, xs - x0] = env
+        img = classwise_blur(img, cls, obj, pc.reflect_blur_px)
+        return img[ys - y0, xs - x0]
 
     def _soft_visibility(self, d, n, geo_all, camera, light, box, ys, xs, occluder,
                          scene_only=None, walls=()) -> np.ndarray:
@@ -316,6 +469,7 @@ class PhysicalRenderer(Renderer):
         H, W = d.shape
         st = 2 if H * W > cfg.full_res_pixels else 1
         wy0, wx0, wy1, wx1 = box
+        march = self._settings.light.march
         gy, gx, P, N, ok = grid_points(d, n, geo_all, camera, box, st)
         L, dist, _ = light.toward(P.reshape(-1, 3))
         L, dist = L.reshape(P.shape), dist.reshape(gy.shape)
@@ -323,35 +477,44 @@ class PhysicalRenderer(Renderer):
         vis = np.zeros(gy.shape)
         t_hit = np.full(gy.shape, np.inf)
         if lit.any():
-            march = self._settings.light.march
             v, t = march_visibility(P[lit], N[lit], L[lit], d, camera, cfg=march,
                                     steps=int(self._settings.march_steps),
                                     jitter=pixel_jitter(gy[lit], gx[lit]), return_distance=True,
                                     nearest=True, occluder_mask=scene_only, max_distance=dist[lit], walls=walls)
-            if occluder is not None:
-                vm, tm = light_shadow(occluder, P[lit], N[lit], light, bias_rel=march.march_bias_rel,
-                                      cfg=cfg.object_shadow)
-                v, t = np.minimum(v, vm), np.minimum(t, tm)
             vis[lit], t_hit[lit] = v, t
         vis = np.where(ok & ~lit, 1.0, vis)  # facing away: n.l = 0 does the shading
         ok_full = geo_all[wy0:wy1, wx0:wx1]
         cls_w = _depth_classes(d[wy0:wy1, wx0:wx1])  # the stride-2 blur's and the penumbra's
         h_, w_ = wy1 - wy0, wx1 - wx0
-        tan_g = light.tan_radius(P.reshape(-1, 3)).reshape(gy.shape) if light.varies else None
         if st == 2:
             up2 = lambda a: np.repeat(np.repeat(a, 2, 0), 2, 1)[:h_, :w_]
             same = up2(ok) & (up2(cls_w[::2, ::2]) == cls_w)
             vis = classwise_blur(up2(vis), cls_w, ok_full & same, 1.0, fill=ok_full)
             t_hit = up2(t_hit)
-            tan_g = None if tan_g is None else up2(tan_g)
-            ok = ok_full
+            gy, gx, P, N, ok = grid_points(d, n, geo_all, camera, box, 1)
+            L = light.toward(P.reshape(-1, 3))[0].reshape(P.shape)
+            lit = ok & (np.sum(N * L, -1) > 0)
+        tan_g = light.tan_radius(P.reshape(-1, 3)).reshape(gy.shape) if light.varies else None
+        ok = ok_full
         tan_a = float(light.tan_radius(None)) if tan_g is None else tan_g
         # filtered only over the box of the pixels asked for (the window's margin is
         # context for the blurs)
         by0, bx0 = int(ys.min()) - wy0, int(xs.min()) - wx0
         vs = penumbra_filter(vis, t_hit, d[wy0:wy1, wx0:wx1], cls_w, ok, camera.fx, tan_a,
                              box=(by0, bx0, int(ys.max()) + 1 - wy0, int(xs.max()) + 1 - wx0), cfg=cfg)
-        return vs[ys - wy0 - by0, xs - wx0 - bx0]
+        vs = vs[ys - wy0 - by0, xs - wx0 - bx0]
+        if occluder is not None:
+            # the object's own shadow, its light sampled over its disc by rays on the
+            # mesh (``meshrays.light_visibility``): a wide lamp's umbra and penumbra as
+            # they are, every pixel its own (no grid, no shadow map's steps)
+            from zcomp_cli.scene.meshrays import light_visibility
+
+            Pp = camera.ray(xs + 0.5, ys + 0.5) * d[ys, xs][:, None]
+            Np = n[ys, xs].astype(np.float64)
+            Np = Np / np.maximum(length(Np), 1e-12)[:, None]
+            vs = vs * light_visibility(occluder, Pp, Np, light, cfg.light_samples, pixel_jitter(ys, xs, salt=3),
+                                       cfg.mesh_ray_bias_rel * np.maximum(-Pp[:, 2], 1e-6))
+        return vs
 
 
 def _edge_fade(region: np.ndarray, ys, xs, width_px: float, share: float) -> np.ndarray:
@@ -380,6 +543,49 @@ def _window(ys, xs, H, W, margin, even=False):
         a = 2 if even is True else int(even)
         wy0, wx0 = wy0 - wy0 % a, wx0 - wx0 % a
     return wy0, wx0, min(H, int(ys.max()) + 1 + margin), min(W, int(xs.max()) + 1 + margin)
+
+
+_POOLS: dict = {}
+
+
+def sky_pool_of(model: LightModel, gcfg, cfg) -> tuple:
+    """``meshrays.sky_pool`` of the model's sky: its probe's map without the compact
+    sources (the glossy prefilter's), else its SH sky drawn into a map
+    (``gloss.model_radiance_map``); ``cfg.sky_pool`` directions, kept per sky."""
+    from zcomp_cli import equirect
+    from zcomp_cli.renderers.physical.gloss import model_radiance_map
+    from zcomp_cli.scene.meshrays import sky_pool
+    from zcomp_cli.scene.probe import area_resize
+
+    ref = model.probe
+    key = (("probe", repr(ref.params.to_dict()), ref.frame.tobytes(), repr(sorted(ref.cfg.items())))
+           if ref is not None else ("sky", model.sky.radiance_sh.tobytes(), model.up.tobytes()), cfg.sky_pool, gcfg)
+    hit = _POOLS.get(key)
+    if hit is None:
+        if ref is not None:
+            from zcomp_cli.knobs import from_mapping
+            from zcomp_cli.scene.config import ProbeConfig
+            from zcomp_cli.scene.probe import load_given_probe
+
+            sp = load_given_probe(ref.params, ref.frame, cfg=from_mapping(ProbeConfig, ref.cfg, "probe"))
+            img = area_resize(sp.residual, gcfg.model_map_width * 4)
+            dirs = equirect.pixel_directions(*img.shape[:2], sp.frame, sp.convention, sp.rotation_deg)
+        else:
+            img, frame = model_radiance_map(model, cfg=gcfg)
+            dirs = equirect.pixel_directions(*img.shape[:2], frame)
+        hit = sky_pool(img, dirs, equirect.solid_angles(*img.shape[:2]), model.up, cfg.sky_pool)
+        while len(_POOLS) >= 8:
+            _POOLS.pop(next(iter(_POOLS)))
+        _POOLS[key] = hit
+    return hit
+
+
+def _pasted(frame: np.ndarray, window: np.ndarray, corner) -> np.ndarray:
+    """A copy of ``frame`` with ``window`` pasted at ``corner`` (y0, x0)."""
+    out = np.array(frame, np.float64)
+    y0, x0 = corner
+    out[y0:y0 + window.shape[0], x0:x0 + window.shape[1]] = window
+    return out
 
 
 def _grown_request(req: RenderRequest, reach: np.ndarray) -> RenderRequest:

@@ -6,7 +6,7 @@ physical, <setting>: ...}``, the API's ``PhysicalRenderer(**settings)``) and, ne
 the renderer's knobs as frozen config dataclasses:
 
 * ``TransportConfig``: the synthesis's shadows, the sky's visibility's blur and bounce,
-  the object's posed mesh (``renderer``, ``softshadow``, ``meshshadow``);
+  the object's posed mesh (``renderer``, ``softshadow``, ``scene.meshrays``);
 * ``GlossConfig``: the object's glossy reflection (``gloss``);
 * ``light``: the light stage's ``LightConfig`` (``zcomp_cli.light.config``): the fit of
   the light the renderer draws, and the screen-space march both read (one sky).
@@ -34,7 +34,7 @@ LABEL = "physical renderer setting"
 
 @dataclass(frozen=True, kw_only=True)
 class TransportConfig:
-    """The synthesis's light transport (``renderer``, ``softshadow``, ``meshshadow``): each
+    """The synthesis's light transport (``renderer``, ``softshadow``, ``scene.meshrays``): each
     light's soft shadow (one screen-space march, ``scene.march``, whose reach and
     bias are the light config's ``march``, then the penumbra filter), the sky's
     visibility's blur and bounce, and the object's posed mesh (its shadow map and the
@@ -67,18 +67,41 @@ class TransportConfig:
                                                     "edge over this many sky blur radii (sky_blur_px): the width "
                                                     "over which the compositor's blur would otherwise show the cut", lo=0.0, lo_open=False)
     object_shadow: ObjectShadowConfig = sub(ObjectShadowConfig, "the object's shadow map from each light")
-    mesh_ao_discs: int = knob(512, "sampling", "area elements a mesh is cut into for the sky it hides: 1024, at "
-                                               "twice the cost, scored 0.04 dB more on seed 8128 (shadow IoU "
-                                               "0.387 vs 0.385)", hi=65536)
-    near_field_spacings: float = knob(2.0, "sampling", "within this many element spacings (the square root of an "
-                                                       "element's area) of a point the mesh's own triangles stand in "
-                                                       "for its elements: by a sphere of radius 0.5, 1 and 1.5 "
-                                                       "spacings dipped to 0.71 and 0.54 where 0.80 and 0.63 are "
-                                                       "exact; 2 is within 0.02 everywhere")
-    near_field_triangles: int = knob(1000, "sampling", "triangles a point's near field may hold before the mesh is "
-                                                       "simplified for it (vertex clustering; the surface moves "
-                                                       "less than its radius / 12.6): a scan's 16x a 20480-face "
-                                                       "sphere's cost 0.4 s a job")
+    mesh_fade_samples: int = knob(512, "sampling", "surface samples of the object's mesh a pixel's distance to it "
+                                                   "is measured from (the sky occlusion's fade toward the shading "
+                                                   "mask's edge)", hi=65536)
+    bounce_rays: int = knob(16, "sampling", "cosine-distributed rays per pixel of the object along which the "
+                                            "light of what is not sky (the floor, a wall, itself) is gathered "
+                                            "(reflect.bounce); 0: the support's radiance below its horizon and "
+                                            "the occluders' bounce as a share of the scene's albedo, as the scene's "
+                                            "own pixels get them", lo=0, lo_open=False, hi=4096)
+    bounce_blur_px: float = knob(3.0, "sampling", "radius (pixels; sigma half of it) of the blur over the object's "
+                                                  "pixels that averages the neighbours' bounce rays (each pixel's "
+                                                  "turned apart): the bounce is an irradiance, smooth over the "
+                                                  "surface; 16 rays a pixel under the film's filter alone left a "
+                                                  "grain 8x the sky's and the sun's on a sphere", lo=0.0,
+                                 lo_open=False, hi=64.0)
+    light_samples: int = knob(16, "sampling", "rays per pixel over a sun's or lamp's disc toward which the "
+                                              "object's mesh is tested (its soft shadow, scene.meshrays)", hi=4096)
+    sky_rays: int = knob(32, "sampling", "rays per point toward the sky the object's mesh may hide, drawn where "
+                                         "the sky is bright", hi=4096)
+    sky_pool: int = knob(512, "sampling", "directions drawn from the sky's map in proportion to its radiance, "
+                                          "which the points share out (sky_rays each, stratified)", hi=65536)
+    mesh_ray_bias_rel: float = knob(1e-3, "sampling", "a ray toward the object's mesh starts this share of its "
+                                                      "point's depth off the surface: float32's precision in "
+                                                      "Embree, far below the depth map's step", hi=1.0)
+    film_sigma_px: float = knob(0.83, "physical", "standard deviation (pixels) of the film's pixel filter the "
+                                                    "synthesised shading is filtered with: Cycles' Blackman-Harris "
+                                                    "window of filter_width 1.5 (Blender's default, the ground "
+                                                    "truth's), which Cycles stretches to +-1.5 px (scene/film.cpp); "
+                                                    "0: shading at the pixel's centre only", lo=0.0, lo_open=False,
+                                hi=8.0)
+    whole_coverage: float = knob(0.999, "sampling", "an object's coverage from this up is whole (the anti-aliased "
+                                                    "mask's own float rounding below 1)", hi=1.0)
+    edge_reach_px: float = knob(2.0, "sampling", "radius (pixels; sigma half of it) over which a partly covered "
+                                                 "pixel takes the object's and the surface's albedo and shading "
+                                                 "from the pixels each covers wholly: a silhouette's anti-aliased "
+                                                 "band is one or two pixels wide", hi=64.0)
 
     def __post_init__(self):
         lv = self.penumbra_levels_px
@@ -122,6 +145,15 @@ class GlossConfig:
     env_lut_samples: int = knob(1024, "sampling", "GGX samples per node of that table (Hammersley points): within "
                                                   "1e-4 of 64x as many at the median node, 0.025 at the worst "
                                                   "(grazing n.v = 0.03); 0.08 s once per process", hi=65536)
+
+    reflect_rays: int = knob(8, "sampling", "GGX-distributed rays per pixel the object's reflection of its "
+                                            "surroundings is gathered along (the mesh, the scene's texels, the "
+                                            "support, the sky: scene.gather); 0: the prefiltered sky alone, "
+                                            "occluded as the diffuse sky is", lo=0, lo_open=False, hi=256)
+    reflect_steps: int = knob(16, "sampling", "samples per reflected ray through the depth map", hi=4096)
+    reflect_blur_px: float = knob(1.5, "sampling", "radius (pixels; sigma half of it) of the blur over the "
+                                                   "object's pixels that averages the neighbours' rays (each "
+                                                   "pixel's turned apart)", lo=0.0, lo_open=False, hi=64.0)
 
     def __post_init__(self):
         r = self.gloss_roughness

@@ -1,0 +1,168 @@
+"""The inserted object between points and the light, by rays on its posed mesh (Embree).
+
+A shadow map and one blocker distance per pixel (the penumbra filter) draw a small
+light's shadow well, but not a large one's: under a metre-wide area lamp the umbra below
+an object stays dark and compact while the penumbra spreads far, and the filter drew
+both as one blur, shifted with the lamp's centre. A path tracer samples the light.
+Here too, for the object (its mesh is known exactly):
+
+* ``light_visibility``: the share of a sun's disc (its angular radius) or a lamp's (a
+  sphere's disc facing the point, a panel's in its own plane) that each point sees past
+  the mesh, from ``k`` stratified samples turned per pixel;
+* ``sky_occlusion``: the share of the sky's irradiance the mesh hides, from directions
+  drawn in proportion to the sky's own radiance (``sky_pool``: a probe's bright horizon
+  is sampled where it is, where an order-2 SH sky smeared it over the hemisphere), each
+  point taking a stratified, per-pixel-turned share of the pool.
+
+Points whose rays cannot reach the mesh's bounding sphere (with the light's spread) cast
+no ray. Noisy by design, as a path tracer's few samples are: the caller filters.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from zcomp_cli.scene.gather import caster, orthonormal_rows
+from zcomp_cli.scene.sampling import length
+
+
+def disc_samples(k: int, jitter: np.ndarray) -> np.ndarray:
+    """(k, N, 2) points on the unit disc, ``k`` stratified in area (sunflower spiral), the
+    spiral turned by ``jitter`` (N,) in [0, 1) per point."""
+    i = np.arange(k)[:, None]
+    r = np.sqrt((i + 0.5) / k)
+    ph = 2 * np.pi * (i * 0.618034 + np.asarray(jitter, np.float64)[None])
+    return np.stack([r * np.cos(ph), r * np.sin(ph)], -1)
+
+
+def _bounds(mesh):
+    """(centre (3,), radius) of a sphere around the mesh's finite vertices."""
+    V = mesh.vertices[np.all(np.isfinite(mesh.vertices), axis=1)]
+    if not len(V):
+        return np.zeros(3), 0.0
+    c = 0.5 * (V.min(0) + V.max(0))
+    return c, float(np.sqrt(((V - c) ** 2).sum(1).max()))
+
+
+def _may_hit(P, D, c, R, spread=0.0, tmax=None):
+    """(N,) bool: the rays ``P + t D`` (unit ``D``, 0 < t < ``tmax``) pass within ``R +
+    spread t`` of ``c``."""
+    w = c - P
+    t = np.sum(w * D, 1)
+    if tmax is not None:
+        t = np.minimum(t, tmax)
+    t = np.maximum(t, 0.0)
+    d2 = np.sum((w - t[:, None] * D) ** 2, 1)
+    return d2 <= (R + spread * t) ** 2
+
+
+def _toward_sphere(P, c, R):
+    """((N, 3) unit directions from ``P`` (N, 3) to the sphere's centre ``c``, (N,) the
+    cosine of the half-angle it subtends, -1 where a point is inside it): a ray from a
+    point can meet the sphere only within that cone."""
+    w = c - P
+    dist = length(w)
+    u = w / np.maximum(dist, 1e-12)[:, None]
+    cos_b = np.sqrt(np.clip(1.0 - (R / np.maximum(dist, 1e-12)) ** 2, 0.0, 1.0))
+    return u, np.where(dist > R, cos_b, -1.0)
+
+
+def light_visibility(mesh, points: np.ndarray, normals: np.ndarray, light, k: int, jitter: np.ndarray,
+                     bias: np.ndarray) -> np.ndarray:
+    """(N,) the share of ``light``'s disc (``lightmodel.Sun`` or ``Lamp``) the points
+    (N, 3) see past the mesh, from ``k`` samples (``disc_samples``, turned by ``jitter``
+    (N,)); ``bias`` (N,) metres: each ray starts that far off the surface along its
+    normal (N, 3)."""
+    P = np.asarray(points, np.float64)
+    vis = np.ones(len(P))
+    c, R = _bounds(mesh)
+    if not len(P) or R <= 0:
+        return vis
+    start = P + np.asarray(normals, np.float64) * np.asarray(bias, np.float64)[:, None]
+    L, dist, _ = light.toward(start)
+    tan_a = np.broadcast_to(np.asarray(light.tan_radius(start) if light.varies else light.tan_radius(None),
+                                       np.float64), (len(P),))
+    cand = _may_hit(start, L, c, R, float(tan_a.max()), dist)
+    if not cand.any():
+        return vis
+    idx = np.flatnonzero(cand)
+    s, Lc, ta = start[idx], L[idx], tan_a[idx]
+    if light.varies and getattr(light, "facing", None) is not None:
+        # a panel: its samples lie in its own plane
+        f = np.broadcast_to(light.facing, Lc.shape)
+    else:
+        f = Lc
+    u, v = orthonormal_rows(f)
+    off = disc_samples(int(k), jitter[idx])
+    # every sample of every point in one call to the ray tracer
+    spread = off[..., :1] * u[None] + off[..., 1:] * v[None]  # (k, M, 3)
+    S = np.broadcast_to(s, spread.shape).reshape(-1, 3)
+    if light.varies:
+        d = (light.position[None, None] + light.radius_m * spread - s[None]).reshape(-1, 3)
+        t = length(d)
+        d = d / np.maximum(t, 1e-12)[:, None]
+    else:
+        d = (Lc[None] + ta[None, :, None] * spread).reshape(-1, 3)
+        d = d / np.maximum(length(d), 1e-12)[:, None]
+        t = None
+    near = _may_hit(S, d, c, R, 0.0, t)
+    hit = np.zeros(len(S), bool)
+    if near.any():
+        hit[near] = caster(mesh).occluded(S[near], d[near], None if t is None else t[near])
+    seen = (~hit).reshape(int(k), -1).sum(0)
+    vis[idx] = seen / int(k)
+    return vis
+
+
+def sky_pool(radiance: np.ndarray, directions: np.ndarray, solid_angle: np.ndarray, up, n: int):
+    """``n`` directions drawn in proportion to a sky map's luminance times solid angle above
+    the horizon (stratified, in the order of the map's rows): ((n, 3) unit directions,
+    (n, 3) each one's colour over its luminance). ``radiance`` (h, w, 3), ``directions``
+    (h, w, 3) its pixels', ``solid_angle`` (h, w)."""
+    d = directions.reshape(-1, 3)
+    L = np.maximum(np.asarray(radiance, np.float64).reshape(-1, 3), 0.0)
+    lum = L @ np.array([0.299, 0.587, 0.114])
+    p = lum * solid_angle.reshape(-1) * (d @ np.asarray(up, np.float64) > 0)
+    if not p.sum() > 0:
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    cdf = np.cumsum(p) / p.sum()
+    pick = np.minimum(np.searchsorted(cdf, (np.arange(n) + 0.5) / n), len(p) - 1)
+    return d[pick], L[pick] / np.maximum(lum[pick], 1e-12)[:, None]
+
+
+def sky_occlusion(mesh, points: np.ndarray, normals: np.ndarray, pool, k: int, jitter: np.ndarray,
+                  bias: np.ndarray) -> np.ndarray:
+    """(N, 3) the share of the sky's irradiance (per colour channel) the mesh hides from
+    the points (N, 3) of unit ``normals`` (N, 3): ``k`` directions of the ``pool``
+    (``sky_pool``) per point, a stratified share turned by ``jitter`` (N,), each weighted
+    by the point's cosine; rays start ``bias`` (N,) metres off the surface."""
+    dirs, chroma = pool
+    P = np.asarray(points, np.float64)
+    Nn = np.asarray(normals, np.float64)
+    out = np.zeros((len(P), 3))
+    c, R = _bounds(mesh)
+    n = len(dirs)
+    if not len(P) or not n or R <= 0:
+        return out
+    start = P + Nn * np.asarray(bias, np.float64)[:, None]
+    k = max(1, min(int(k), n))
+    base = (np.asarray(jitter, np.float64) * (n / k)).astype(np.int64)
+    pick = (base[None] + (np.arange(k)[:, None] * n) // k) % n  # (k, N)
+    d = dirs[pick]  # (k, N, 3)
+    w = np.maximum(np.sum(Nn[None] * d, -1), 0.0)[..., None] * chroma[pick]  # (k, N, 3)
+    den = w.sum(0)
+    u0, cos_b = _toward_sphere(start, c, R)
+    cand = ((w[..., 0] > 0) & (np.einsum("knj,nj->kn", d, u0) >= cos_b[None])).reshape(-1)
+    S = np.broadcast_to(start, d.shape).reshape(-1, 3)
+    D = d.reshape(-1, 3)
+    W = w.reshape(-1, 3)
+    hit = np.zeros(len(S), bool)
+    if cand.any():
+        hit[cand] = caster(mesh).occluded(S[cand], D[cand])
+    num = (W * hit[:, None]).reshape(k, -1, 3).sum(0)
+    ok = den > 1e-12
+    out[ok] = num[ok] / den[ok]
+    return out
+
+
+__all__ = ["disc_samples", "light_visibility", "sky_pool", "sky_occlusion"]
