@@ -12,6 +12,8 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
 os.environ.setdefault("HF_HUB_DISABLE_TELEMETRY", "1")
+# No LPIPS download from the tests (the weights' loopback test allows its own server)
+os.environ.setdefault("ZCOMP_OFFLINE", "1")
 
 
 @pytest.fixture(autouse=True, scope="session")

@@ -69,3 +69,31 @@ def add_hostile_failure(out: Path) -> None:
     doc["jobs"].append({"index": len(doc["jobs"]), "name": HOSTILE_NAME, "status": "failed",
                         "reason": HOSTILE_REASON, "seconds": 0.5, "this_run": "failed"})
     p.write_text(json.dumps(doc, indent=2))
+
+
+# Text that becomes an event handler wherever it lands inside a tag (issue 50, defect 1).
+HANDLER = " onload=window.__pwned=3 onerror=window.__pwned=4 "
+SLOTS = ("%DATA%", "%JS%", "%CSS%", "%HEAD%", "%TITLE%", "%PREVIEWS%", "%NONCE%")
+
+
+def make_slot_named_output(root: Path) -> Path:
+    """An output folder whose names and texts aim at the page's template: preview
+    sheets named after its slots (``%DATA%.png``...), failed jobs whose name, scene,
+    renderer and failure reason hold ``HANDLER`` (a mesh named ``a onload=... b.obj``
+    gives such a reason), and an eval.json whose metric name holds it too."""
+    from zcomp_cli.report.synthetic import tiny_png
+
+    out = Path(root) / "out"
+    (out / "preview").mkdir(parents=True)
+    for k, slot in enumerate(SLOTS):
+        (out / "preview" / f"{slot}.png").write_bytes(tiny_png((40 * k % 255, 90, 200)))
+        (out / "preview" / f"{slot}.json").write_text(json.dumps({"scene": slot}))
+    jobs = [{"index": i, "name": name, "status": "failed", "seconds": 0.1, "this_run": "failed",
+             "reason": f"cannot read the mesh 'a{HANDLER}b.obj': {slot}\"'<>"}
+            for i, (name, slot) in enumerate([(f"job{HANDLER}", "%DATA%"), ('q"uote' + HANDLER, "%JS%"),
+                                              ("plain", "%TITLE%")])]
+    (out / "summary.json").write_text(json.dumps({"jobs": jobs}))
+    ev = {"metrics": [f"psnr{HANDLER}"], "images": [{"name": "plain", f"psnr{HANDLER}": 3.0}],
+          "mean": {f"psnr{HANDLER}": 3.0}}
+    (out / "eval.json").write_text(json.dumps(ev))
+    return out

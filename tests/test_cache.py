@@ -20,7 +20,7 @@ def test_override_wins_over_env(monkeypatch, tmp_path):
 
 
 def test_unknown_kind_is_refused():
-    assert set(KINDS) == {"intrinsics", "estimates", "lights"}
+    assert set(KINDS) == {"intrinsics", "estimates", "lights", "lpips"}
     with pytest.raises(ValueError, match="unknown cache kind"):
         cache_dir("bogus")
 

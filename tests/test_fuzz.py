@@ -226,7 +226,7 @@ def _check_far_background(case_dir: Path, manifest: Path, job_dir: Path, report:
 
     m = load_manifest(manifest)
     spec = m.scenes[report["job"]["scene"]]
-    bg = load_scene(spec, m.defaults.resolution).image
+    bg = load_scene(spec, m.defaults.resolution).background  # (negative pixels as read)
     img = read_image(job_dir / "composite.exr")
     assert img.shape == bg.shape, (img.shape, bg.shape)
     x0, y0, x1, y1 = report["roi"]["box"]

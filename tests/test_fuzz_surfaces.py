@@ -22,6 +22,22 @@ And per surface:
   NaN, 3e38, the wrong shape or type), the registry lists it as a problem or the job
   fails with a reason; a finished job is finite and in radiance bounds.
 
+Issue 50's surfaces:
+
+* **cycles**: the cycles renderer's settings (manifest and ``--samples``), hostile or
+  plausible, with given lights: refused with the field (exit 2), or its jobs run in
+  Blender (done, or failed with a reason that names Blender's log when it keeps one);
+* **preview**: preview-light's options (scenes, pixel, diameter, samples), the state of
+  ``OUT/preview`` (sheets there, a link out, a FIFO for a sheet) and a damaged depth:
+  every sheet written has its numbers (PNG and JSON together), nothing outside --out;
+* **balls**: chrome-ball photographs (float TIFF, 16-bit, NaN, tiny, a ball off the
+  frame) with hostile centres, radii and reflectances;
+* **report**: an output folder of hostile content (names and reasons aimed at the page:
+  its template's slots, quotes, handlers, undecodable bytes, 100 kB texts; damaged or
+  deep reports, summaries, eval files; FIFOs; linked job folders): the page is written
+  or refused (exit 2), is valid UTF-8, carries no event handler and one nonce'd script,
+  and nothing but the page and its thumbnails is written.
+
 Profiles (``ZCOMP_FUZZ_PROFILE``): ``ci`` (default, a slice of each: see ``EXAMPLES``),
 ``full`` (10x):
 
@@ -52,7 +68,10 @@ from zcomp_cli.renderers.base import Renderer, RenderOutput
 
 PROFILE = os.environ.get("ZCOMP_FUZZ_PROFILE", "ci")
 # examples per surface in the ci profile (the full profile runs ten times as many)
-EXAMPLES = {"import": 60, "models": 30, "lights": 100, "plugins": 30}
+EXAMPLES = {"import": 60, "models": 30, "lights": 100, "plugins": 30,
+            # issue 50's surfaces: the cycles renderer's inputs and preview-light run Blender
+            # when a case gets past validation (seconds each), the others do not
+            "cycles": 12, "preview": 10, "balls": 40, "report": 60}
 STATS: dict[str, dict] = {k: {"cases": 0, "exit": {0: 0, 1: 0, 2: 0}} for k in EXAMPLES}
 
 
@@ -336,7 +355,8 @@ def test_fuzz_model_folders(tiny_dpt, photo_manifest, damages, tmp_path_factory)
 def _mostly(plausible, hostile):
     """Mostly values a user would write (so the fuzz reaches the renderer), sometimes
     hostile ones."""
-    return st.one_of(*[plausible] * 7, hostile)
+    # (seven distinct strategies: one_of drops repeats of the same one, which made it 1:1)
+    return st.one_of(*[plausible.map(lambda v: v) for _ in range(7)], hostile)
 
 
 def _f(lo, hi):
@@ -425,18 +445,24 @@ def _with_probe_paths(light):
 @given(light=_light, pitch=st.one_of(st.none(), _mostly(_f(-60, 10), _numbers)), renderer=st.sampled_from(["physical",
                                                                                                   "naive"]))
 def test_fuzz_lights(light_project, light, pitch, renderer, tmp_path_factory):
-    work = tmp_path_factory.mktemp("light")
-    shutil.copytree(light_project, work, dirs_exist_ok=True)
+    _light_case(light_project, _with_probe_paths(light), renderer, "lights", tmp_path_factory, pitch)
+
+
+def _light_case(project: Path, light, renderer, surface: str, tmp_path_factory, pitch=None) -> None:
+    """``zcomp composite`` of the project's manifest with the scene's ``light`` (and
+    ``pitch_deg``), on ``renderer``: the invariants of the module docstring."""
+    work = tmp_path_factory.mktemp(surface)
+    shutil.copytree(project, work, dirs_exist_ok=True)
     doc = base_manifest()
     doc["defaults"]["renderer"] = renderer
-    doc["scenes"]["room"]["light"] = _with_probe_paths(light)
+    doc["scenes"]["room"]["light"] = light
     if pitch is not None:
         doc["scenes"]["room"]["pitch_deg"] = pitch
     manifest = work / "jobs.yaml"
     manifest.write_text(yaml.safe_dump(doc, sort_keys=False, allow_unicode=True))
     out = work / "out"
     before, tmp_before = _snapshot(work, out), _tmp_zcomp_entries()
-    r = _invoke(["composite", manifest, "--out", out], "lights")
+    r = _invoke(["composite", manifest, "--out", out], surface)
     _unchanged_outside(work, out, before, tmp_before)
     _check_out(out)
     if r.exit_code == 2:
@@ -596,6 +622,281 @@ def test_a_plugin_breaking_the_contract_in_render_fails_its_jobs(behaviour, word
     assert r.exit_code == 1, r.output
     jobs = _strict_json(out / "summary.json")["jobs"]
     assert len(jobs) == 2 and all(j["status"] == "failed" and words in j["reason"] for j in jobs), jobs
+
+
+# ============================================================================ issue 50's surfaces
+def _tmp_left(before: set) -> set:
+    """zcomp's temporaries of this process made since ``before``, less the Blender logs
+    kept on purpose (an item failed: its reason names the log); those are removed."""
+    import tempfile
+
+    from zcomp_cli.blender.runner import KEEP_MARK
+
+    left = set()
+    for name in _tmp_zcomp_entries() - before:
+        p = Path(tempfile.gettempdir()) / name
+        try:
+            kept = p.is_file() and KEEP_MARK in p.read_text(errors="replace")[-200:]
+        except OSError:
+            kept = False
+        if kept:
+            p.unlink(missing_ok=True)
+        else:
+            left.add(name)
+    return left
+
+
+# settings a user would write (they reach Blender), or hostile ones (refused with the field)
+_cycles_plausible = st.fixed_dictionaries({}, optional={
+    "samples": st.integers(1, 4), "max_bounces": st.integers(0, 4), "denoise": st.booleans(),
+    "threads": st.integers(0, 2), "exposure": st.sampled_from(["light", "render"]),
+    "world": st.sampled_from(["probe", "model"]), "sky_width": st.integers(8, 64), "probe_width": st.integers(8, 64),
+    "world_map_resolution": st.integers(0, 64), "margin_px": st.integers(0, 8),
+    "light": st.just({"march_steps": 4, "estimate_march_steps": 4, "n_light_candidates": 16})})
+_cycles_hostile = st.fixed_dictionaries({}, optional={
+    "samples": _numbers, "max_bounces": _numbers, "denoise": _values, "threads": _numbers,
+    "exposure": st.sampled_from(["auto", 3]), "world": st.sampled_from(["x", ""]), "sky_width": _numbers,
+    "probe_width": _numbers, "world_map_resolution": _numbers, "margin_px": _numbers, "item_timeout_s": _numbers,
+    "light": _values, "bogus": _values})
+_cycles_settings = st.one_of(_cycles_plausible, _cycles_plausible, _cycles_plausible, _cycles_hostile)
+
+
+@pytest.mark.fuzz
+@pytest.mark.slow
+@pytest.mark.blender
+@_settings("cycles")
+@given(cfg=_cycles_settings, light=st.one_of(st.none(), _user_light),
+       flag=st.one_of(st.none(), st.none(), st.integers(1, 4), _numbers))
+def test_fuzz_cycles_inputs(light_project, cfg, light, flag, tmp_path_factory):
+    work = tmp_path_factory.mktemp("cycles")
+    shutil.copytree(light_project, work, dirs_exist_ok=True)
+    doc = base_manifest()
+    doc["defaults"]["renderer"] = {"name": "cycles", "denoise": False, **cfg}
+    doc["jobs"] = doc["jobs"][:1]  # the ball: one Blender process, two passes
+    if light is not None:
+        doc["scenes"]["room"]["light"] = _with_probe_paths(light)
+    manifest = work / "jobs.yaml"
+    manifest.write_text(yaml.safe_dump(doc, sort_keys=False, allow_unicode=True))
+    out = work / "out"
+    before, tmp_before = _snapshot(work, out), _tmp_zcomp_entries()
+    extra = [] if flag is None else ["--renderer", "cycles", "--samples", flag]
+    r = _invoke(["composite", manifest, "--out", out, *extra], "cycles")
+    assert _snapshot(work, out) == before, "written outside the output"
+    assert not _tmp_left(tmp_before), "temporary files left in /tmp"
+    _check_out(out)
+    if r.exit_code == 2:
+        assert not out.exists()
+    for j in (_strict_json(out / "summary.json")["jobs"] if (out / "summary.json").exists() else []):
+        assert j["status"] == "done" or (j["reason"] and "crashed" not in j["reason"]), j
+    shutil.rmtree(work, ignore_errors=True)
+
+
+_preview_opts = st.fixed_dictionaries({}, optional={
+    "--scene": st.lists(st.sampled_from(["room", "room", "nope", " room", "../room"]), min_size=1, max_size=3),
+    "--pixel": _mostly(st.tuples(st.integers(0, 127), st.integers(48, 95)), st.tuples(_numbers, _numbers)),
+    "--diameter": _mostly(_f(0.05, 0.4), st.one_of(_numbers, st.sampled_from([1e-9, 50.0, 1e3]))),
+    "--samples": _mostly(st.integers(1, 4), st.sampled_from([0, 4097, -1, 10**9]))})
+
+
+@pytest.fixture(scope="module")
+def preview_project(tmp_path_factory):
+    shared = tmp_path_factory.mktemp("fuzz_preview")
+    make_project(shared, width=128, height=96)
+    return shared
+
+
+def _preview_state(out: Path, state: str, elsewhere: Path) -> None:
+    (out / "preview").parent.mkdir(parents=True, exist_ok=True)
+    if state == "linked":
+        elsewhere.mkdir(exist_ok=True)
+        (out / "preview").symlink_to(elsewhere)
+    elif state in ("sheets", "fifo-sheet", "half-pair"):
+        (out / "preview").mkdir()
+        if state == "fifo-sheet":
+            os.mkfifo(out / "preview" / "room.png")
+        else:
+            (out / "preview" / "room.png").write_bytes(b"an old sheet")
+            if state == "sheets":
+                (out / "preview" / "room.json").write_text("{}")
+
+
+@pytest.mark.fuzz
+@pytest.mark.slow
+@pytest.mark.blender
+@_settings("preview")
+@given(opts=_preview_opts, state=st.sampled_from(["fresh", "fresh", "sheets", "linked", "fifo-sheet", "half-pair"]),
+       overwrite=st.booleans(), depth=st.sampled_from(["ok", "ok", "1e30", "nan", "zeros", "negative"]))
+def test_fuzz_preview_light(preview_project, opts, state, overwrite, depth, tmp_path_factory):
+    from zcomp_cli.imageio import read_map, write_exr
+
+    work = tmp_path_factory.mktemp("preview")
+    shutil.copytree(preview_project, work, dirs_exist_ok=True)
+    d = read_map(work / "scenes/depth.exr", channels=1)
+    bad = {"1e30": np.float32(1e30), "nan": np.float32(np.nan), "zeros": np.float32(0), "negative": np.float32(-2)}
+    if depth in bad:
+        write_exr(work / "scenes/depth.exr", np.where(d > 0, bad[depth], d).astype(np.float32))
+    out = work / "out"
+    _preview_state(out, state, work / "elsewhere")
+    args = ["preview-light", work / "jobs.yaml", "--out", out]
+    for k, v in opts.items():
+        args += [x for item in (v if k == "--scene" else [v]) for x in ((k, item) if k == "--scene" else
+                                                                        (k, *([v] if k != "--pixel" else v)))]
+    if overwrite:
+        args.append("--overwrite")
+    before, tmp_before = _snapshot(work, out), _tmp_zcomp_entries()
+    _invoke(args, "preview")
+    assert _snapshot(work, out) == before, "written outside the output"
+    assert not _tmp_left(tmp_before), "temporary files left in /tmp"
+    folder = out / "preview"
+    if folder.is_dir() and not folder.is_symlink():
+        names = {p.name for p in folder.iterdir()}
+        assert not [n for n in names if n.startswith(".")], names  # no lock, no temporary
+        for n in names:
+            stem = n.rsplit(".", 1)[0]
+            if (folder / n).is_file() and state == "fresh":
+                assert {f"{stem}.png", f"{stem}.json"} <= names, names  # a sheet with its numbers
+            if n.endswith(".json") and state != "sheets":
+                _strict_json(folder / n)
+    shutil.rmtree(work, ignore_errors=True)
+
+
+BALLS = ["ball_float.tif", "ball_u16.png", "ball_ok.exr", "ball_nan.exr", "ball_tiny.exr", "ball_black.png"]
+
+
+@pytest.fixture(scope="module")
+def ball_project(light_project):
+    """The lights' project with chrome-ball photographs in ``balls/``: a float TIFF, a
+    16-bit PNG, an EXR, one with NaN, a 2 x 2 one, a black one."""
+    import OpenImageIO as oiio
+
+    from zcomp_cli.imageio import write_exr, write_png
+
+    b = light_project / "balls"
+    b.mkdir(exist_ok=True)
+    yy, xx = np.mgrid[0:64, 0:64]
+    ball = (np.where(((xx - 32) ** 2 + (yy - 32) ** 2 < 28 ** 2)[..., None], 0.3, 0.05) * np.ones(3)).astype(np.float32)
+    ball[20:23, 40:43] = 80.0  # a sun on the ball, far above 1
+    tif = oiio.ImageOutput.create(str(b / "ball_float.tif"))
+    tif.open(str(b / "ball_float.tif"), oiio.ImageSpec(64, 64, 3, oiio.FLOAT))
+    tif.write_image(ball)
+    tif.close()
+    write_png(b / "ball_u16.png", np.clip(ball, 0, 1), bits=16)
+    write_exr(b / "ball_nan.exr", np.where(ball > 1, np.nan, ball).astype(np.float32))
+    write_exr(b / "ball_tiny.exr", ball[:2, :2])
+    write_exr(b / "ball_ok.exr", ball)
+    write_png(b / "ball_black.png", np.zeros((64, 64, 3), np.float32))
+    return light_project
+
+
+@pytest.mark.fuzz
+@pytest.mark.slow
+@_settings("balls")
+@given(image=st.sampled_from(BALLS[:3] * 3 + BALLS), center=_mostly(st.tuples(_f(26, 38), _f(26, 38)).map(list),
+                                                    st.one_of(_vec(2), st.just([1e9, 0]), _values)),
+       radius=_mostly(_f(8, 20), st.one_of(_numbers, _values)), extra=st.fixed_dictionaries({}, optional={
+           "reflectance": _mostly(_f(0.05, 1), _numbers), "strength": _mostly(_f(0.1, 5), _numbers)}),
+       unknown=st.one_of(st.just({}), st.just({}), st.just({}), st.just({"rotation_deg": 30})),
+       renderer=st.sampled_from(["physical", "naive"]))
+def test_fuzz_chrome_balls(ball_project, image, center, radius, extra, unknown, renderer, tmp_path_factory):
+    cheap = {"name": "physical", "march_steps": 4, "estimate_march_steps": 4, "n_light_candidates": 16,
+             "cone_samples": 2, "max_fit_pixels": 500}
+    light = [{"type": "chrome_ball", "image": f"balls/{image}", "center": center, "radius": radius, **extra,
+              **unknown}]
+    _light_case(ball_project, light, cheap if renderer == "physical" else "naive", "balls", tmp_path_factory)
+
+
+_page_text = st.one_of(_weird_text, st.sampled_from([
+    "%DATA%", "%JS%", "%CSS%", "%HEAD%", "%TITLE%", "%PREVIEWS%", "%NONCE%", 'a" onload="x()', " onload=x() ",
+    "</script><script>x()</script>", "<img src=x onerror=x()>", "caf\udce9", "\u2028", "y" * 100_000]),
+    st.text(max_size=30))
+_report_doc = st.one_of(st.just("ok"), st.just("deep"), st.just("fifo"), st.just("link-out"), _values)
+
+
+@st.composite
+def report_folders(draw):
+    jobs = draw(st.lists(st.tuples(_page_text, st.sampled_from(["done", "failed", "skipped", "x"]), _page_text),
+                         max_size=4))
+    reports = draw(st.lists(_report_doc, max_size=3))
+    summary = draw(st.one_of(st.just("ok"), st.just("deep"), st.just("fifo"), _values))
+    ev = draw(st.one_of(st.none(), st.just("deep"), st.just("empty-csv"), st.just("huge-csv"), _values,
+                        st.builds(lambda m: {"metrics": [m], "images": [{"name": "job0", m: 1.5}]}, _page_text)))
+    previews = draw(st.lists(_page_text, max_size=3))
+    return jobs, reports, summary, ev, previews
+
+
+def _write_report_folder(out: Path, case, elsewhere: Path) -> None:
+    from zcomp_cli.report.synthetic import tiny_png
+
+    jobs, reports, summary, ev, previews = case
+    out.mkdir(parents=True)
+    deep = "[" * 50_000 + "]" * 50_000
+    rows = [{"index": i, "name": n, "status": st_, "reason": r, "seconds": 0.1, "this_run": st_}
+            for i, (n, st_, r) in enumerate(jobs)]
+    if summary == "fifo":
+        os.mkfifo(out / "summary.json")
+    else:
+        (out / "summary.json").write_text(deep if summary == "deep" else json.dumps(
+            {"jobs": rows} if summary == "ok" else summary))
+    for k, rep in enumerate(reports):
+        d = out / f"job{k}"
+        if rep == "link-out":
+            elsewhere.mkdir(exist_ok=True)
+            (elsewhere / "report.json").write_text('{"status": "done", "outputs": {}}')
+            d.symlink_to(elsewhere)
+            continue
+        d.mkdir()
+        (d / "composite.png").write_bytes(tiny_png((200, 100, 50)))
+        if rep == "fifo":
+            os.mkfifo(d / "report.json")
+        else:
+            doc = {"status": "done", "outputs": {}, "job": {"scene": "s", "object": "o"},
+                   "roi": {"box": [1, 1, 8, 6]}, "scene": {"size": [16, 12]}} if rep == "ok" else rep
+            (d / "report.json").write_text(deep if rep == "deep" else json.dumps(doc))
+    if ev in ("empty-csv", "huge-csv"):
+        (out / "eval.csv").write_text("" if ev == "empty-csv" else "name,pred,ref,psnr\njob0,a,b," + "9" * 200_000)
+    elif ev is not None:
+        (out / "eval.json").write_text(deep if ev == "deep" else json.dumps(ev))
+    if previews:
+        (out / "preview").mkdir()
+        for name in previews:
+            try:
+                (out / "preview" / f"{name[:100]}.png").write_bytes(tiny_png((9, 9, 9)))
+            except (OSError, ValueError, UnicodeEncodeError):  # not a file name on this system
+                pass
+
+
+@pytest.mark.fuzz
+@pytest.mark.slow
+@_settings("report")
+@given(case=report_folders())
+def test_fuzz_report_page(case, tmp_path_factory):
+    from html.parser import HTMLParser
+
+    work = tmp_path_factory.mktemp("report")
+    out = work / "out"
+    _write_report_folder(out, case, work / "elsewhere")
+    before = _snapshot(work, work / "none")
+    r = _invoke(["report", out, "--title", "t %DATA%"], "report")
+    after = _snapshot(work, work / "none")
+    changed = {p for p in set(before) | set(after) if before.get(p) != after.get(p)}
+    mine = (str(out / "report.html"), str(out / "report_thumbs"))
+    assert all(str(p) == mine[0] or str(p).startswith(mine[1]) for p in changed), changed
+    page = out / "report.html"
+    if r.exit_code == 0:
+        text = page.read_bytes().decode("utf-8")  # valid UTF-8
+        attrs, scripts = [], []
+
+        class P(HTMLParser):
+            def handle_starttag(self, tag, a):
+                attrs.extend(k for k, _ in a)
+                if tag == "script":
+                    scripts.append(dict(a))
+
+        P().feed(text)
+        assert not [a for a in attrs if a.lower().startswith("on")], "an event handler in the page"
+        assert len(scripts) == 2 and scripts[0].get("type") == "application/json" and scripts[1].get("nonce")
+        assert len(text) < 5_000_000
+    shutil.rmtree(work, ignore_errors=True)
 
 
 @pytest.mark.fuzz

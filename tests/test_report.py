@@ -88,7 +88,11 @@ def test_rows_of_a_real_output_folder(project):
     assert (done["scene"], done["object"], done["renderer"]) == ("s1", "card", "physical")
     assert done["composite"] == out / "job001" / "composite.png"
     assert done["background"] == manifest.parent / "floor1.png"
-    assert re.match(r"sun az \d+° el -?\d+°, source estimated, uncertainty \d+°", done["light"]), done["light"]
+    assert re.match(r"sun at azimuth \d+°, elevation -?\d+°, estimated from the photograph, ±\d+°",
+                    done["light"]), done["light"]
+    # the close-up: the re-shaded region, grown, inside the composite's frame
+    x0, y0, x1, y1, W, H = done["closeup"]
+    assert 0 <= x0 < x1 <= W and 0 <= y0 < y1 <= H and (W, H) == (160, 120)
     assert done["seconds"] > 0
     # eval metrics joined for every finished job, none for the failed one
     ev = json.loads((out / "eval.json").read_text())
@@ -132,15 +136,17 @@ def test_light_summary():
              "lights": [{"kind": "sun"}, {"kind": "sky"}], "fallback": None,
              "fit": {"direction_uncertainty_deg": 12.2, "unfixed": False}}
     rep = {"renderer": {"info": {"light": light}}}
-    assert light_summary(rep) == ("sun az 120° el 35°, source estimated, uncertainty 12°", None, 12.2)
+    assert light_summary(rep) == ("sun at azimuth 120°, elevation 35°, estimated from the photograph, ±12°", None,
+                                  12.2)
     light.update(fallback="the photograph does not fix the light", shadow="contact shadow only")
     light["fit"]["unfixed"] = True
     text, note, _ = light_summary(rep)
-    assert text.endswith("uncertainty 12°, unfixed, contact shadow only, fallback")
+    assert text.endswith("±12°, direction a guess (the photograph does not fix it), contact shadow only, "
+                         "simplified (hover for why)")
     assert note == "the photograph does not fix the light"
     assert light_summary({"renderer": {"info": {}}}) == (None, None, None)  # naive, zerocomp
     assert light_summary({"light": {"lights": [{"kind": "sky"}], "source": "manifest"}})[0] == \
-        "sky only, source manifest"
+        "sky only, given in the manifest"
 
 
 # ------------------------------------------------------------------ the page
@@ -173,7 +179,7 @@ def test_cli_writes_the_page_inside_out_only(project):
     assert rows["job001"]["m:psnr"] > 20 and rows["job_ball"]["m:psnr"] is None
     for scene in ("s0", "s1", "s2"):
         assert f'src="preview/{scene}.png"' in page and f'href="preview/{scene}.json"' in page
-    assert page.count('<span class="meta">sun az ') == 3  # each sheet's light, from its .json
+    assert page.count('<span class="meta">sun at azimuth ') == 3  # each sheet's light, from its .json
     # no external resource: every src/href is relative, a fragment or data:
     for url in re.findall(r'(?:src|href)="([^"]*)"', page):
         assert not re.match(r"^(https?:|//)", url), url
@@ -312,3 +318,42 @@ def test_synthetic_folder_pages(tmp_path):
     assert col.counts == {"done": 225, "failed": 25}
     assert col.metrics == ["psnr", "ssim", "lpips", "flip"]
     assert sum(1 for r in col.rows if r["metrics"]) == 125  # eval.json scores every even job (all done)
+
+
+class _Attrs(HTMLParser):
+    def __init__(self):
+        super().__init__()
+        self.attrs: list[tuple[str, str, str | None]] = []
+        self.metas: list[dict] = []
+
+    def handle_starttag(self, tag, attrs):
+        self.attrs += [(tag, k, v) for k, v in attrs]
+        if tag == "meta":
+            self.metas.append(dict(attrs))
+
+
+def test_the_template_is_filled_in_one_pass(tmp_path):
+    """Issue 50, defect 1: a preview named ``%DATA%.png`` pulled the whole JSON into
+    its image's ``alt`` (chained replaces), so `` onload=CODE `` in any text became a
+    handler. Now every slot is filled once, the data's quotes are escaped and the
+    policy allows the page's one script by its nonce, no inline handler."""
+    from report_project import HANDLER, SLOTS, make_slot_named_output
+
+    out = make_slot_named_output(tmp_path)
+    path, col = write_report(out, title="t %DATA% %JS% %NONCE%")
+    page = path.read_text()
+    p = _Attrs()
+    p.feed(page)
+    assert [a for a in p.attrs if a[1].startswith("on")] == []
+    alts = sorted(v for t, k, v in p.attrs if t == "img" and k == "alt")
+    assert alts == sorted(f"preview of {s}" for s in SLOTS)
+    csp = next(m["content"] for m in p.metas if m.get("http-equiv") == "Content-Security-Policy")
+    nonce = re.search(r"script-src 'nonce-([A-Za-z0-9_-]{16,})'", csp).group(1)
+    assert "unsafe-inline" not in csp.split("script-src", 1)[1]
+    assert [v for t, k, v in p.attrs if t == "script" and k == "nonce"] == [nonce]
+    assert "<title>t %DATA% %JS% %NONCE%</title>" in page
+    blob = re.search(r'application/json">(.*?)</script>', page, re.S).group(1)
+    assert '\\"' not in blob
+    rows = {r["job"]: r for r in _rows(page)}
+    assert HANDLER in rows['q"uote' + HANDLER]["reason"] and set(rows) == {"job" + HANDLER, 'q"uote' + HANDLER,
+                                                                          "plain"}

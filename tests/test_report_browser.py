@@ -182,8 +182,9 @@ def test_every_thumbnail_loads(driver, page):
     _choose(d, "page-size", "0")
     _wait(d, "return document.querySelectorAll('#jobs tbody tr').length === 7")
     imgs = d.execute_script("return Array.from(document.images)")
-    # 5 composites, 6 backgrounds (the hostile job names no scene), 3 preview sheets
-    assert len(imgs) == 14
+    # 5 composites and their 5 close-ups, 6 backgrounds (the hostile job names no scene), 3
+    # preview sheets
+    assert len(imgs) == 19
     for img in imgs:
         d.execute_script("arguments[0].scrollIntoView({block: 'center'})", img)
         _wait(d, "return arguments[0].complete && arguments[0].naturalWidth > 0", img)
@@ -237,4 +238,57 @@ def test_screenshot(driver, page, tmp_path):
     assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and shot.stat().st_size > 10_000
     if os.environ.get("ZCOMP_WRITE_DOCS") == "1":
         shutil.copy(shot, DOCS / "report.png")
+    assert _severe(d) == []
+
+
+def test_no_handler_from_the_data_whatever_the_names(driver, tmp_path):
+    """Issue 50, defect 1: preview sheets named after the template's slots (``%DATA%.png``)
+    and names, reasons and metrics holding `` onload=CODE ``: the page runs no handler,
+    no element carries one, and the script runs only by its nonce."""
+    from click.testing import CliRunner
+
+    from report_project import SLOTS, make_slot_named_output
+    from zcomp_cli.cli import cli
+
+    out = make_slot_named_output(tmp_path)
+    r = CliRunner().invoke(cli, ["report", str(out), "--title", "t %DATA% %JS%"])
+    assert r.exit_code == 0, r.output
+    d = driver
+    d.get_log("browser")
+    _open(d, out / "report.html")
+    _choose(d, "page-size", "0")
+    imgs = d.execute_script("return Array.from(document.images)")
+    assert len(imgs) == len(SLOTS)  # the preview sheets, each its own image
+    for img in imgs:
+        d.execute_script("arguments[0].scrollIntoView({block: 'center'})", img)
+        _wait(d, "return arguments[0].complete && arguments[0].naturalWidth > 0", img)
+    assert d.execute_script("return typeof window.__pwned") == "undefined"
+    handlers = d.execute_script(
+        "var got = []; document.querySelectorAll('*').forEach(function (e) {"
+        "  Array.from(e.attributes).forEach(function (a) { if (/^on/i.test(a.name)) got.push(e.tagName + ' ' + a.name); });"
+        "}); return got;")
+    assert handlers == []
+    assert sorted(_col(d, "job", None)) == sorted(["job" + " onload=window.__pwned=3 onerror=window.__pwned=4 ",
+                                                   'q"uote onload=window.__pwned=3 onerror=window.__pwned=4 ',
+                                                   "plain"])
+
+
+def test_the_close_up_shows_the_region_it_names(driver, page):
+    """Issue 50 (an artist's report): a close-up of each done job beside the whole frame,
+    the composite cropped to the re-shaded region by the page (box and image sizes
+    agree with the row's numbers); numbers with three significant digits."""
+    d = driver
+    _open(d, page)
+    _choose(d, "page-size", "0")
+    _wait(d, "return document.querySelectorAll('#jobs tbody tr').length === 7")
+    crops = d.execute_script(
+        "return Array.from(document.querySelectorAll('td[data-key=\"closeup\"] a.crop')).map(function (a) {"
+        "  var i = a.querySelector('img'); return [a.clientWidth, a.clientHeight, i.clientWidth,"
+        "  parseFloat(i.style.left), parseFloat(i.style.top)]; });")
+    assert len(crops) == 5
+    for w, h, iw, left, top in crops:
+        assert max(w, h) == 160 and 0 < min(w, h) <= 160
+        assert iw > w and left <= 0 and top <= 0 and iw + left >= w  # a part of the larger image, inside it
+    psnr = [v for v in _col(d, "m:psnr", None) if v.strip() not in ("", "\u2014")]
+    assert psnr and all(len(v.replace("-", "").replace(".", "").lstrip("0")) <= 3 for v in psnr), psnr
     assert _severe(d) == []

@@ -26,6 +26,10 @@ def test_working_scale_is_one_inside_the_range_and_a_power_of_two_outside():
         assert e == round(e) and s != 1.0
         assert WORKING_LEVEL / 1.5 <= 0.3 * k / s <= WORKING_LEVEL * 1.5
     assert working_scale(img * (lo * 1.01 / 0.3)) == 1.0 and working_scale(img * (hi * 0.99 / 0.3)) == 1.0
+    # within float32's normal exponents: a 3e38 photograph asked for 2^130 (inf in float32)
+    for v in (3e38, 1e-44):
+        s = np.float32(working_scale(np.full((4, 4, 3), v, np.float32)))
+        assert np.isfinite(s) and s > 0 and np.isfinite(np.float32(v) / s) and np.float32(v) / s > 0
 
 
 def _run(stability_sweep, tmp_path, case, renderer="physical", debug=False):

@@ -12,7 +12,6 @@ which is how the cache and ``--resume`` tell finished work from unfinished.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -20,6 +19,7 @@ import numpy as np
 
 from zcomp_cli.camera import Camera
 from zcomp_cli.errors import InputError
+from zcomp_cli.safe_read import read_json_file
 
 BUNDLE_MAPS = ("depth", "normals", "albedo", "mask", "footprint_depth")
 OPTIONAL_MAPS = ("roughness", "metallic")
@@ -75,8 +75,8 @@ class ObjectBundle:
         if not meta_path.is_file():
             raise InputError("not an object bundle (no meta.json)", where=str(folder))
         try:
-            meta = json.loads(meta_path.read_text())
-        except json.JSONDecodeError as exc:
+            meta = read_json_file(meta_path)
+        except (OSError, ValueError) as exc:
             raise InputError(f"invalid meta.json: {exc}", where=str(meta_path)) from exc
         try:
             camera = Camera(np.asarray(meta["K"], dtype=np.float64), *meta["resolution"])

@@ -5,7 +5,8 @@
 
 * ``intrinsics/``: object intrinsics bundles rendered by Blender (``blender.cache``);
 * ``estimates/``: per-scene estimated maps (``estimators.cache``);
-* ``lights/``: per-scene fitted lights (``light.stage``).
+* ``lights/``: per-scene fitted lights (``light.stage``);
+* ``lpips/``: the LPIPS weights, fetched on first use (``metrics.lpips_weights``).
 
 Every command resolves its folders here, so ``render-intrinsics``, ``composite`` and
 ``estimate`` share entries.
@@ -17,7 +18,7 @@ import os
 from pathlib import Path
 
 ENV_VAR = "ZCOMP_CACHE_DIR"
-KINDS = ("intrinsics", "estimates", "lights")
+KINDS = ("intrinsics", "estimates", "lights", "lpips")
 
 
 def cache_root(override: str | os.PathLike | None = None) -> Path:
@@ -30,7 +31,7 @@ def cache_root(override: str | os.PathLike | None = None) -> Path:
 
 
 def cache_dir(kind: str, root: str | os.PathLike | None = None) -> Path:
-    """The folder of one kind of entry (``intrinsics``, ``estimates`` or ``lights``) under
+    """The folder of one kind of entry (``intrinsics``, ``estimates``, ``lights``, ``lpips``) under
     :func:`cache_root` (``root`` overrides the root, as ``--cache-dir`` does)."""
     if kind not in KINDS:
         raise ValueError(f"unknown cache kind {kind!r}; known: {', '.join(KINDS)}")

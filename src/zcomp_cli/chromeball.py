@@ -177,12 +177,11 @@ def _linear(v: float) -> float:
 
 
 def read_ball(path) -> tuple[np.ndarray, bool]:
-    """(linear (H, W, 3) float32 image, whether the file is HDR) of a ball photograph."""
-    from pathlib import Path
+    """(linear (H, W, 3) float32 image, whether the file is HDR: float pixels, whatever
+    its name says -- a 32-bit float TIFF is) of a ball photograph."""
+    from zcomp_cli.imageio import read_image_hdr
 
-    from zcomp_cli.imageio import FLOAT_EXTS, read_image
-
-    return read_image(path), Path(path).suffix.lower() in FLOAT_EXTS
+    return read_image_hdr(path)
 
 
 def ball_probe(path, center, radius, frame, *, reflectance: float = CHROME_REFLECTANCE,

@@ -28,6 +28,9 @@ __all__ = [
     "normalize",
     "camera_normals_to_conditioning",
     "conditioning_to_camera_normals",
+    "facing_fraction",
+    "facing_problem",
+    "MIN_FACING_FRACTION",
     "valid_depth_mask",
     "unit_normal_mask",
     "UNIT_NORMAL_TOL",
@@ -279,11 +282,52 @@ def conditioning_to_camera_normals(encoded) -> np.ndarray:
     return normalize(2.0 * np.asarray(encoded, dtype=np.float32) - 1.0)
 
 
+# The front-facing check: a visible surface faces the camera. Below this fraction of an
+# object's (or a background's) pixels the normals are in another frame than assumed.
+MIN_FACING_FRACTION = 0.5
+
+
+def facing_fraction(normals, K, select=None) -> float:
+    """Fraction of the selected pixels whose normal faces the camera (``n . ray < 0``,
+    the ray through the pixel centre); pixels with a zero normal are not counted.
+    NaN when nothing is counted.
+
+    Args:
+        normals: (H, W, 3) camera-frame normals.
+        K: 3x3 intrinsics of that image.
+        select: optional (H, W) bool.
+    """
+    n = np.asarray(normals, np.float64)
+    h, w = n.shape[:2]
+    uu, vv = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    rays = pixel_ray(K, uu, vv)
+    use = np.linalg.norm(n, axis=-1) > 0.5
+    if select is not None:
+        use &= np.asarray(select, bool)
+    if not use.any():
+        return float("nan")
+    return float(((n * rays).sum(-1)[use] < 0).mean())
+
+
+def facing_problem(normals, K, select=None) -> str | None:
+    """Why a camera-frame normal map cannot be zcomp's (None when it can): most of its
+    normals face away from the camera (a visible surface cannot), so it is in another
+    frame. The built-in renderers shade such a map into radiance of millions."""
+    facing = facing_fraction(normals, K, select)
+    if not facing < MIN_FACING_FRACTION:  # (NaN: no normal to judge by)
+        return None
+    return (f"the normals face away from the camera at {1 - facing:.0%} of the pixels: the map is in another "
+            "frame than zcomp's (OpenGL camera frame: x right, y up, z toward the viewer, so a surface facing "
+            "the camera has n = (0, 0, 1)); a map with z forward (Blender's shader camera space) needs its z "
+            "negated, one in OpenCV's frame (y down, z forward) its y and z")
+
+
 def working_scale(image) -> float:
     """The power of two a photograph is divided by to be worked at ``WORKING_LEVEL``
     (the comment of ``WORKING_LEVEL_RANGE``): 1.0 when the median luminance of its
     finite positive pixels lies in ``WORKING_LEVEL_RANGE`` (or none is positive), else
-    ``2 ** round(log2(median / WORKING_LEVEL))``.
+    ``2 ** round(log2(median / WORKING_LEVEL))``, its exponent within float32's normal
+    range (-126 to 127: a photograph of 3e38 asked for 2^130, which float32 holds as inf).
 
     Args:
         image: (H, W, 3) linear RGB.
@@ -297,4 +341,4 @@ def working_scale(image) -> float:
     lo, hi = WORKING_LEVEL_RANGE
     if lo <= level <= hi:
         return 1.0
-    return float(2.0 ** round(np.log2(level / WORKING_LEVEL)))
+    return float(2.0 ** min(127, max(-126, round(np.log2(level / WORKING_LEVEL)))))

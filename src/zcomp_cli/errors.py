@@ -71,3 +71,17 @@ class WeightsError(ZcompError):
 
 class NumericalError(ZcompError):
     """A computation produced non-finite values where it must not (e.g. fp16 overflow)."""
+
+
+# The logger of tracebacks zcomp catches to go on (a job's internal error): the CLI
+# lets it through from -v on (``cli.cli``), as it shows the tracebacks of errors it stops
+# on; without -v it is silent whatever the log level.
+TRACEBACK_LOGGER = "zcomp_cli.tracebacks"
+
+
+def log_traceback(what: str, exc: BaseException) -> None:
+    """Log ``exc``'s traceback, headed by ``what``, on ``TRACEBACK_LOGGER``."""
+    import logging
+    import traceback
+
+    logging.getLogger(TRACEBACK_LOGGER).debug("%s:\n%s", what, "".join(traceback.format_exception(exc)))

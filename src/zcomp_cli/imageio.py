@@ -274,11 +274,17 @@ def read_image(path, *, channels: int = 3) -> np.ndarray:
     8/16-bit files are decoded from sRGB; float files (EXR/HDR) are taken as linear.
     Grey inputs are repeated to 3 channels; an alpha channel is dropped.
     """
+    return read_image_hdr(path, channels=channels)[0]
+
+
+def read_image_hdr(path, *, channels: int = 3) -> tuple[np.ndarray, bool]:
+    """``read_image`` and whether the file holds float pixels (HDR: an EXR, a float TIFF;
+    decided by the pixel type, not the name)."""
     data, kind = _read_raw(path)
     img = _to_unit(data, kind)
     if kind != "float":
         img = srgb_to_linear(img)
-    return _fit_channels(img, channels, path)
+    return _fit_channels(img, channels, path), kind == "float"
 
 
 def read_alpha_or_grey(path) -> np.ndarray:

@@ -12,8 +12,10 @@ YAML values expanded   ``ZCOMP_MAX_YAML_NODES``     2,000,000 (aliases counted a
 =====================  ==========================  ==========================================
 
 A job at P pixels holds a few dozen float32 maps of P pixels at once (image, depth,
-normals, albedo, shading, two renders, masks...), about 0.3 KB per pixel: the default
-pixel budget keeps one job near 12 GB at worst.
+normals, albedo, shading, two renders, masks...), about 0.3 KB per pixel
+(``BUDGET_KB_PER_PIXEL``): the default pixel budget keeps one job near 12 GB at worst. A
+renderer that costs more a pixel declares it (``RendererEntry.kb_per_pixel``) and its
+jobs' working size is budgeted by it (``renderer_budget_problem``).
 """
 
 from __future__ import annotations
@@ -35,6 +37,11 @@ DEFAULT_MAX_YAML_NODES = 2_000_000
 MAX_NAME_LEN = 100
 # Longest value quoted back in an error message.
 MAX_SHOWN_CHARS = 80
+# Longest text zcomp writes or shows in one field of a summary, a status line or a
+# report page (a failure reason, a job name): a reason is a few hundred characters; a
+# 100 MB one (a plugin's exception) made a 600 MB page and a status that printed for
+# minutes.
+MAX_FIELD_CHARS = 2000
 
 
 def _env_int(name: str, default: int) -> int:
@@ -63,6 +70,24 @@ def max_yaml_nodes() -> int:
     return _env_int(MAX_YAML_NODES_ENV, DEFAULT_MAX_YAML_NODES)
 
 
+# What the pixel budget is set for: a job's memory per pixel of its working size (the
+# physical renderer's: 1.1 GB at 2048 x 1536, issue 50).
+BUDGET_KB_PER_PIXEL = 0.3
+
+
+def renderer_budget_problem(width: int, height: int, kb_per_pixel: float, renderer: str) -> str | None:
+    """None when a job of ``width x height`` working pixels on a renderer costing
+    ``kb_per_pixel`` fits the memory the pixel budget stands for (``max_pixels`` x
+    ``BUDGET_KB_PER_PIXEL``), else why, naming how to raise it."""
+    limit = int(max_pixels() * BUDGET_KB_PER_PIXEL / max(float(kb_per_pixel), BUDGET_KB_PER_PIXEL))
+    if int(width) * int(height) <= limit:
+        return None
+    return (f"{int(width)}x{int(height)} = {int(width) * int(height):,} working pixels exceeds the {renderer} "
+            f"renderer's budget of {limit:,} (it holds about {kb_per_pixel:g} KB a pixel, where the pixel budget "
+            f"of {max_pixels():,} is set for {BUDGET_KB_PER_PIXEL:g}; set ${MAX_PIXELS_ENV} to raise it, or a "
+            "smaller defaults.resolution)")
+
+
 def pixel_budget_problem(width: int, height: int) -> str | None:
     """None when ``width x height`` fits the pixel budget, else a message naming the
     limit and how to raise it (the caller names the field)."""
@@ -78,6 +103,15 @@ def printable(text) -> str:
     name) and the undecodable bytes of a non-UTF-8 path (surrogate escapes) written as
     backslash escapes, everything else kept (an accented name stays readable)."""
     return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in str(text))
+
+
+def field_text(text, limit: int = MAX_FIELD_CHARS) -> str:
+    """``text`` as a summary, a status line or a page shows it: cut to ``limit``
+    characters (saying how many more there were) before anything else reads it, and
+    each of its lines ``printable``."""
+    text = str(text)
+    more = f"... ({len(text) - limit:,} more characters)" if len(text) > limit else ""
+    return "\n".join(printable(line) for line in text[:limit].split("\n")) + more
 
 
 def shorten(value, limit: int = MAX_SHOWN_CHARS) -> str:

@@ -23,6 +23,7 @@ import uuid
 from pathlib import Path
 
 from zcomp_cli.bundle import ObjectBundle
+from zcomp_cli.safe_read import read_json_file
 
 
 def _canon(x):
@@ -75,7 +76,7 @@ def _intact(d: Path) -> bool:
     if not ObjectBundle.is_complete(d):
         return False
     try:
-        recorded = json.loads((d / HASHES).read_text())
+        recorded = read_json_file(d / HASHES)
         return isinstance(recorded, dict) and recorded == _file_hashes(d)
     except (OSError, ValueError):
         return False

@@ -20,8 +20,10 @@ Protocol between this module and a script in ``zcomp_cli/blender/scripts/``:
   Blender (it would otherwise go on rendering into folders a later run has swept). An
   interrupted batch (Ctrl-C, SIGTERM, SIGHUP) kills its child at once.
 * Blender's log (``/tmp/zcomp-blender-<pid>-*.log`` by default) is deleted when nothing
-  went wrong; a batch with a failed item keeps it (the item's error names it) and marks
-  it so (``KEEP_MARK``); the log of a killed run is removed by a later run's sweep
+  went wrong or the batch (or session) was interrupted; a batch with a failed item keeps
+  it (the item's error names it, whether the script raised, Blender died, or the item
+  passed ``item_timeout_s``, which is said as such) and marks it so (``KEEP_MARK``); the
+  log of a killed run is removed by a later run's sweep
   (``pipeline.outguard.sweep_dead_temporaries``).
 """
 
@@ -132,6 +134,7 @@ class BatchResult:
     startup_s: list[float] = field(default_factory=list)
     log_path: Path | None = None
     restarts: int = 0
+    timed_out: dict[str, float] = field(default_factory=dict)  # item id -> the limit it passed
 
 
 def _fail_after_death(result, pending, started, log_path, on_event) -> list:
@@ -145,7 +148,9 @@ def _fail_after_death(result, pending, started, log_path, on_event) -> list:
             on_event(ev)
 
     if started is not None and started not in result.results:
-        fail(started, "Blender crashed while processing this item")
+        limit = result.timed_out.get(started)
+        fail(started, "Blender crashed while processing this item" if limit is None else
+             f"took longer than {limit:g} s (the renderer's item_timeout_s): Blender was stopped")
         return [it for it in pending if str(it["id"]) != started]
     if started is None:
         for it in pending:
@@ -247,6 +252,7 @@ def _pump(proc, on_event, log, result, item_timeout_s, *, until_batch_done: bool
         while not state["stop"] and proc.poll() is None:
             if state["current"] is not None and time.monotonic() - state["t"] > item_timeout_s:
                 log.write(f"\n[zcomp] item {state['current']} exceeded {item_timeout_s:.0f} s: killing Blender\n")
+                result.timed_out[state["current"]] = float(item_timeout_s)
                 proc.kill()
                 return
             time.sleep(0.5)
@@ -272,6 +278,8 @@ def _pump(proc, on_event, log, result, item_timeout_s, *, until_batch_done: bool
                 state["t"] = time.monotonic()
                 state["current"] = current
             elif kind in ("done", "error"):
+                if kind == "error":  # the log is kept (the batch failed): the reason names it
+                    ev["error"] = f"{ev.get('error', 'failed')} (Blender's log: {getattr(log, 'name', '?')})"
                 result.results[str(ev.get("id"))] = ev
                 current = None
                 state["current"] = None
@@ -328,9 +336,11 @@ class BlenderSession:
                 started = _pump(self.proc, on_event, self._log, result, self.item_timeout_s, until_batch_done=True)
             except (BrokenPipeError, OSError):
                 started = None
-            except BaseException:  # interrupted: Blender stops now
-                self._troubled = True
+            except BaseException:  # interrupted: Blender stops now, and nobody will read its log
                 self._reap(kill=True)
+                if self._temporary_log:
+                    self.log_path.unlink(missing_ok=True)
+                    self._troubled = False
                 raise
             pending = [it for it in pending if str(it["id"]) not in result.results]
             if not pending:

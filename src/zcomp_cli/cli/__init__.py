@@ -129,8 +129,9 @@ class LazyGroup(click.Group):
             ctx.exit(exc.exit_code)
         except KeyboardInterrupt as exc:
             # Ctrl-C, SIGTERM, SIGHUP: the shell convention 128 + the signal, not
-            # click's "Aborted!" and 1.
-            click.echo("\nInterrupted.", err=True)
+            # click's "Aborted!" and 1 (a command that said what is on disk has said it)
+            if not getattr(exc, "zcomp_reported", False):
+                click.echo("\nInterrupted.", err=True)
             ctx.exit(exit_code_of(exc))
 
     def format_commands(self, ctx, formatter):
@@ -154,8 +155,12 @@ def _available(name: str) -> bool:
 @click.pass_context
 def cli(ctx, verbose: int, quiet: bool):
     """zcomp: composite 3D objects into photographs with realistic shading and shadows."""
+    from zcomp_cli.errors import TRACEBACK_LOGGER
+
     level = logging.WARNING if quiet else (logging.DEBUG if verbose > 1 else logging.INFO)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    # -v shows the tracebacks of the errors zcomp catches to go on (a job's internal error)
+    logging.getLogger(TRACEBACK_LOGGER).setLevel(logging.DEBUG if verbose else logging.NOTSET)
     ctx.ensure_object(dict)
     ctx.obj["verbose"] = verbose
     ctx.obj["quiet"] = quiet

@@ -70,13 +70,31 @@ def composite(ctx, manifest, out_dir, renderer, renderer_flags, jobs_subset, sha
 
     from zcomp_cli.cli.progress import StageProgress
 
-    with StageProgress(disable=quiet) as prog:
-        summary = run_batch(m, out_dir, renderer_spec=spec, jobs_subset=jobs_subset, resume=resume,
-                            redo_changed=redo_changed, overwrite=overwrite, debug=debug, aovs=aovs, cache_dir=cache_dir, shard=shard_ix,
-                            executor=runner, progress=prog.update)
+    try:
+        with StageProgress(disable=quiet) as prog:
+            summary = run_batch(m, out_dir, renderer_spec=spec, jobs_subset=jobs_subset, resume=resume,
+                                redo_changed=redo_changed, overwrite=overwrite, debug=debug, aovs=aovs,
+                                cache_dir=cache_dir, shard=shard_ix, executor=runner, progress=prog.update)
+    except KeyboardInterrupt as exc:
+        exc.zcomp_reported = _print_interrupted(getattr(exc, "zcomp_summary", None), out_dir)
+        raise
     _print_summary(summary, out_dir, quiet)
     if not summary.ok:
         ctx.exit(1)
+
+
+def _print_interrupted(doc: dict | None, out_dir) -> bool:
+    """After Ctrl-C, SIGTERM or SIGHUP: what is on disk, as the rewritten summary says
+    (True when said)."""
+    import click
+
+    if not doc:
+        return False
+    mine = doc.get("this_run") or {}
+    click.echo(f"\nInterrupted. On disk in {out_dir}: {doc.get('done', 0)} done, {doc.get('failed', 0)} failed, "
+               f"{doc.get('pending', 0)} pending ({mine.get('done', 0)} done and {mine.get('failed', 0)} failed by "
+               f"this run); {out_dir}/summary.json lists them. `--resume` finishes the rest.", err=True)
+    return True
 
 
 def _print_summary(summary, out_dir, quiet: bool) -> None:

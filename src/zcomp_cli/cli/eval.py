@@ -38,9 +38,11 @@ def _check_metrics(ctx, param, value):
 @click.option("--out", "out_prefix", type=click.Path(dir_okay=False), default=None, metavar="PATH_PREFIX",
               help="Write PATH_PREFIX.csv and PATH_PREFIX.json (default PRED/eval.*).")
 @click.option("--lpips-backbone", type=click.Path(dir_okay=False), default=None,
-              help="torchvision AlexNet state dict (alexnet-owt-7be5be79.pth); env ZCOMP_LPIPS_BACKBONE.")
+              help="torchvision AlexNet state dict (alexnet-owt-7be5be79.pth); env ZCOMP_LPIPS_BACKBONE. "
+                   "Default: fetched once into zcomp's cache and checked (ZCOMP_OFFLINE=1: never).")
 @click.option("--lpips-weights", type=click.Path(dir_okay=False), default=None,
-              help="LPIPS v0.1 linear weights (lpips' weights/v0.1/alex.pth); env ZCOMP_LPIPS_WEIGHTS.")
+              help="LPIPS v0.1 linear weights (lpips' weights/v0.1/alex.pth); env ZCOMP_LPIPS_WEIGHTS. "
+                   "Default: an installed lpips package's, else fetched once into zcomp's cache.")
 @click.option("--protocol", type=click.Choice(["paper", "zcomp"]), default=None,
               help="paper: the ZeroComp paper's (gamma-2.2 display encoding; psnr, rmse, si-rmse, ssim, mae, "
                    "lpips, flip); "

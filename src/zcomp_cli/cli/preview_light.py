@@ -5,6 +5,7 @@ from __future__ import annotations
 import click
 
 from zcomp_cli.cli.options import cache_dir_opt, out_dir_opt, overwrite_opt
+from zcomp_cli.renderers.cycles.settings import MAX_SAMPLES
 
 
 @click.command("preview-light")
@@ -17,7 +18,7 @@ from zcomp_cli.cli.options import cache_dir_opt, out_dir_opt, overwrite_opt
                    "placement).")
 @click.option("--diameter", type=float, default=None, metavar="M",
               help="Each ball's diameter in metres (default: the row spans a quarter of the frame).")
-@click.option("--samples", type=click.IntRange(min=1, max=4096), default=None,
+@click.option("--samples", type=click.IntRange(min=1, max=MAX_SAMPLES), default=None,
               help="Cycles samples per pixel, denoised (default 16).")
 @overwrite_opt
 @cache_dir_opt

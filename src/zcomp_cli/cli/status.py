@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import click
 
+NAME_CHARS = 200  # a job name shown (a summary may list any text as one)
+
 
 @click.command("status")
 @click.argument("out_dir", type=click.Path(file_okay=False))
@@ -34,8 +36,10 @@ def status(ctx, out_dir, manifest, jobs_subset, sizes_only, as_json):
         from rich.console import Console
         from rich.markup import escape
 
+        from zcomp_cli.limits import field_text
+
         console = Console()
-        console.print(f"{out_dir}: {len(st.done)} done, {len(st.failed)} failed, {len(st.missing)} missing, "
+        console.print(f"{field_text(out_dir)}: {len(st.done)} done, {len(st.failed)} failed, {len(st.missing)} missing, "
                       f"{len(st.damaged)} damaged, {len(st.changed)} changed", highlight=False)
         for k, v in st.shards.items():
             console.print(f"  shard {k}: {v}")
@@ -45,12 +49,12 @@ def status(ctx, out_dir, manifest, jobs_subset, sizes_only, as_json):
                                     ("missing", "yellow", ((n, None) for n in st.missing))):
             rows = list(rows)
             for name, reason in rows[:50]:
-                console.print(f"  [{colour}]{title}[/] {escape(name)}{': ' + escape(reason) if reason else ''}",
-                              highlight=False)
+                console.print(f"  [{colour}]{title}[/] {escape(field_text(name, NAME_CHARS))}"
+                              f"{': ' + escape(field_text(reason)) if reason else ''}", highlight=False)
             if len(rows) > 50:
                 console.print(f"  ... and {len(rows) - 50} more {title}")
         for note in st.notes[:20]:
-            console.print(f"  [yellow]note[/] {escape(note)}", highlight=False)
+            console.print(f"  [yellow]note[/] {escape(field_text(note))}", highlight=False)
     if not st.complete:
         ctx.exit(1)
 

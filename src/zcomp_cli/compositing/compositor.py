@@ -139,7 +139,14 @@ def composite(x_bg, f_bg, f_comp, shading_mask, obj_mask, *, balance_region=None
     obj_term = m[..., None] * (fc * C.astype(np.float32)[None, None, :])
     bg_term = (1.0 - m)[..., None] * Rb[..., None] * xb
     out = np.where((m > 0)[..., None], bg_term + obj_term, Rb[..., None] * xb)
-    # Outside the blurred mask and the object, keep the background bit for bit.
-    untouched = (w == 0) & (m == 0)
-    out = np.where(untouched[..., None], xb, out).astype(np.float32)
+    out = keep_untouched(out, xb, w, m)
     return CompositeResult(out, R, Rb, w, C, notes)
+
+
+def keep_untouched(image, photo, weight, obj_mask) -> np.ndarray:
+    """``image`` with ``photo`` bit for bit outside the blurred mask (``weight`` 0) and
+    the object (``obj_mask`` 0): float32. ``photo`` is ``x_bg``, or the photograph as read
+    where it has negative pixels (``Scene.photo``, which ``x_bg`` holds at 0)."""
+    m = np.clip(np.nan_to_num(np.asarray(obj_mask, dtype=np.float32)), 0.0, 1.0)
+    untouched = (np.asarray(weight) == 0) & (m == 0)
+    return np.where(untouched[..., None], np.asarray(photo, dtype=np.float32), image).astype(np.float32)

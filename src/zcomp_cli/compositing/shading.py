@@ -23,6 +23,6 @@ def shading_from_image(image_lin, albedo, *, eps: float = SHADING_EPS, max_value
         raise ValueError(f"image and albedo must both be (H, W, 3), got {img.shape} and {alb.shape}")
     img = np.nan_to_num(img, nan=0.0, posinf=max_value, neginf=0.0)
     alb = np.nan_to_num(alb, nan=0.0, posinf=1.0, neginf=0.0)
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # (3e38 / eps: inf, clipped below)
         s = img / np.maximum(alb, eps)
     return np.clip(np.nan_to_num(s, nan=eps), eps, max_value).astype(np.float32)

@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from zcomp_cli.conventions import normalize, pixel_ray
+from zcomp_cli.conventions import MIN_FACING_FRACTION, facing_fraction, normalize, pixel_ray  # noqa: F401 (re-exported)
 
 # The archives' camera: horizontal fov (configs/sg_labo.yaml point_cloud_fov; SpotLight's
 # shadowmap.blend camera: 50 degrees at 512 x 512).
@@ -66,9 +66,6 @@ CHANNEL_ORDER = "RGBAXYZ"
 ALPHA_EPS = 1e-3
 # Normal frames of the bundles: which official loader reads them how.
 NORMAL_FRAMES = ("blender-camera", "opengl")
-# The front-facing check: a visible surface faces the camera. Below this fraction of the
-# object's (or the background's) pixels the normals are in another frame than assumed.
-MIN_FACING_FRACTION = 0.5
 
 
 def order_channels(names) -> list[str]:
@@ -150,28 +147,6 @@ def stablenormal_png_to_camera_normals(encoded) -> np.ndarray:
     # vector (0.004 per axis), not to a direction; a decoded normal is ~unit length.
     n = np.where((np.linalg.norm(n, axis=-1) < 0.5)[..., None], 0.0, n)
     return normalize(n * np.array([-1.0, 1.0, 1.0]))
-
-
-def facing_fraction(normals, K, select=None) -> float:
-    """Fraction of the selected pixels whose normal faces the camera (``n . ray < 0``,
-    the ray through the pixel centre); pixels with a zero normal are not counted.
-    NaN when nothing is counted.
-
-    Args:
-        normals: (H, W, 3) camera-frame normals.
-        K: 3x3 intrinsics of that image.
-        select: optional (H, W) bool.
-    """
-    n = np.asarray(normals, np.float64)
-    h, w = n.shape[:2]
-    uu, vv = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
-    rays = pixel_ray(K, uu, vv)
-    use = np.linalg.norm(n, axis=-1) > 0.5
-    if select is not None:
-        use &= np.asarray(select, bool)
-    if not use.any():
-        return float("nan")
-    return float(((n * rays).sum(-1)[use] < 0).mean())
 
 
 def spotlight_light_to_camera(position_object_space, centre_cam, distance: float = SPOTLIGHT_LIGHT_DISTANCE_M

@@ -82,8 +82,9 @@ def _predict_depth(img, camera, spec, cache, img_key, notes, fits) -> _Depth:
     from zcomp_cli.estimators.specs import check_estimator, form_of
 
     if spec is None:
-        raise InputError("no depth map and no depth estimator: give a depth file or e.g. "
-                         "depth: {proxy: ground_plane, camera_height: 1.5, pitch_deg: -10}")
+        from zcomp_cli.estimators.ground_suggest import ground_plane_suggestion
+
+        raise InputError(ground_plane_suggestion(camera))
     check_estimator("depth", spec)
     if form_of("depth", spec) == "proxy":
         d, n, floor = _ground_plane(camera, spec)

@@ -104,7 +104,8 @@ def retinex_albedo(image_lin, *, lum_threshold: float = 0.12, chroma_threshold: 
     albedo, scale = scale_albedo(albedo, percentile, percentile_value)
     # Shading so that image = albedo * shading in the original units.
     shading = np.repeat((shading_grey * peak / scale)[..., None], 3, axis=-1)
-    shading = np.clip(shading, _EPS, 1e3 * max(peak, 1.0))
+    # (within float32: an image of 3e38 overflowed the cast below)
+    shading = np.clip(shading, _EPS, min(1e3 * max(peak, 1.0), float(np.finfo(np.float32).max)))
     return albedo.astype(np.float32), shading.astype(np.float32)
 
 

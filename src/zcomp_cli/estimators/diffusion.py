@@ -223,23 +223,17 @@ def load_pipeline(info: PipelineInfo, device: str, dtype: str):
     if cls is None:
         raise WeightsError(f"this diffusers ({diffusers.__version__}) has no {info.runner}; "
                            "the Marigold intrinsics pipeline needs diffusers >= 0.33")
-    dlog = diffusers.utils.logging
-    verbosity, bars = dlog.get_verbosity(), dlog.is_progress_bar_enabled()
-    dlog.set_verbosity_error()  # load-time chatter (accelerate, per-component progress bars) off
-    dlog.disable_progress_bar()
-    try:
-        with warnings.catch_warnings():  # torch_dtype is renamed dtype in newer diffusers
-            warnings.simplefilter("ignore", FutureWarning)
+    from zcomp_cli.estimators.weights import quiet_loading
+
+    try:  # (load-time chatter: accelerate, per-component progress bars, off)
+        with quiet_loading(diffusers.utils.logging), warnings.catch_warnings():
+            warnings.simplefilter("ignore", FutureWarning)  # torch_dtype is renamed dtype in newer diffusers
             pipe = cls.from_pretrained(str(info.folder.path), local_files_only=True,
                                        torch_dtype=_torch_dtype(dtype), variant=info.folder.variant,
                                        low_cpu_mem_usage=False, trust_remote_code=False)
     except Exception as exc:  # noqa: BLE001 - a damaged folder fails its scene's jobs, not the batch
         raise WeightsError(f"cannot load the {info.runner} in {info.folder.path}: {type(exc).__name__}: "
                            f"{str(exc)[:500]}") from exc
-    finally:
-        dlog.set_verbosity(verbosity)
-        if bars:
-            dlog.enable_progress_bar()
     pipe = pipe.to(device)
     pipe.set_progress_bar_config(disable=True)
     with torch.no_grad():  # the empty prompt's embedding, once, as the pipeline computes it

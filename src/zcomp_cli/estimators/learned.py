@@ -69,12 +69,17 @@ def load_depth_model(model_dir):
     """(model, image_processor) from a local directory, eval mode, CPU/GPU as available."""
     d = check_model_dir(model_dir)
     try:
+        import transformers
         from transformers import AutoImageProcessor, AutoModelForDepthEstimation
 
-        # trust_remote_code=False: never the folder's own code, and never a question on stdin
-        processor = AutoImageProcessor.from_pretrained(str(d), local_files_only=True, trust_remote_code=False)
-        model, info = AutoModelForDepthEstimation.from_pretrained(
-            str(d), local_files_only=True, trust_remote_code=False, output_loading_info=True)
+        from zcomp_cli.estimators.weights import quiet_loading
+
+        # trust_remote_code=False: never the folder's own code, and never a question on stdin;
+        # no "Loading weights" bar (it showed under -q)
+        with quiet_loading(transformers.utils.logging):
+            processor = AutoImageProcessor.from_pretrained(str(d), local_files_only=True, trust_remote_code=False)
+            model, info = AutoModelForDepthEstimation.from_pretrained(
+                str(d), local_files_only=True, trust_remote_code=False, output_loading_info=True)
     except Exception as exc:  # noqa: BLE001 - a damaged folder fails its scene's jobs, not the batch
         raise WeightsError(f"cannot load the depth model in {str(d)!r}: {type(exc).__name__}: "
                            f"{str(exc)[:500]}") from exc

@@ -46,6 +46,22 @@ def form_of(map_name: str, spec: dict) -> str:
     return {"depth": "proxy", "normals": "from", "albedo": "method"}.get(map_name, "model")
 
 
+def _ground_plane_problems(spec: dict) -> list[tuple[str | None, str]]:
+    """The ground plane's own checks (``GroundPlaneSpec``: pitch within [-89, 89], one of
+    pitch and horizon, roll...), at validation: ``pitch_deg: -90`` passed it and stopped
+    ``zcomp estimate`` at that scene."""
+    from zcomp_cli.errors import InputError
+    from zcomp_cli.estimators.ground_plane import GroundPlaneSpec
+
+    try:
+        GroundPlaneSpec.from_dict({k: v for k, v in spec.items() if k in GROUND_PLANE_KEYS})
+    except InputError as exc:
+        text = str(exc)
+        return [(next((k for k in sorted(GROUND_PLANE_KEYS, key=len, reverse=True) if k in spec and k in text),
+                      None), text)]
+    return []
+
+
 def _number(spec, k, out, *, positive=True):
     v = spec.get(k)
     if v is None:
@@ -94,6 +110,8 @@ def estimator_problems(map_name: str, spec) -> list[tuple[str | None, str]]:
             _number(spec, k, out)
         for k in ("pitch_deg", "roll_deg", "horizon_row"):
             _number(spec, k, out, positive=False)
+        if not out and (form == "proxy" or spec.get("align") == "ground_plane"):
+            out += _ground_plane_problems(spec)
     elif map_name == "normals":
         if form == "from" and spec.get("from", "depth") != "depth":
             out.append(("from", f"only 'from: depth' is supported, got {spec['from']!r}"))

@@ -22,6 +22,7 @@ models, ``preprocessor_config.json``.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 from dataclasses import dataclass, field
@@ -54,6 +55,23 @@ MAX_SAFETENSORS_HEADER = 100 << 20
 MIN_ALLOCATED_SHARE = 0.5
 SAFETENSORS_DTYPE_BYTES = {"F64": 8, "F32": 4, "F16": 2, "BF16": 2, "I64": 8, "I32": 4, "I16": 2, "I8": 1,
                            "U8": 1, "BOOL": 1, "F8_E4M3": 1, "F8_E5M2": 1, "U16": 2, "U32": 4, "U64": 8}
+
+
+@contextlib.contextmanager
+def quiet_loading(hf_logging):
+    """Within the block, a Hugging Face library's load-time chatter and progress bars
+    (transformers' "Loading weights", diffusers' per-component bars) are off, whatever
+    ``-q`` says: zcomp's own progress shows the stage. ``hf_logging``:
+    ``transformers.utils.logging`` or ``diffusers.utils.logging``."""
+    verbosity, bars = hf_logging.get_verbosity(), hf_logging.is_progress_bar_enabled()
+    hf_logging.set_verbosity_error()
+    hf_logging.disable_progress_bar()
+    try:
+        yield
+    finally:
+        hf_logging.set_verbosity(verbosity)
+        if bars:
+            hf_logging.enable_progress_bar()
 
 
 def read_config(path, what: str) -> dict:

@@ -609,6 +609,9 @@ def _filled(ctx: Context, params: LightParams, terms: list[Term], exposure: floa
     key = info["key"]
     if key is not None:
         key.strength_origin = Origin.SHADOWS if n_eff > 0 else Origin.PRIOR
+    for t in terms:  # (a searched direction with no shadow read came from the shading's fit and the prior)
+        if isinstance(t, _DirectTerm) and t.origin is Origin.SHADOWS and not n_eff > 0:
+            t.origin = Origin.FIT
     if not ctx.fitting:
         for t in terms:
             if isinstance(t, _DirectTerm) and t.cols[0].absolute is None:

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import csv
 import io
-import json
+import logging
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,6 +24,9 @@ from pathlib import Path
 import numpy as np
 
 from zcomp_cli.errors import InputError, UsageError
+from zcomp_cli.safe_read import read_json_file
+
+log = logging.getLogger(__name__)
 
 ALL_METRICS = ("psnr", "rmse", "si-rmse", "ssim", "mae", "lpips", "flip", "shadow-iou", "shadow-darkness")
 # Metrics that compare each image with the background it was composited into.
@@ -242,7 +245,7 @@ def pair_composite_output(out_dir, refs=None, mask=None, background=None,
                 problems.append(f"{job.name}: no image named {job.name}.* in {refs}")
                 continue
         try:
-            report = json.loads((job / "report.json").read_text())
+            report = read_json_file(job / "report.json")
         except (OSError, ValueError) as exc:
             raise InputError(f"cannot read report.json: {exc}", where=str(job)) from exc
         if not isinstance(report, dict):
@@ -448,6 +451,8 @@ def evaluate(pairs: list[Pair], metrics: list[str], *, linear: bool = False,
         model = st.model
         if model is None:
             unavailable["lpips"] = st.reason or "unavailable"
+        for note in getattr(model, "zcomp_notes", None) or []:
+            log.warning("%s", note)
     no_bg = [p.name for p in pairs if p.background is None]
     for m in SHADOW_METRICS:
         if m in metrics and no_bg:

@@ -19,10 +19,12 @@ import numpy as np
 
 from zcomp_cli.errors import InputError, WeightsError
 
-BACKBONE_FILE = "alexnet-owt-7be5be79.pth"
-LIN_FILE = "alex.pth"
-ENV_BACKBONE = "ZCOMP_LPIPS_BACKBONE"
-ENV_WEIGHTS = "ZCOMP_LPIPS_WEIGHTS"
+from zcomp_cli.metrics.lpips_weights import BACKBONE, LINEAR, resolve
+
+BACKBONE_FILE = BACKBONE.name
+LIN_FILE = LINEAR.name
+ENV_BACKBONE = BACKBONE.env
+ENV_WEIGHTS = LINEAR.env
 LPIPS_SIZE = 256
 # Channel counts of the 5 AlexNet ReLU outputs LPIPS compares.
 ALEX_CHANNELS = (64, 192, 384, 256, 256)
@@ -38,41 +40,34 @@ def torch_home() -> Path:
     return Path(xdg).expanduser() / "torch"
 
 
-def backbone_candidates(path=None) -> list[Path]:
-    """Where the AlexNet backbone state dict is looked for, in order."""
-    if path:
-        return [Path(path).expanduser()]
-    if os.environ.get(ENV_BACKBONE):
-        return [Path(os.environ[ENV_BACKBONE]).expanduser()]
+def backbone_candidates() -> list[Path]:
+    """Copies of the AlexNet backbone that may be on the machine (torch hub's cache)."""
     return [torch_home() / "hub" / "checkpoints" / BACKBONE_FILE]
 
 
-def lin_candidates(path=None) -> list[Path]:
-    """Where the LPIPS v0.1 linear-layer weights (``alex.pth``) are looked for, in order."""
-    if path:
-        return [Path(path).expanduser()]
-    if os.environ.get(ENV_WEIGHTS):
-        return [Path(os.environ[ENV_WEIGHTS]).expanduser()]
+def lin_candidates() -> list[Path]:
+    """Copies of the LPIPS v0.1 linear layers that may be on the machine: torch hub's
+    cache, an installed lpips package's ``weights/v0.1/alex.pth``."""
     out = [torch_home() / "hub" / "checkpoints" / "lpips_v0.1_alex.pth"]
-    # An installed lpips package ships the file; locate it without importing lpips
-    # (its import pulls in torchvision).
+    installed = installed_lpips_weights()
+    return out + ([installed] if installed is not None else [])
+
+
+def installed_lpips_weights() -> Path | None:
+    """An installed lpips package's ``weights/v0.1/alex.pth``, located without importing
+    lpips (its import pulls in torchvision)."""
     import importlib.util
 
     spec = importlib.util.find_spec("lpips")
-    if spec is not None and spec.origin:
-        out.append(Path(spec.origin).parent / "weights" / "v0.1" / LIN_FILE)
-    return out
+    return Path(spec.origin).parent / "weights" / "v0.1" / LIN_FILE if spec is not None and spec.origin else None
 
 
-def _first_existing(cands: list[Path], what: str, flag: str, env: str) -> Path:
-    for c in cands:
-        if c.is_file():
-            return c
-    looked = ", ".join(str(c) for c in cands)
-    raise WeightsError(
-        f"LPIPS {what} not found (looked for: {looked}); place the file there, or give "
-        f"{flag} PATH or set {env}"
-    )
+def lpips_files(backbone_path=None, weights_path=None, *, cache_root=None):
+    """(backbone path, linear weights path, notes): found, given or fetched on first use
+    (``lpips_weights``); ``WeightsError`` when one cannot be had."""
+    b = resolve(BACKBONE, backbone_path, backbone_candidates(), cache_root=cache_root)
+    lin = resolve(LINEAR, weights_path, lin_candidates(), cache_root=cache_root)
+    return b.path, lin.path, [n for n in (b.note, lin.note) if n]
 
 
 def _build_modules():
@@ -178,25 +173,27 @@ def _load_state(path: Path, what: str) -> dict:
     return sd
 
 
-def load_lpips(backbone_path=None, weights_path=None, *, device: str = "cpu"):
+def load_lpips(backbone_path=None, weights_path=None, *, device: str = "cpu", cache_root=None):
     """Build LPIPS-Alex and load its weights.
 
     Args:
         backbone_path: torchvision AlexNet state dict (full model or ``features.*``
-            only); default $ZCOMP_LPIPS_BACKBONE, else
-            ``$TORCH_HOME/hub/checkpoints/alexnet-owt-7be5be79.pth``.
+            only); default $ZCOMP_LPIPS_BACKBONE, else a published copy on the machine
+            (zcomp's cache, ``$TORCH_HOME/hub/checkpoints/alexnet-owt-7be5be79.pth``),
+            else fetched into zcomp's cache (``lpips_weights``).
         weights_path: lpips ``weights/v0.1/alex.pth`` (keys ``lin{k}.model.1.weight``);
-            default $ZCOMP_LPIPS_WEIGHTS, else the torch hub cache or an installed lpips.
+            default $ZCOMP_LPIPS_WEIGHTS, else the same places or an installed lpips.
+        cache_root: zcomp's cache root (``--cache-dir``; default ``zcomp_cli.cache``'s).
     Returns:
-        The module in eval mode on ``device``.
+        The module in eval mode on ``device``; ``zcomp_notes``: why a given file's
+        scores may not be the paper's.
     Raises:
-        WeightsError: a file is missing (naming every path looked at) or does not match.
+        WeightsError: a file cannot be had (naming every path looked at and why the
+        download failed) or does not match.
     """
-    bpath = _first_existing(backbone_candidates(backbone_path), "AlexNet backbone "
-                            f"({BACKBONE_FILE})", "--lpips-backbone", ENV_BACKBONE)
-    lpath = _first_existing(lin_candidates(weights_path), f"linear weights (v0.1 {LIN_FILE})",
-                            "--lpips-weights", ENV_WEIGHTS)
+    bpath, lpath, notes = lpips_files(backbone_path, weights_path, cache_root=cache_root)
     model = make_lpips_model()
+    model.zcomp_notes = notes
     bsd = _load_state(bpath, "backbone")
     feats = {k: v for k, v in bsd.items() if k.startswith("features.")}
     want = set(model.net.state_dict())
@@ -277,9 +274,9 @@ class LPIPSStatus:
     reason: str | None = None
 
 
-def try_load_lpips(backbone_path=None, weights_path=None) -> LPIPSStatus:
+def try_load_lpips(backbone_path=None, weights_path=None, *, cache_root=None) -> LPIPSStatus:
     """``load_lpips`` that reports a missing/bad file instead of raising."""
     try:
-        return LPIPSStatus(load_lpips(backbone_path, weights_path))
+        return LPIPSStatus(load_lpips(backbone_path, weights_path, cache_root=cache_root))
     except WeightsError as exc:
         return LPIPSStatus(None, str(exc))

@@ -20,6 +20,7 @@ and never changed; each job travels as a :class:`~zcomp_cli.pipeline.stages.JobW
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import time
 from pathlib import Path
@@ -32,6 +33,8 @@ from zcomp_cli.pipeline.selection import select_jobs, shard_jobs
 from zcomp_cli.pipeline.stages import (BatchContext, JobWork, Progress, SceneStore, by_scene, load_object_bundle,
                                        render_objects, resolve_poses)
 
+
+log = logging.getLogger(__name__)
 
 def build_renderer(spec: RendererSpec):
     """The renderer of ``spec``, checked before any job: an unknown name or setting is
@@ -48,6 +51,24 @@ def build_renderer(spec: RendererSpec):
     except WeightsError as exc:
         raise UsageError(f"renderer {spec.name!r} cannot run: {exc}") from None
     return renderer
+
+
+def check_renderer_budget(manifest: Manifest, scenes, renderer: str) -> None:
+    """Refuse (``UsageError`` naming the scene) one of ``scenes`` whose working size a
+    job of ``renderer`` cannot hold in the memory the pixel budget stands for
+    (``RendererEntry.kb_per_pixel``: the cycles renderer costs about 3 times the
+    physical renderer's 0.3 KB a pixel)."""
+    from zcomp_cli.limits import renderer_budget_problem
+    from zcomp_cli.renderers.registry import RENDERERS
+
+    entry = RENDERERS.get(renderer)
+    kb = float(getattr(entry, "kb_per_pixel", 0.3) or 0.3)
+    for name in dict.fromkeys(scenes):
+        sc = manifest.scenes[name]
+        w, h = manifest.defaults.resolution or (sc.width, sc.height)
+        problem = w and h and renderer_budget_problem(w, h, kb, renderer)
+        if problem:
+            raise UsageError(f"scene {name!r}: {problem}")
 
 
 def run_batch(
@@ -92,6 +113,7 @@ def run_batch(
     executor = executor if executor is not None else LocalExecutor()
     executor.preflight()
     spec = renderer_spec or manifest.defaults.renderer
+    check_renderer_budget(manifest, (j.scene for j in jobs), spec.name)
     ctx = BatchContext.create(manifest, out_root, spec, build_renderer(spec), batch_size=batch_size,
                               debug=debug, aovs=aovs, cache_root=cache_dir, progress=progress)
 
@@ -118,21 +140,41 @@ def run_batch(
             if shard_info is None:  # (a shard's own summary tells `zcomp status` it finished)
                 write_summary(out_root, summary, manifest, running=running)
             completed = False
+            interrupted = None
             try:
                 if to_run:
                     _run_planned(ctx, summary, to_run, executor)
                 completed = True
+            except KeyboardInterrupt as exc:
+                interrupted = exc
+                raise
             finally:  # also after an interrupt or a renderer that cannot start: the folder's true state
+                _close(ctx.renderer)  # its Blender, its work folder and log: not left for exit
                 summary.statuses.sort(key=lambda s: s.job.index)
                 summary.seconds = time.perf_counter() - t_batch
                 if completed or shard_info is None:
-                    write_summary(out_root, summary, manifest)
+                    doc = write_summary(out_root, summary, manifest)
+                    if interrupted is not None:  # the CLI says what is on disk
+                        interrupted.zcomp_summary = doc
     except UsageError:
         if created:  # refused before any job: leave no empty --out behind
             with contextlib.suppress(OSError):
                 os.rmdir(out_root)
         raise
     return summary
+
+
+def _close(renderer) -> None:
+    """End what a renderer holds (the cycles renderer's Blender process and work
+    folder) at the end of the batch, not at the interpreter's exit: a process that runs
+    batches one after another (a library caller, a test) kept them all. A plugin's
+    ``close`` that fails does not hide the batch's own outcome."""
+    close = getattr(renderer, "close", None)
+    if callable(close):
+        try:
+            close()
+        except Exception:  # noqa: BLE001 - a plugin's bug, logged
+            log.warning("renderer %s: close() failed", getattr(renderer, "name", "?"), exc_info=True)
 
 
 def _manifest_id(manifest: Manifest) -> str:

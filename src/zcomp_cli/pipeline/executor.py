@@ -24,10 +24,10 @@ from __future__ import annotations
 
 import logging
 import time
-import traceback
 from abc import ABC, abstractmethod
 
-from zcomp_cli.errors import ZcompError
+from zcomp_cli.errors import ZcompError, log_traceback
+from zcomp_cli.limits import field_text
 from zcomp_cli.pipeline.outguard import job_lock, release_job_lock
 from zcomp_cli.pipeline.outputs import JobStatus, job_report, write_job_outputs
 from zcomp_cli.pipeline.stages import BatchContext, JobWork, load_object_bundle
@@ -64,12 +64,16 @@ JOB_FAILURES = (Exception, SystemExit)
 
 
 def _failure(exc: BaseException) -> str:
+    return field_text(_failure_text(exc))
+
+
+def _failure_text(exc: BaseException) -> str:
     if isinstance(exc, ZcompError):
         return str(exc)
     if isinstance(exc, SystemExit):
         return f"the renderer called sys.exit({exc.code!r}) (a plugin's bug: zcomp went on with the other jobs)"
     # A bug must not lose the rest of the batch; -v shows the traceback.
-    log.debug("job crashed:\n%s", "".join(traceback.format_exception(exc)))
+    log_traceback("job crashed", exc)
     return f"internal error: {type(exc).__name__}: {exc}"
 
 

@@ -14,6 +14,8 @@ hand the renderer the passes of several jobs at once (step 5, ``Renderer.render_
 
 from __future__ import annotations
 
+import logging
+
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -30,13 +32,15 @@ from zcomp_cli.compositing import (
     shading_from_image,
     shading_mask,
 )
-from zcomp_cli.compositing.compositor import BLUR_SIZE
+from zcomp_cli.compositing.compositor import BLUR_SIZE, keep_untouched
 from zcomp_cli.conventions import DEFAULT_SEED, valid_depth_mask
 from zcomp_cli.errors import GeometryError, NumericalError, RenderError
 from zcomp_cli.limits import type_name
 from zcomp_cli.pipeline.scene import Scene
 from zcomp_cli.maps import SceneMaps
 from zcomp_cli.renderers.base import Renderer, RenderOutput, RenderRequest
+
+log = logging.getLogger(__name__)
 
 ROI_CONTEXT_PX = 16
 # A renderer's image is linear radiance in the photograph's units: never below 0 (beyond
@@ -120,6 +124,19 @@ def lamps_inside_object(light, cam, obj_depth, obj_mask, footprint_depth) -> lis
     return notes
 
 
+def _size_note(m: np.ndarray, obj_depth: np.ndarray, scene_name: str) -> str | None:
+    """A note (also logged) when the object's size on screen is implausible
+    (``estimators.ground_suggest.object_size_note``)."""
+    from zcomp_cli.estimators.ground_suggest import object_size_note
+
+    cover = m > 0.5
+    depth = float(np.median(obj_depth[cover & (obj_depth > 0)])) if (cover & (obj_depth > 0)).any() else None
+    note = object_size_note(int(cover.sum()), m.size, depth)
+    if note:
+        log.warning("scene %s: %s", scene_name, note)
+    return note
+
+
 def prepare_job(
     scene: Scene,
     bundle: ObjectBundle,
@@ -160,6 +177,9 @@ def prepare_job(
     m = occlusion_mask(obj_mask, obj_depth, bg.depth)
     if not (m > 0).any():
         raise GeometryError("the object is fully occluded by the background")
+    size = _size_note(m, obj_depth, scene.name)
+    if size:
+        notes.append(size)
     obj_maps = SceneMaps(depth=obj_depth, normals=bundle.normals, albedo=np.clip(np.nan_to_num(bundle.albedo), 0, 1),
                          roughness=bundle.roughness, metallic=bundle.metallic)
     comp = composite_intrinsics(bg, obj_maps, m)
@@ -231,6 +251,17 @@ def prepare_job(
     return PreparedJob(requests, seed, scene, m, s, roi, report, timings, notes, dbg)
 
 
+def _whose_bug(renderer_name: str) -> str:
+    """Who to blame for a renderer's impossible output: a plugin's author, or, for one of
+    zcomp's own renderers, an input it could not handle (and zcomp, to be told)."""
+    from zcomp_cli.renderers.registry import BUILTIN_RENDERERS
+
+    if renderer_name in BUILTIN_RENDERERS:
+        return (f"zcomp's own {renderer_name} renderer met an input it cannot handle: check the scene's maps "
+                "(depth, normals, albedo) against docs/limits.md, and please report it")
+    return "a plugin's bug"
+
+
 def finish_job(prep: PreparedJob, out: RenderOutput, renderer_name: str, renderer_settings: dict,
                *, debug: bool = False, aovs: bool = False) -> JobOutput:
     """Check the renderer's two images (step 5's output) and run step 6, the compositor."""
@@ -246,7 +277,7 @@ def finish_job(prep: PreparedJob, out: RenderOutput, renderer_name: str, rendere
             # an integer image is display-encoded (0..255), not linear radiance
             raise NumericalError(f"renderer {renderer_name} returned {name} as "
                                  f"{str(im.dtype) + ' array' if isinstance(im, np.ndarray) else type_name(im)}: "
-                                 "expected a float array of linear radiance (a plugin's bug)")
+                                 f"expected a float array of linear radiance ({_whose_bug(renderer_name)})")
     f_bg, f_comp = (np.asarray(im, dtype=np.float32) for im in images)
     for name, im in (("f(i_bg)", f_bg), ("f(i_comp)", f_comp)):
         if im.shape != (H, W, 3):
@@ -256,8 +287,8 @@ def finish_job(prep: PreparedJob, out: RenderOutput, renderer_name: str, rendere
         lo, hi = float(im.min()), float(im.max())
         if lo < -RADIANCE_TOL or hi > MAX_RADIANCE:
             raise NumericalError(f"renderer {renderer_name} returned {name} in [{lo:.3g}, {hi:.3g}]: linear "
-                                 f"radiance is in [0, {MAX_RADIANCE:g}] (a plugin's bug; the job is not "
-                                 "composited from it)")
+                                 f"radiance is in [0, {MAX_RADIANCE:g}] ({_whose_bug(renderer_name)}; the job is "
+                                 "not composited from it)")
 
     f_object = _object_layer(out, len(images) - 1, (H, W), renderer_name)
     # 6. Compositor.
@@ -285,6 +316,9 @@ def finish_job(prep: PreparedJob, out: RenderOutput, renderer_name: str, rendere
     if k != 1.0:
         x_bg, image, f_bg, f_comp = x_bg * k, image * k, f_bg * k, f_comp * k
         f_object = None if f_object is None else f_object * k
+    if prep.scene.photo is not None:  # its negative pixels, in its own units: kept where nothing is edited
+        x_bg = prep.scene.photo
+        image = keep_untouched(image, x_bg, res.weight, prep.object_mask)
     report = {
         **prep.report,
         **({"working_scale": float(k)} if k != 1.0 else {}),

@@ -98,9 +98,10 @@ def _vector(value, key, where, add, *, nonzero: bool) -> list | None:
     if len(vals) != 3 or any(x is None for x in vals) or (nonzero and math.hypot(*vals) < 1e-9):
         add(value, key, f"{where}.{key}", f"expected 3 finite numbers{', not all 0' if nonzero else ''}, got {v!r}")
         return None
-    if nonzero:
-        n = math.sqrt(sum(x * x for x in vals))
-        return [x / n for x in vals]
+    if nonzero:  # scaled first: a sum of squares overflowed for 1.3e154 (the direction became 0)
+        m = max(abs(x) for x in vals)
+        n = math.hypot(*(x / m for x in vals))
+        return [x / m / n for x in vals]
     return vals
 
 

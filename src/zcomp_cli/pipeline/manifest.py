@@ -115,6 +115,31 @@ class SceneSpec:
     setting_files: list[Path] = field(default_factory=list)
 
 
+def scene_camera(spec: SceneSpec, resolution: tuple[int, int] | None, native: tuple[int, int] | None = None):
+    """The scene's ``Camera`` at the working ``resolution`` (W, H; None = the image's own
+    size), from its K or horizontal FOV, without reading its pixels. ``native`` is the
+    image's (W, H) when known; else the manifest's, else the image file's header."""
+    from zcomp_cli.camera import DEFAULT_FOV_DEG, Camera
+    from zcomp_cli.errors import InputError
+
+    if native is None:
+        native = (spec.width, spec.height)
+        if not (native[0] and native[1]):
+            from zcomp_cli.imageio import image_header
+
+            try:
+                native = image_header(spec.image)[:2]
+            except ValueError as exc:
+                raise InputError(f"cannot read image: {exc}", where=str(spec.image)) from exc
+    w0, h0 = (int(v) for v in native)
+    if spec.K is not None:
+        camera = Camera(spec.K, w0, h0)
+    else:
+        camera = Camera.from_fov(spec.fov_deg if spec.fov_deg is not None else DEFAULT_FOV_DEG, w0, h0)
+    size = resolution or (w0, h0)
+    return camera.resized(*size) if size != (w0, h0) else camera
+
+
 @dataclass
 class ObjectSpec:
     name: str
@@ -207,9 +232,9 @@ def special_file_problem(p: Path, want: str = "file") -> str | None:
         return None if want == "folder" else f"{shorten(str(p), 200)} is a folder, expected a file"
     if stat.S_ISREG(mode):
         return None if want == "file" else f"{shorten(str(p), 200)} is a file, expected a folder"
-    kind = ("a FIFO (named pipe)" if stat.S_ISFIFO(mode) else "a character device" if stat.S_ISCHR(mode)
-            else "a block device" if stat.S_ISBLK(mode) else "a socket" if stat.S_ISSOCK(mode) else "not a file")
-    return f"{shorten(str(p), 200)} is {kind}, not a regular file"
+    from zcomp_cli.safe_read import file_kind
+
+    return f"{shorten(str(p), 200)} is {file_kind(mode)}, not a regular file"
 
 
 def _file(root: Path, value, container, key, where, probs, exts=None, want: str = "file") -> Path | None:
@@ -287,7 +312,7 @@ def _check_renderer(d, spec: RendererSpec, probs) -> None:
     container = d if isinstance(d, dict) and "renderer" in d else None
     try:
         get_renderer(spec.name, **spec.settings)
-    except (ZcompError, TypeError, ValueError) as exc:
+    except (ZcompError, TypeError, ValueError, OverflowError) as exc:
         where = "defaults.renderer" + (f" ({spec.name})" if container is None else "")
         if container is None:
             probs.items.append(f"{probs.path.name}: {where}: {exc}")
@@ -386,6 +411,27 @@ def _named_entries(d, parent, section: str, what: str, expected: str, probs):
             yield name, entry, where
 
 
+def _no_depth_problem(spec: SceneSpec, jobs, defaults) -> str:
+    """The refusal of a scene without depth, its suggestion fitted to the photograph
+    (its size and field of view) and to its first job that stands an object of a given
+    height at a pixel (``estimators.ground_suggest``)."""
+    from zcomp_cli.estimators.ground_suggest import ground_plane_suggestion
+
+    try:
+        camera = scene_camera(spec, None)
+    except Exception:  # noqa: BLE001 - an unreadable image is reported on its own
+        return ("no depth: give a depth map file or an estimator (e.g. depth: {proxy: ground_plane, "
+                "camera_height: 1.5, pitch_deg: -10}; docs/estimation.md)")
+    for j in jobs if isinstance(jobs, list) else []:
+        pl = j.get("placement") if isinstance(j, dict) and j.get("scene") == spec.name else None
+        px, h = (pl.get("pixel"), pl.get("height")) if isinstance(pl, dict) else (None, None)
+        if (isinstance(px, list) and len(px) == 2 and all(_num(v) is not None for v in px)
+                and _num(h) is not None and 0 < h < 1e3 and 0 <= px[0] < camera.width and 0 <= px[1] < camera.height):
+            what = f"the {h:g} m object of its first placed job at pixel [{px[0]:g}, {px[1]:g}]"
+            return ground_plane_suggestion(camera, px, h, what)
+    return ground_plane_suggestion(camera)
+
+
 def _parse_scenes(d, parent, root, probs, check_files, defaults) -> dict[str, SceneSpec]:
     out: dict[str, SceneSpec] = {}
     for name, s, where in _named_entries(d, parent, "scenes", "scene", "at least 'image'", probs):
@@ -451,8 +497,7 @@ def _parse_scenes(d, parent, root, probs, check_files, defaults) -> dict[str, Sc
                     probs.add(s, m, f"{where}.{m}", f"unexpected channel count {mc}")
             spec.maps[m] = p
         if "depth" not in spec.maps and "depth" not in spec.estimators and "depth" not in s:
-            probs.add(s, None, where, "no depth: give a depth map file or an estimator "
-                      "(e.g. depth: {proxy: ground_plane, camera_height: 1.5, pitch_deg: -10})")
+            probs.add(s, None, where, _no_depth_problem(spec, parent.get("jobs"), defaults))
         if defaults.resolution is not None and image is not None and w and h:
             W, H = defaults.resolution
             if abs(W / H - w / h) > 0.01 * (w / h):

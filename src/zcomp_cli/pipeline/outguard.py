@@ -37,6 +37,7 @@ from pathlib import Path
 from zcomp_cli.errors import UsageError
 from zcomp_cli.filedigest import sha256_file
 from zcomp_cli.interrupts import deferred
+from zcomp_cli.safe_read import read_json_file
 
 LOCK_PREFIX = ".zcomp-"
 
@@ -257,6 +258,22 @@ def release_job_locks(out_root: Path) -> None:
 
 
 @contextlib.contextmanager
+def held_or_refused(path: Path, what: str):
+    """Hold the lock file ``path`` for the block, or refuse (``UsageError`` naming the
+    holder's pid) when another live process holds it: for a command whose runs into
+    one folder would replace each other's files (``preview-light``)."""
+    lock = _FileLock(Path(path), {"pid": os.getpid(), "what": what})
+    holder = lock.try_acquire()
+    if holder is not None:
+        raise UsageError(f"{Path(path).parent}: another {what} (pid {holder.get('pid')}) is writing there; "
+                         "wait for it to finish")
+    try:
+        yield
+    finally:
+        lock.release()
+
+
+@contextlib.contextmanager
 def summary_lock(out_root: Path, timeout_s: float = 60.0):
     """Serialise read-merge-write of ``summary.json`` between concurrent runs (shards)."""
     with _exclusive(Path(out_root) / f"{LOCK_PREFIX}summary.lock", "summary", timeout_s):
@@ -288,7 +305,7 @@ class DigestCache:
         self._dirty = False
         if store is not None and store.is_file():
             try:
-                data = json.loads(store.read_text())
+                data = read_json_file(store)
                 if isinstance(data, dict):
                     self._data = data
             except (OSError, ValueError):
@@ -392,15 +409,15 @@ def _kept_log(p: Path) -> bool:
 
 def sweep_dead_temporaries(cache_root: Path | None = None) -> int:
     """Remove ``/tmp/zcomp-job-<pid>-*``, ``/tmp/zcomp-intrinsics-work-<pid>-*``, the cycles
-    renderer's ``/tmp/zcomp-cycles-<pid>-*``,
+    renderer's ``/tmp/zcomp-cycles-<pid>-*``, preview-light's ``/tmp/zcomp-preview-<pid>-*``,
     ``<cache>/intrinsics/.work-<pid>-*``, Blender's temporary folders ``/tmp/zcomp-blendertmp-<pid>-*``
     and its logs ``/tmp/zcomp-blender-<pid>-*.log``
     (unless kept on purpose: ``blender.runner.KEEP_MARK``) whose process is gone."""
     from zcomp_cli.blender.runner import LOG_PREFIX, TMP_PREFIX
 
     n = 0
-    places = [(Path(tempfile.gettempdir()), ("zcomp-job-", "zcomp-intrinsics-work-", "zcomp-cycles-", LOG_PREFIX,
-                                             TMP_PREFIX))]
+    places = [(Path(tempfile.gettempdir()), ("zcomp-job-", "zcomp-intrinsics-work-", "zcomp-cycles-",
+                                             "zcomp-preview-", LOG_PREFIX, TMP_PREFIX))]
     if cache_root is not None:
         places.append((Path(cache_root) / "intrinsics", (".work-",)))
     for folder, prefixes in places:

@@ -21,7 +21,6 @@ and when it ends, so a killed run never leaves a summary claiming more than is t
 
 from __future__ import annotations
 
-import json
 import os
 import re
 from dataclasses import dataclass, field
@@ -33,6 +32,8 @@ import numpy as np
 
 from zcomp_cli import __version__
 from zcomp_cli.errors import UsageError
+from zcomp_cli.limits import field_text
+from zcomp_cli.safe_read import JsonFileError, read_json_file
 from zcomp_cli.pipeline.fingerprint import job_fingerprint  # noqa: F401 - re-exported
 from zcomp_cli.pipeline.manifest import JobSpec, Manifest, RendererSpec
 
@@ -95,10 +96,12 @@ def read_report_noted(out_dir: Path) -> tuple[dict | None, str | None]:
     """(report, note): the note says why an existing ``report.json`` was not usable."""
     p = Path(out_dir) / REPORT
     try:
-        if not p.is_file():
+        if not os.path.lexists(p):
             return None, None
-        doc = json.loads(p.read_text())
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        doc = read_json_file(p)
+    except JsonFileError as exc:
+        return None, f"{p}: {exc}; treated as missing"
+    except (OSError, ValueError) as exc:
         return None, f"{p}: unreadable ({type(exc).__name__}), treated as missing"
     if not isinstance(doc, dict):
         return None, f"{p}: holds {type(doc).__name__}, not a job report; treated as missing"
@@ -178,6 +181,9 @@ def job_state(job_dir: Path, fingerprint: str | None = None, *, need_debug: bool
     (no hashing)."""
     from zcomp_cli.pipeline.outguard import verify_outputs
 
+    if os.path.islink(job_dir):  # composite refuses it: never done, whatever it leads to
+        return JobState("damaged", "the job folder is a symbolic link (zcomp writes only inside the output "
+                                   "folder; `zcomp composite` refuses it): remove the link", None)
     rep, note = read_report_noted(job_dir)
     if rep is None or rep.get("status") != "done":
         return JobState("unfinished", note or ("no report.json" if rep is None else "its report is not done"),
@@ -354,7 +360,7 @@ def merged_summary(out_root: Path, summary: BatchSummary, manifest: Manifest | N
     failed)."""
     prev = {}
     try:
-        old = json.loads((out_root / summary_name(summary.shard)).read_text())
+        old = read_json_file(out_root / summary_name(summary.shard))
         prev = {j["name"]: j for j in old.get("jobs", []) if isinstance(j, dict) and isinstance(j.get("name"), str)}
     except (OSError, ValueError, AttributeError, TypeError):
         pass
@@ -371,7 +377,8 @@ def merged_summary(out_root: Path, summary: BatchSummary, manifest: Manifest | N
         if job.name in running:
             row["reason"] = "being made"
         elif st is not None and st.status in ("done", "failed"):
-            row.update(status=st.status, reason=st.reason, seconds=st.seconds, this_run=st.status)
+            reason = None if st.reason is None else field_text(st.reason)
+            row.update(status=st.status, reason=reason, seconds=st.seconds, this_run=st.status)
         else:
             if st is not None:
                 row["this_run"] = st.status
@@ -382,7 +389,7 @@ def merged_summary(out_root: Path, summary: BatchSummary, manifest: Manifest | N
                 row.update(status="done", reason=st.reason if st is not None else "finished in an earlier run",
                            seconds=float(secs) if isinstance(secs, (int, float)) else 0.0)
             elif prev.get(job.name, {}).get("status") == "failed":
-                row.update(status="failed", reason=str(prev[job.name].get("reason") or "failed"))
+                row.update(status="failed", reason=field_text(prev[job.name].get("reason") or "failed"))
         rows.append(row)
     count = {k: sum(1 for r in rows if r["status"] == k) for k in ("done", "failed", "pending")}
     return {
@@ -493,14 +500,21 @@ def _labelled(tile: np.ndarray, label: str) -> np.ndarray:
 
 
 def debug_grid(x_bg, f_bg, f_comp, ratio, mask, result) -> np.ndarray:
-    """2 x 3 sheet like the paper's Figure 3: background, f(i_bg), f(i_comp) /
-    R', shading mask, result. Returns sRGB-encoded [0, 1] float (H*2, W*3, 3)."""
+    """2 x 3 sheet like the paper's Figure 3, each panel named in its corner
+    (``GRID_LABELS``): background, f(i_bg), f(i_comp) / R', shading mask, result.
+    Returns sRGB-encoded [0, 1] float (H*2, W*3, 3)."""
     from zcomp_cli.conventions import linear_to_srgb
 
     def col(a):
         a = np.asarray(a, dtype=np.float32)
         return np.repeat(a[..., None], 3, -1) if a.ndim == 2 else a
 
-    top = [linear_to_srgb(col(x)) for x in (x_bg, f_bg, f_comp)]
-    bottom = [np.clip(col(ratio), 0, 1), np.clip(col(mask), 0, 1), linear_to_srgb(col(result))]
-    return np.concatenate([np.concatenate(top, 1), np.concatenate(bottom, 1)], 0)
+    tiles = [linear_to_srgb(col(x)) for x in (x_bg, f_bg, f_comp)]
+    tiles += [np.clip(col(ratio), 0, 1), np.clip(col(mask), 0, 1), linear_to_srgb(col(result))]
+    tiles = [_labelled(t, label) for t, label in zip(tiles, GRID_LABELS)]
+    return np.concatenate([np.concatenate(tiles[:3], 1), np.concatenate(tiles[3:], 1)], 0)
+
+
+# grid.png's panels, in order (top row, then bottom row)
+GRID_LABELS = ("background", "render of the background f(i_bg)", "render with the object f(i_comp)",
+               "shadow ratio R'", "shading mask", "result")

@@ -11,10 +11,10 @@ from pathlib import Path
 
 import numpy as np
 
-from zcomp_cli.camera import DEFAULT_FOV_DEG, Camera
-from zcomp_cli.conventions import WORKING_LEVEL_RANGE, normalize, valid_depth_mask, working_scale
+from zcomp_cli.camera import Camera
+from zcomp_cli.conventions import WORKING_LEVEL_RANGE, facing_problem, normalize, valid_depth_mask, working_scale
 from zcomp_cli.errors import InputError
-from zcomp_cli.pipeline.manifest import SceneSpec
+from zcomp_cli.pipeline.manifest import SceneSpec, scene_camera  # noqa: F401 (scene_camera re-exported)
 from zcomp_cli.maps import SceneMaps
 
 log = logging.getLogger(__name__)
@@ -35,10 +35,21 @@ class Scene:
     light: dict | None = None  # known lighting from the manifest (pipeline/lightspec.py)
     # what the estimators measured: {"fits": {...}, "agreement": (H, W) degrees or None}
     estimated: dict | None = None
+    # the photograph as read where it has negative pixels (an EXR's, graded or denoised):
+    # kept bit for bit wherever the composite keeps the background; ``image`` (what the
+    # renderers read) has them at 0. None when there are none (then it is ``image``).
+    photo: np.ndarray | None = None
     # the power of two the photograph was divided by to be worked at
     # (``conventions.working_scale``): ``image`` is the photograph over it, and every job
     # output is multiplied back by it (1.0: the photograph as it is)
     working_scale: float = 1.0
+
+    @property
+    def background(self) -> np.ndarray:
+        """The photograph the composite keeps outside the edited region, in its own units."""
+        if self.photo is not None:
+            return self.photo
+        return self.image if self.working_scale == 1.0 else self.image * np.float32(self.working_scale)
 
 
 def _hash_files(paths: list[Path], extra: str) -> str:
@@ -99,28 +110,6 @@ def sanitize_maps(image, depth, normals, albedo, where: str) -> tuple[np.ndarray
     return image.astype(np.float32), depth, normals, albedo, notes
 
 
-def scene_camera(spec: SceneSpec, resolution: tuple[int, int] | None, native: tuple[int, int] | None = None) -> Camera:
-    """The scene's camera at the working ``resolution`` (W, H; None = the image's own
-    size), from its K or horizontal FOV, without reading its pixels. ``native`` is the
-    image's (W, H) when known; else the manifest's, else the image file's header."""
-    if native is None:
-        native = (spec.width, spec.height)
-        if not (native[0] and native[1]):
-            from zcomp_cli.imageio import image_header
-
-            try:
-                native = image_header(spec.image)[:2]
-            except ValueError as exc:
-                raise InputError(f"cannot read image: {exc}", where=str(spec.image)) from exc
-    w0, h0 = (int(v) for v in native)
-    if spec.K is not None:
-        camera = Camera(spec.K, w0, h0)
-    else:
-        camera = Camera.from_fov(spec.fov_deg if spec.fov_deg is not None else DEFAULT_FOV_DEG, w0, h0)
-    size = resolution or (w0, h0)
-    return camera.resized(*size) if size != (w0, h0) else camera
-
-
 def load_scene(spec: SceneSpec, resolution: tuple[int, int] | None, *, cache_dir=None) -> Scene:
     """Read a scene's files, resample to the working ``resolution`` (W, H) if given, and
     fill missing maps from estimators."""
@@ -155,11 +144,19 @@ def load_scene(spec: SceneSpec, resolution: tuple[int, int] | None, *, cache_dir
         maps, sources, estimated = _estimate_missing(spec, image, camera, maps, sources, cache_dir)
         timings["estimate_s"] = time.perf_counter() - t1
 
+    photo = _negative_kept(image, where)
     image, depth, normals, albedo, notes = sanitize_maps(
         image, maps["depth"], maps["normals"], maps["albedo"], where
     )
+    if photo is not None:
+        notes.append(f"{where}: {int((photo < 0).any(-1).sum())} pixels of the photograph are negative: kept as "
+                     "they are wherever the composite keeps the photograph, read as 0 by the renderer")
     if not valid_depth_mask(depth).any():
         raise InputError("the depth map has no valid pixel", where=where)
+    if "normals" in spec.maps:  # (estimated normals face the camera by construction)
+        problem = facing_problem(normals, camera.K, valid_depth_mask(depth))
+        if problem:
+            raise InputError(problem, where=str(spec.maps["normals"]))
     rough = maps.get("roughness")
     metal = maps.get("metallic")
     scene_maps = SceneMaps(
@@ -173,7 +170,8 @@ def load_scene(spec: SceneSpec, resolution: tuple[int, int] | None, *, cache_dir
                              + (f"|{models}" if models else ""))
     image, scale = _working_image(image, where, notes)
     return Scene(spec.name, image, scene_maps, camera, key + (f"@{scale:g}" if scale != 1.0 else ""), sources, notes,
-                 timings, light=getattr(spec, "light", None), estimated=estimated, working_scale=scale)
+                 timings, light=getattr(spec, "light", None), estimated=estimated, working_scale=scale,
+                 photo=photo)
 
 
 def _working_image(image: np.ndarray, where: str, notes: list) -> tuple[np.ndarray, float]:
@@ -193,6 +191,15 @@ def _working_image(image: np.ndarray, where: str, notes: list) -> tuple[np.ndarr
                  f"2^{-round(math.log2(scale))} of its radiance (the shading's clamp and the shadow ratio's "
                  "epsilon are absolute), every output multiplied back")
     return worked.astype(np.float32), scale
+
+
+def _negative_kept(image: np.ndarray, where: str) -> np.ndarray | None:
+    """The photograph with its negative pixels (non-finite ones 0, as ``sanitize_maps``
+    makes them), or None when no pixel is negative."""
+    with np.errstate(invalid="ignore"):
+        if not (image < 0).any():
+            return None
+    return np.nan_to_num(image, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32)
 
 
 def _model_fingerprints(estimators: dict) -> str:

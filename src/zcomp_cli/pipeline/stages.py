@@ -339,8 +339,14 @@ def load_object_bundle(ctx: BatchContext, w: JobWork, scene):
     obj = ctx.manifest.objects[w.job.object]
     if obj.kind == "mesh":
         return ObjectBundle.load(w.bundle_dir)
-    if obj.kind == "bundle":
-        return ObjectBundle.load(obj.bundle)
+    if obj.kind == "bundle":  # a given bundle: its normals may be in another frame
+        from zcomp_cli.conventions import facing_problem, valid_depth_mask
+
+        b = ObjectBundle.load(obj.bundle)
+        problem = facing_problem(b.normals, b.camera.K, (b.mask > 0.5) & valid_depth_mask(b.depth))
+        if problem:
+            raise InputError(f"the bundle's {problem}", where=str(Path(obj.bundle) / "normals.exr"))
+        return b
     from zcomp_cli.estimators.object2d import object_bundle_from_image
     from zcomp_cli.imageio import read_alpha_or_grey, read_image
 

@@ -21,13 +21,14 @@ note; a shard count beyond ``MAX_SHARD_COUNT`` marks its summary damaged.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from zcomp_cli.errors import UsageError
+from zcomp_cli.limits import field_text
 from zcomp_cli.pipeline.outputs import job_state
 from zcomp_cli.pipeline.selection import MAX_SHARD_COUNT
+from zcomp_cli.safe_read import JsonFileError, read_json_file
 
 
 @dataclass
@@ -65,9 +66,12 @@ def _summaries(out: Path, notes: list[str]) -> list[tuple[float, Path, dict]]:
     found = []
     for p in sorted(out.glob("summary*.json")):
         try:
-            doc = json.loads(p.read_text())
+            doc = read_json_file(p)
             mtime = p.stat().st_mtime
-        except (OSError, UnicodeDecodeError, ValueError):
+        except JsonFileError as exc:
+            notes.append(f"{p.name}: {exc}; skipped")
+            continue
+        except (OSError, ValueError):
             continue  # a summary being replaced right now: the reports still tell
         problem = _summary_problem(doc)
         if problem:
@@ -124,7 +128,7 @@ def folder_status(out, expected: list[str] | None = None, *, fingerprints: dict[
         for j in summ.get("jobs") or []:
             listed.append(j["name"])
             if j.get("status") == "failed":
-                reasons[j["name"]] = str(j.get("reason") or "failed")  # later summaries win
+                reasons[j["name"]] = field_text(j.get("reason") or "failed")  # later summaries win
             elif j.get("status") in ("done", "skipped"):
                 reasons.pop(j["name"], None)
     for n in sorted(counts):

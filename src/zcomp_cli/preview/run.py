@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from zcomp_cli.errors import UsageError, ZcompError
+from zcomp_cli.errors import GeometryError, RenderError, UsageError, ZcompError
 
 # the row of three balls spans this share of the frame's width at their depth (a
 # judgement: large enough to read the light on, small enough to leave the floor around
@@ -47,6 +47,15 @@ MAX_ZOOM = 8.0
 # is 16-32 (docs/error_vs_time_cycles.png); 16 keeps a scene within seconds
 DEFAULT_SAMPLES = 16
 SUBDIR = "preview"
+# A ball is drawn at least this many pixels across (the grey ball's shading and the
+# chrome ball's reflection read over a few pixels at least), and the row of balls fits
+# the frame: a --diameter outside these is named as too small or too large.
+MIN_BALL_PX = 4.0
+# The surface the balls stand on is at most this far (metres): beyond it Cycles' single
+# floats lose the balls (a depth of 1e30 made a blank sheet). 1e5 m: 100 km, past any
+# photograph's ground and still ~1e-2 m float resolution.
+MAX_BALL_DEPTH_M = 1e5
+WORK_PREFIX = "zcomp-preview-"  # + pid: a later run sweeps the folder of a killed one
 # the world's importance map a preview builds on every pass (``CyclesSettings``): 256
 # instead of a 1024-wide probe's own width saves 0.7 s a pass (a preview's three renders
 # are otherwise mostly this map; benchmarks/preview_light_timing.py)
@@ -123,12 +132,37 @@ def ball_pose(scene, pixel, diameter: float | None) -> tuple[np.ndarray, float]:
     return M, float(diameter)
 
 
+def check_ball_size(camera, M, diameter: float, given: bool) -> None:
+    """Refuse (``GeometryError``: the scene fails, naming the scene and what to give) balls the sheet cannot
+    show: a surface beyond ``MAX_BALL_DEPTH_M``, balls under ``MIN_BALL_PX`` across, or a
+    row wider or taller than the frame. ``given``: the diameter came from --diameter."""
+    from zcomp_cli.preview.balls import BALLS, SPACING
+
+    depth = -float(M[2, 3])
+    f = float(camera.K[0, 0])
+    where = "the surface the balls stand on"
+    if not (math.isfinite(depth) and 0 < depth <= MAX_BALL_DEPTH_M):
+        raise GeometryError(f"{where} is {depth:.3g} m away (its depth map), beyond the {MAX_BALL_DEPTH_M:g} m a "
+                         f"preview draws at; give --pixel on a nearer surface")
+    px = diameter * f / depth
+    row = (SPACING * (len(BALLS) - 1) + 1.0) * px
+    opt = "--diameter" if given else "the default diameter"
+    if px < MIN_BALL_PX:
+        raise GeometryError(f"{where} is {depth:.3g} m away: balls {diameter:.3g} m across ({opt}) are "
+                         f"{px:.2g} pixels there, too small to see; give --diameter "
+                         f"{MIN_BALL_PX * depth / f:.3g} or more")
+    if row > camera.width or px > camera.height:
+        raise GeometryError(f"{where} is {depth:.3g} m away: balls {diameter:.3g} m across ({opt}) make a row "
+                         f"{row:.0f} pixels wide, {px:.0f} tall, larger than the {camera.width}x{camera.height} "
+                         f"frame; give --diameter {min(camera.width / row, camera.height / px) * diameter:.3g} "
+                         f"or less")
+
+
 def preview_scene(manifest, scene_name: str, renderer, *, out_dir, work: Path, pixel_native=None,
                   diameter: float | None = None, cache_dir=None, lights=None) -> PreviewResult:
     """Steps 1-5 for one scene (module docstring); raises ZcompError on failure.
     ``lights``: the light stage (``pipeline.stages.LightStore``; None: one for this call)."""
     from zcomp_cli.cache import cache_dir as cache_folder
-    from zcomp_cli.imageio import write_json_atomic, write_png
     from zcomp_cli.pipeline.job import finish_job, prepare_job, roi_around
     from zcomp_cli.pipeline.scene import load_scene
     from zcomp_cli.preview.balls import ball_bundle, write_balls_glb
@@ -141,6 +175,7 @@ def preview_scene(manifest, scene_name: str, renderer, *, out_dir, work: Path, p
     # 1. where
     pixel, pixel_from = choose_pixel(manifest, scene_name, scene.camera, pixel_native)
     M, d = ball_pose(scene, pixel, diameter)
+    check_ball_size(scene.camera, M, d, diameter is not None)
     # 2. the balls as an object
     glb = work / f"balls_{d:.6g}.glb"
     if not glb.is_file():
@@ -169,6 +204,9 @@ def preview_scene(manifest, scene_name: str, renderer, *, out_dir, work: Path, p
     alone = renderer.render_alone(prep.requests[1], seed, box=box, zoom=zoom)
     alone[..., :3] *= np.float32(scene.working_scale)
     alone_s = time.perf_counter() - ta
+    if not (alone[..., 3] > 0).any():
+        raise RenderError(f"Blender drew no ball (the balls {d:.3g} m across at "
+                         f"{-M[2, 3]:.3g} m); no sheet written")
     render_s = time.perf_counter() - t
     startup = next((p.get("blender_startup_s") for p in out.info.get("passes", []) if p.get("blender_startup_s")),
                    None)
@@ -178,7 +216,6 @@ def preview_scene(manifest, scene_name: str, renderer, *, out_dir, work: Path, p
                  f"satin silver, chrome mirror; rendered by Cycles, {renderer.settings().get('samples')} samples")
     sheet = make_sheet(res.image, alone, lines, f"zcomp preview-light: scene {scene_name}")
     png, js = sheet_paths(out_dir, scene_name)
-    write_png(png, sheet.astype(np.float32) / 255.0, srgb_encode=False)
     seconds = time.perf_counter() - t0
     info = {"scene": scene_name, "pixel": list(pixel), "pixel_from": pixel_from, "ball_diameter_m": d,
             "object_to_camera": M.tolist(),
@@ -186,20 +223,39 @@ def preview_scene(manifest, scene_name: str, renderer, *, out_dir, work: Path, p
             "blender_startup_s": startup, "timings": {**{k: float(v) for k, v in out.timings.items()},
                                                       "alone_s": float(alone_s)},
             "renderer": renderer.settings(), "notes": res.report.get("notes", [])}
-    write_json_atomic(js, info)
+    write_pair(png, sheet, js, info)
     return PreviewResult(scene_name, png, js, seconds, None, info)
+
+
+def write_pair(png: Path, sheet: np.ndarray, js: Path, info: dict) -> None:
+    """The sheet (uint8 RGB) and its numbers, each atomically, and the two together: an
+    interrupt between them waits for the second (a SIGTERM there left a PNG without its
+    JSON), and a JSON that cannot be written takes its new PNG away."""
+    from zcomp_cli.imageio import write_json_atomic, write_png
+    from zcomp_cli.interrupts import deferred
+
+    with deferred():
+        write_png(png, sheet.astype(np.float32) / 255.0, srgb_encode=False)
+        try:
+            write_json_atomic(js, info)
+        except BaseException:
+            png.unlink(missing_ok=True)
+            raise
 
 
 def preview_light(manifest, out_dir, *, scenes=None, pixel_native=None, diameter: float | None = None,
                   samples: int = DEFAULT_SAMPLES, overwrite: bool = False, cache_dir=None,
                   progress=None) -> list[PreviewResult]:
-    """Preview sheets for ``scenes`` (default: every scene of the manifest, in order).
-    Refuses (``UsageError``, before anything is written) an unknown scene, a bad
-    ``diameter`` or sheets that exist without ``overwrite``. A scene that fails is
-    reported in its result and the rest go on. ``progress(stage, done, total, label)``."""
+    """Preview sheets for ``scenes`` (default: every scene of the manifest, in order; a
+    scene named twice once). Refuses (``UsageError``, before anything is written) an
+    unknown scene, a bad ``diameter``, a preview folder that is a symbolic link, a
+    second run into the same folder at the same time, or sheets that exist without
+    ``overwrite``. A scene that fails is reported in its result and the rest go on.
+    ``progress(stage, done, total, label)``."""
+    from zcomp_cli.pipeline.outguard import check_inside, held_or_refused
     from zcomp_cli.renderers.cycles import CyclesRenderer
 
-    names = list(manifest.scenes) if not scenes else list(scenes)
+    names = list(manifest.scenes) if not scenes else list(dict.fromkeys(scenes))  # a repeated --scene once
     unknown = [n for n in names if n not in manifest.scenes]
     if unknown:
         raise UsageError(f"--scene: no scene {', '.join(map(repr, unknown))} in {manifest.path.name} "
@@ -212,20 +268,44 @@ def preview_light(manifest, out_dir, *, scenes=None, pixel_native=None, diameter
             sp = manifest.scenes[n]
             if not (0 <= x < sp.width and 0 <= y < sp.height):
                 raise UsageError(f"--pixel {x:g} {y:g} is outside scene {n!r}'s {sp.width}x{sp.height} photograph")
-    if not overwrite:
-        there = [str(p) for n in names for p in sheet_paths(out_dir, n) if p.exists()]
-        if there:
-            raise UsageError(f"{there[0]} exists (and {len(there) - 1} more); give --overwrite to replace them")
-    from zcomp_cli.cache import cache_dir as cache_folder
+    from zcomp_cli.pipeline.batch import check_renderer_budget
+
+    check_renderer_budget(manifest, names, "cycles")
     from zcomp_cli.knobs import as_dict
-    from zcomp_cli.pipeline.stages import LightStore, light_config_of
+    from zcomp_cli.pipeline.stages import light_config_of
 
     # the light the batch will fit: the manifest's renderer's light config
     renderer = CyclesRenderer(samples=int(samples), world_map_resolution=WORLD_MAP_RESOLUTION,
                               light=as_dict(light_config_of(manifest.defaults.renderer)))
     renderer.check()
+    out_dir = Path(out_dir)
+    folder = out_dir / SUBDIR
+    check_inside(out_dir, folder, "--out")  # a linked preview/ would take the sheets outside --out
+    for n in names:
+        for p in sheet_paths(out_dir, n):
+            check_inside(out_dir, p, "--out")
+    folder.mkdir(parents=True, exist_ok=True)
+    # one run at a time writes a folder's sheets: two would replace each other's
+    with held_or_refused(folder / ".zcomp-preview.lock", "zcomp preview-light"):
+        if not overwrite:
+            there = [str(p) for n in names for p in sheet_paths(out_dir, n) if p.exists()]
+            if there:
+                raise UsageError(f"{there[0]} exists (and {len(there) - 1} more); give --overwrite to replace them")
+        return _preview_scenes(manifest, renderer, out_dir, names, pixel_native=pixel_native, diameter=diameter,
+                               cache_dir=cache_dir, progress=progress)
+
+
+def _preview_scenes(manifest, renderer, out_dir, names, *, pixel_native, diameter, cache_dir,
+                    progress) -> list[PreviewResult]:
+    import os
+
+    from zcomp_cli.cache import cache_dir as cache_folder
+    from zcomp_cli.pipeline.outguard import sweep_dead_temporaries
+    from zcomp_cli.pipeline.stages import LightStore
+
     lights = LightStore(renderer.light_config(), cache_folder("lights", cache_dir), Path(out_dir))
-    work = Path(tempfile.mkdtemp(prefix="zcomp-preview-"))
+    sweep_dead_temporaries()  # what killed runs left in /tmp (a preview's work folder among them)
+    work = Path(tempfile.mkdtemp(prefix=f"{WORK_PREFIX}{os.getpid()}-"))
     results = []
     try:
         for k, name in enumerate(names):

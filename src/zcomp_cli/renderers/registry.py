@@ -60,6 +60,9 @@ class RendererEntry:
     # --debug they are written as debug/<name>.exr, and a job folder holding them is
     # known as zcomp's (``pipeline.outputs.foreign_entries``)
     debug_maps: tuple[str, ...] = ()
+    # peak memory of a job per pixel of its working size, KB (``limits``: the pixel
+    # budget is set for 0.3; a costlier renderer's jobs get fewer pixels)
+    kb_per_pixel: float = 0.3
 
 
 BUILTIN_RENDERERS: dict[str, RendererEntry] = {
@@ -93,7 +96,11 @@ BUILTIN_RENDERERS: dict[str, RendererEntry] = {
         options=(
             RendererOption("samples", "samples", int, "Cycles path samples per pixel (default 32)", "N"),
         ),
-        speed_settings=("threads",), contract_settings={"samples": 4, "denoise": False}),
+        speed_settings=("threads",), contract_settings={"samples": 4, "denoise": False},
+        # a window as large as the frame meshes it whole: 3.0 GB (Blender; zcomp 2.6) for one
+        # job at 2048 x 1536, a given sun; a window of 40 % of it, meshed finely around
+        # it and coarsely elsewhere, 1.69 GB (zcomp 1.46). Budgeted by the worst case.
+        kb_per_pixel=1.0),
     "naive": RendererEntry(
         "zcomp_cli.renderers.naive", "NaiveRenderer",
         "baseline paste: albedo x mean scene shading, no shadow (benchmark rows)"),

@@ -11,7 +11,6 @@ listed as preview sheets.
 from __future__ import annotations
 
 import csv
-import json
 import math
 import os
 from dataclasses import dataclass, field
@@ -19,6 +18,7 @@ from pathlib import Path
 
 from zcomp_cli.errors import UsageError
 from zcomp_cli.preview.run import SUBDIR as PREVIEW_DIR  # where preview-light writes its sheets
+from zcomp_cli.safe_read import MAX_JSON_BYTES, read_json_file, read_regular_bytes
 
 # The order statuses are listed and sorted in.
 STATUS_ORDER = ("done", "failed", "damaged", "changed", "missing")
@@ -124,12 +124,13 @@ def collect(out, *, manifest=None, eval_file=None, verify: bool = False) -> Coll
     for name in sorted(status, key=_natural):
         state, reason = status[name]
         job_dir = out / name
-        rep = read_report(job_dir) if job_dir.is_dir() else None
+        rep = read_report(job_dir) if _is(job_dir, os.path.isdir) else None
         row = {"job": name, "status": state, "reason": reason, "scene": None, "object": None,
                "renderer": None, "light": None, "light_note": None, "light_uncertainty": None,
-               "seconds": seconds.get(name), "composite": None, "background": None, "metrics": {}}
+               "seconds": seconds.get(name), "composite": None, "background": None, "metrics": {},
+               "closeup": None}
         comp = job_dir / "composite.png"
-        if state != "missing" and comp.is_file():
+        if state != "missing" and _is(comp, os.path.isfile):
             row["composite"] = comp
         if rep is not None:
             _from_report(row, rep, scenes, job_dir)
@@ -146,6 +147,15 @@ def collect(out, *, manifest=None, eval_file=None, verify: bool = False) -> Coll
     _join_eval(col, out, eval_file)
     col.previews = previews(out)
     return col
+
+
+def _is(path: Path, test) -> bool:
+    """``test(path)`` (``os.path.isdir``...), False where the path cannot even be asked
+    about (a job name a summary lists that is longer than a file name may be)."""
+    try:
+        return test(path)
+    except (OSError, ValueError):
+        return False
 
 
 def _natural(name: str):
@@ -165,6 +175,7 @@ def _from_report(row: dict, rep: dict, scenes: "_SceneImages", job_dir: Path) ->
     row["renderer"] = _str(spec.get("name")) if isinstance(spec, dict) else None
     row["renderer"] = row["renderer"] or _str(settings.get("name"))
     row["light"], row["light_note"], row["light_uncertainty"] = light_summary(rep)
+    row["closeup"] = _closeup(rep)
     timings = rep.get("timings") if isinstance(rep.get("timings"), dict) else {}
     t = _num(timings.get("job_total_s"))
     if t is not None:
@@ -175,6 +186,24 @@ def _from_report(row: dict, rep: dict, scenes: "_SceneImages", job_dir: Path) ->
         if not path.is_absolute():
             path = (job_dir / path)
         row["background"] = scenes.image(scenes.load(path, row["job"]), row["scene"])
+
+
+def _closeup(rep: dict) -> list[int] | None:
+    """[x0, y0, x1, y1, W, H]: the region the job re-shaded (its ``roi``: the object and
+    its shadow) grown by a quarter of its size, in its W x H composite; None without
+    one."""
+    roi = rep.get("roi") if isinstance(rep.get("roi"), dict) else {}
+    scene = rep.get("scene") if isinstance(rep.get("scene"), dict) else {}
+    box, size = roi.get("box"), scene.get("size")
+    try:
+        x0, y0, x1, y1 = (int(v) for v in box)
+        W, H = (int(v) for v in size)
+    except (TypeError, ValueError):
+        return None
+    if not (0 <= x0 < x1 <= W and 0 <= y0 < y1 <= H) or W * H > 1e9:
+        return None
+    gx, gy = (x1 - x0) // 4, (y1 - y0) // 4
+    return [max(0, x0 - gx), max(0, y0 - gy), min(W, x1 + gx), min(H, y1 + gy), W, H]
 
 
 def _str(v) -> str | None:
@@ -194,8 +223,8 @@ def _summary_seconds(out: Path) -> dict[str, float]:
     found = []
     for p in out.glob("summary*.json"):
         try:
-            found.append((p.stat().st_mtime, p.name, json.loads(p.read_text())))
-        except (OSError, UnicodeDecodeError, ValueError):
+            found.append((p.stat().st_mtime, p.name, read_json_file(p)))
+        except (OSError, ValueError):
             continue
     got: dict[str, float] = {}
     for _, _, doc in sorted(found, key=lambda t: (t[0], t[1])):
@@ -285,10 +314,11 @@ def _scene_images_only(path: Path) -> _Scenes | None:
 def light_summary(report: dict) -> tuple[str | None, str | None, float | None]:
     """(one line, the fallback's reason, the direction's uncertainty in degrees) of the
     light a job was rendered with, from its report (``light``, or the renderer's
-    ``info.light`` as the physical and Cycles renderers write it). E.g. ``"sun az 120°
-    el 35°, source estimated, uncertainty 12°"``; ``"..., fallback"`` when the renderer
-    fell back (the reason is the note). (None, None, None) when the report has none
-    (the naive and zerocomp renderers)."""
+    ``info.light`` as the physical and Cycles renderers write it), in an artist's words.
+    E.g. ``"sun at azimuth 120°, elevation 35°, estimated from the photograph, ±12°"``;
+    ``"..., simplified (hover for why)"`` when the renderer fell back (the reason is the
+    note). (None, None, None) when the report has none (the naive and zerocomp
+    renderers)."""
     info = {}
     r = report.get("renderer")
     if isinstance(r, dict) and isinstance(r.get("info"), dict):
@@ -302,28 +332,32 @@ def light_summary(report: dict) -> tuple[str | None, str | None, float | None]:
     angles = _angles(light.get("direction"), light.get("up_camera"))
     if angles is not None:
         az, el = angles
-        parts.append(f"{key or 'light'} az {az}° el {el}°")
+        parts.append(f"{key or 'light'} at azimuth {az}°, elevation {el}°")
     elif key:
         parts.append(key)
     elif "sky" in kinds:
         parts.append("sky only")
     src = light.get("source")
     if isinstance(src, str) and src:
-        parts.append(f"source {src}")
+        parts.append(_SOURCE_WORDS.get(src, src))
     fit = light.get("fit") if isinstance(light.get("fit"), dict) else {}
     unc = _num(fit.get("direction_uncertainty_deg"))
     if unc is not None:
-        parts.append(f"uncertainty {unc:.0f}°")
+        parts.append(f"±{unc:.0f}°")
     if fit.get("unfixed") is True:
-        parts.append("unfixed")
+        parts.append("direction a guess (the photograph does not fix it)")
     shadow = light.get("shadow")
     if isinstance(shadow, str) and shadow and shadow != "cast shadow":
         parts.append(shadow)
     fallback = light.get("fallback") or info.get("fallback")
     note = str(fallback) if fallback else None
     if note:
-        parts.append("fallback")
+        parts.append("simplified (hover for why)")
     return (", ".join(parts) or None), note, unc
+
+
+# where the light came from, in an artist's words
+_SOURCE_WORDS = {"estimated": "estimated from the photograph", "manifest": "given in the manifest"}
 
 
 _ANGLES: dict[tuple, tuple[int, int] | None] = {}  # the jobs of a scene share their light
@@ -396,7 +430,7 @@ def _metric_value(v):
 
 
 def _read_eval_json(path: Path):
-    doc = json.loads(path.read_text())
+    doc = read_json_file(path)
     unavailable = doc.get("unavailable") or {}
     metrics = [m for m in doc["metrics"] if isinstance(m, str) and m not in unavailable]
     values = {}
@@ -411,8 +445,15 @@ def _read_eval_json(path: Path):
 
 
 def _read_eval_csv(path: Path):
-    with open(path, newline="", encoding="utf-8") as f:
-        rows = list(csv.reader(f))
+    import io
+
+    text = read_regular_bytes(path, MAX_JSON_BYTES, "CSV file").decode("utf-8")
+    try:
+        rows = list(csv.reader(io.StringIO(text, newline="")))
+    except csv.Error as exc:  # (a field over the csv module's 128 KiB)
+        raise ValueError(f"not a CSV file zcomp eval writes: {exc}") from None
+    if not rows:
+        raise ValueError("the file is empty")
     head = rows[0]
     if head[:3] != ["name", "pred", "ref"]:
         raise ValueError("its header is not name,pred,ref,<metrics>")
@@ -442,10 +483,10 @@ def previews(out: Path) -> list[dict]:
         light = None
         if js.is_file():
             try:
-                doc = json.loads(js.read_text())
+                doc = read_json_file(js)
                 if isinstance(doc, dict) and isinstance(doc.get("light"), dict):
                     light = light_summary({"light": doc["light"]})[0]
-            except (OSError, UnicodeDecodeError, ValueError):
+            except (OSError, ValueError):
                 pass
         found.append({"scene": p.stem, "image": p, "json": js if js.is_file() else None, "light": light})
     return found

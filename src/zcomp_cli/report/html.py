@@ -1,9 +1,11 @@
 """The page of ``zcomp report``: one self-contained HTML file.
 
 Inline CSS and JavaScript, no external resource (a Content-Security-Policy forbids any:
-images come from relative links only), so it works from ``file://``. The rows travel as
-one JSON document in a ``<script type="application/json">``, with every ``<``, ``>``
-and ``&`` written as a ``\\u`` escape so that no text (a job name holding
+images come from relative links only; the one script runs by its nonce, no inline event
+handler), so it works from ``file://``. The template's slots are filled in one pass
+(``fill``: no value is searched for slots again). The rows travel as one JSON document in
+a ``<script type="application/json">``, with every ``<``, ``>``, ``&`` and quote inside
+a string written as a ``\\u`` escape so that no text (a job name holding
 ``</script>``) can end it; the script builds the table with DOM text nodes and
 attributes, never HTML strings, so text is never markup. Sorting (every column; numbers
 numerically, missing values last both ways), a status filter, a text filter and
@@ -17,8 +19,13 @@ import datetime as _dt
 import html
 import json
 import math
+import re
+import secrets
 
+from zcomp_cli.limits import field_text
 from zcomp_cli.report.collect import STATUS_ORDER, Collected, status_rank
+
+METRIC_NAME_CHARS = 64  # a metric's name in a column's header (eval.json may hold any text)
 
 # Metrics where higher is better (metrics.evaluate.HIGHER_IS_BETTER; copied so that the
 # page does not import the metrics package).
@@ -44,6 +51,8 @@ def columns(col: Collected) -> list[dict]:
     field shown as the cell's tooltip)."""
     cols = [
         {"key": "composite", "label": "composite", "type": "img"},
+        {"key": "closeup", "label": "close-up", "type": "crop",
+         "title": "the composite around the object and its shadow (the region the renderer re-shaded)"},
         {"key": "background", "label": "background", "type": "img"},
         {"key": "job", "label": "job", "type": "text"},
         {"key": "scene", "label": "scene", "type": "text"},
@@ -58,8 +67,9 @@ def columns(col: Collected) -> list[dict]:
                      "title": "uncertainty of the light's direction (degrees, RMS)"})
     for m in col.metrics:
         better = "↑" if m in _HIGHER_IS_BETTER else "↓"
-        cols.append({"key": f"m:{m}", "label": f"{m} {better}", "type": "num",
-                     "title": f"{m} ({'higher' if better == '↑' else 'lower'} is better), from zcomp eval"})
+        shown = field_text(m, METRIC_NAME_CHARS)
+        cols.append({"key": f"m:{m}", "label": f"{shown} {better}", "type": "num",
+                     "title": f"{shown} ({'higher' if better == '↑' else 'lower'} is better), from zcomp eval"})
     cols.append({"key": "seconds", "label": "time s", "type": "num", "title": "seconds the job took"})
     return cols
 
@@ -70,30 +80,41 @@ EXTRA = ("light_note",)  # fields after the columns in each row array (tooltips)
 def _cell(row: dict, key: str, urls: dict):
     if key in ("composite", "background"):
         return urls[key].get(row["job"])
+    if key == "closeup":  # [url, x0, y0, x1, y1, W, H]: the page crops the composite itself
+        url, box = urls["composite"].get(row["job"]), row.get("closeup")
+        return [url, *box] if url and box else None
     if key.startswith("m:"):
         return _jnum(row["metrics"].get(key[2:]))
     v = row.get(key)
+    if isinstance(v, str):  # (a failure reason of 100 MB, a name of undecodable bytes)
+        return field_text(v)
     return _jnum(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else v
 
 
 def page_data(col: Collected, page_size: int, urls: dict) -> dict:
     """The JSON document the page's script reads."""
     cols = columns(col)
-    rows = [[_cell(r, c["key"], urls) for c in cols] + [r.get(k) for k in EXTRA] for r in col.rows]
+    rows = [[_cell(r, c["key"], urls) for c in cols] + [_cell(r, k, urls) for k in EXTRA] for r in col.rows]
     statuses = sorted({r["status"] for r in col.rows} | set(STATUS_ORDER), key=status_rank)
     return {"columns": cols, "extra": list(EXTRA), "rows": rows, "pageSize": int(page_size),
             "statuses": statuses}
 
 
 def script_json(obj) -> str:
-    """JSON safe inside ``<script>``: ``<``, ``>``, ``&`` and the two JavaScript line
-    separators as ``\\u`` escapes (they occur only inside JSON strings, where the escape
-    means the same character)."""
+    """JSON safe inside ``<script>`` and anywhere else in the page: ``<``, ``>``, ``&``,
+    the two JavaScript line separators and a quote inside a string (JSON's ``\\"``) as
+    ``\\u`` escapes (they occur only inside JSON strings, where the escape means the
+    same character), so no text of the data can end the element or an attribute."""
     s = json.dumps(obj, ensure_ascii=False, separators=(",", ":"), allow_nan=False)
     for ch, esc in (("<", "\\u003c"), (">", "\\u003e"), ("&", "\\u0026"), ("\u2028", "\\u2028"),
                     ("\u2029", "\\u2029")):
         s = s.replace(ch, esc)
-    return s
+    # JSON's escapes, read pairwise from the left (so ``\\\\`` before a closing quote
+    # stays a backslash): an escaped quote becomes \\u0022
+    return _ESCAPE.sub(lambda m: "\\u0022" if m.group(0) == '\\"' else m.group(0), s)
+
+
+_ESCAPE = re.compile(r"\\.", re.S)
 
 
 def _fmt(v) -> str:
@@ -101,7 +122,7 @@ def _fmt(v) -> str:
         return "n/a"
     if math.isinf(v):
         return "inf" if v > 0 else "-inf"
-    return f"{v:.4g}" if abs(v) < 1e4 else f"{v:.0f}"
+    return f"{v:.3g}" if abs(v) < 1e4 else f"{v:.0f}"
 
 
 def render_page(col: Collected, *, title: str, page_size: int, urls: dict, url_of, version: str = "") -> str:
@@ -117,15 +138,17 @@ def render_page(col: Collected, *, title: str, page_size: int, urls: dict, url_o
         scored = f"{ev['joined']} job{'s' if ev['joined'] != 1 else ''} scored"
         if ev.get("unscored"):
             scored += f", {ev['unscored']} not scored"
-        bits = [f'Metrics from <a href="{e(url_of(ev["file"]))}">{e(ev["file"].name)}</a> ({scored})']
-        prot = ", ".join(e(str(ev[k])) for k in ("protocol", "encoding", "region") if ev.get(k))
+        bits = [f'Metrics from <a href="{e(url_of(ev["file"]))}">{e(field_text(ev["file"].name))}</a> ({scored})']
+        prot = ", ".join(e(field_text(ev[k], METRIC_NAME_CHARS)) for k in ("protocol", "encoding", "region")
+                         if ev.get(k))
         if prot:
             bits.append(f"protocol {prot}")
         means = ev.get("mean") or {}
         if any(means.get(m) is not None for m in col.metrics):
-            bits.append("means " + ", ".join(f"{e(m)} {_fmt(means.get(m))}" for m in col.metrics))
+            bits.append("means " + ", ".join(f"{e(field_text(m, METRIC_NAME_CHARS))} {_fmt(means.get(m))}"
+                                             for m in col.metrics))
         if ev.get("unavailable"):
-            bits.append("unavailable: " + ", ".join(e(str(m)) for m in ev["unavailable"]))
+            bits.append("unavailable: " + ", ".join(e(field_text(m, METRIC_NAME_CHARS)) for m in ev["unavailable"]))
         head.append(" " + "; ".join(bits) + ".")
     elif total:
         head.append(" No metrics: run <code>zcomp eval OUT</code> to add them.")
@@ -133,7 +156,7 @@ def render_page(col: Collected, *, title: str, page_size: int, urls: dict, url_o
     now = _dt.datetime.now().astimezone().strftime("%Y-%m-%d %H:%M %Z")
     head.append(f'<p class="meta">Written by <code>zcomp report</code> (zcomp {e(version)}) on {e(now)}.</p>')
     if col.notes:
-        items = "".join(f"<li>{e(n)}</li>" for n in col.notes[:200])
+        items = "".join(f"<li>{e(field_text(n))}</li>" for n in col.notes[:200])
         more = f"<li>... and {len(col.notes) - 200} more</li>" if len(col.notes) > 200 else ""
         head.append(f'<details class="notes"><summary>{len(col.notes)} note{"s" if len(col.notes) != 1 else ""}'
                     f"</summary><ul>{items}{more}</ul></details>")
@@ -144,15 +167,27 @@ def render_page(col: Collected, *, title: str, page_size: int, urls: dict, url_o
             src = e(url_of(p["image"]))
             extra = f' (<a href="{e(url_of(p["json"]))}">details</a>)' if p["json"] is not None else ""
             if p.get("light"):
-                extra += f'<br><span class="meta">{e(p["light"])}</span>'
+                extra += f'<br><span class="meta">{e(field_text(p["light"]))}</span>'
+            scene = e(field_text(p["scene"]))
             figs.append(f'<figure><a href="{src}"><img class="preview" loading="lazy" decoding="async" '
-                        f'src="{src}" alt="preview of {e(p["scene"])}"></a>'
-                        f"<figcaption>{e(p['scene'])}{extra}</figcaption></figure>")
+                        f'src="{src}" alt="preview of {scene}"></a>'
+                        f"<figcaption>{scene}{extra}</figcaption></figure>")
         previews = (f'<details id="previews" open><summary>Light preview sheets ({len(col.previews)})</summary>'
                     f'<div class="sheets">{"".join(figs)}</div></details>')
     data = script_json(page_data(col, page_size, urls))
-    return (_PAGE.replace("%TITLE%", e(title)).replace("%HEAD%", "".join(head)).replace("%PREVIEWS%", previews)
-            .replace("%CSS%", _CSS).replace("%JS%", _JS).replace("%DATA%", data))
+    return fill(_PAGE, {"TITLE": e(field_text(title)), "HEAD": "".join(head), "PREVIEWS": previews, "CSS": _CSS, "JS": _JS,
+                        "DATA": data, "NONCE": secrets.token_urlsafe(18)})
+
+
+_SLOT = re.compile(r"%([A-Z]+)%")
+
+
+def fill(template: str, values: dict[str, str]) -> str:
+    """``template`` with each ``%NAME%`` replaced by ``values[NAME]``, in one pass: a
+    value is never read again for slots (a preview named ``%DATA%.png`` stays that
+    text; chained replaces pasted the data into its ``alt``). A slot without a value
+    stays as it is."""
+    return _SLOT.sub(lambda m: values.get(m.group(1), m.group(0)), template)
 
 
 _PAGE = """<!DOCTYPE html>
@@ -160,7 +195,7 @@ _PAGE = """<!DOCTYPE html>
 <head>
 <meta charset="utf-8">
 <meta name="viewport" content="width=device-width, initial-scale=1">
-<meta http-equiv="Content-Security-Policy" content="default-src 'none'; img-src 'self' file: data:; style-src 'unsafe-inline'; script-src 'unsafe-inline'">
+<meta http-equiv="Content-Security-Policy" content="default-src 'none'; img-src 'self' file: data:; style-src 'unsafe-inline'; script-src 'nonce-%NONCE%'">
 <meta name="referrer" content="no-referrer">
 <link rel="icon" href="data:,">
 <title>%TITLE%</title>
@@ -185,7 +220,7 @@ _PAGE = """<!DOCTYPE html>
 <table id="jobs"><thead><tr></tr></thead><tbody></tbody></table>
 <p id="empty" hidden>No job matches.</p>
 <script id="zcomp-data" type="application/json">%DATA%</script>
-<script>%JS%</script>
+<script nonce="%NONCE%">%JS%</script>
 </body>
 </html>
 """
@@ -217,6 +252,8 @@ td.num { text-align: right; font-variant-numeric: tabular-nums; white-space: now
 td.wide { max-width: 26em; white-space: pre-wrap; overflow-wrap: anywhere; }
 td.img { width: 160px; padding: 2px 4px; }
 td.img img { width: 160px; max-height: 160px; height: auto; object-fit: contain; display: block; }
+td.img a.crop { display: block; position: relative; overflow: hidden; }
+td.img a.crop img { position: absolute; max-width: none; max-height: none; height: auto; }
 .none { color: var(--muted); }
 .st { font-weight: 600; }
 .st-done { color: #2a2; } .st-failed, .st-damaged { color: #d33; } .st-missing, .st-changed { color: #c80; }
@@ -244,9 +281,9 @@ _JS = r"""
   function fmt(v) {
     if (v === Infinity) return "inf";
     if (v === -Infinity) return "-inf";
-    var a = Math.abs(v);
+    var a = Math.abs(v);  // three significant digits: a metric's noise is in the fourth
     if (a !== 0 && (a < 1e-3 || a >= 1e4)) return a >= 1e4 ? v.toFixed(0) : v.toExponential(2);
-    return String(Number(v.toPrecision(4)));
+    return String(Number(v.toPrecision(3)));
   }
   // Sort keys of a column, once: numbers; strings replaced by their rank in collation
   // order, so that sorting compares numbers only; null where the value is missing.
@@ -316,10 +353,27 @@ _JS = r"""
     if (text !== undefined && text !== null) e.textContent = text;
     return e;
   }
+  // The composite's region [x0, y0, x1, y1] of its W x H pixels, shown in a box of at
+  // most 160 x 160: the image itself scaled and moved in a clipping box (no file made).
+  function closeup(v) {
+    var x0 = v[1], y0 = v[2], w = Math.max(1, v[3] - v[1]), h = Math.max(1, v[4] - v[2]);
+    var s = Math.min(160 / w, 160 / h);
+    var box = el("a", "crop"); box.href = v[0];
+    box.style.width = Math.round(w * s) + "px"; box.style.height = Math.round(h * s) + "px";
+    var img = el("img"); img.loading = "lazy"; img.decoding = "async"; img.alt = "close-up"; img.src = v[0];
+    img.style.width = Math.round(v[5] * s) + "px";
+    img.style.left = -Math.round(x0 * s) + "px"; img.style.top = -Math.round(y0 * s) + "px";
+    box.appendChild(img);
+    return box;
+  }
   function cell(row, c) {
     var col = COLS[c], v = row[c], td = document.createElement("td");
     td.setAttribute("data-key", col.key);
-    if (col.type === "img") {
+    if (col.type === "crop") {
+      td.className = "img";
+      if (v) td.appendChild(closeup(v));
+      else td.appendChild(el("span", "none", "\u2014"));
+    } else if (col.type === "img") {
       td.className = "img";
       if (v) {
         var a = el("a"); a.href = v;
@@ -437,4 +491,4 @@ _JS = r"""
 })();
 """
 
-__all__ = ["columns", "page_data", "render_page", "script_json"]
+__all__ = ["columns", "fill", "page_data", "render_page", "script_json"]

@@ -10,6 +10,7 @@ import urllib.parse
 from pathlib import Path
 
 from zcomp_cli.errors import UsageError
+from zcomp_cli.limits import field_text
 from zcomp_cli.report.collect import Collected, collect
 
 DEFAULT_NAME = "report.html"
@@ -37,7 +38,8 @@ def rel_url(path, base) -> str:
         rel = os.path.relpath(os.path.abspath(path), os.path.abspath(base))
     except ValueError:
         return Path(os.path.abspath(path)).as_uri()
-    return urllib.parse.quote(rel.replace(os.sep, "/"), safe="/")
+    # (a name of undecodable bytes: their percent-encoding, as a browser reads the file)
+    return urllib.parse.quote(os.fsencode(rel.replace(os.sep, "/")), safe="/")
 
 
 def write_report(out, *, name: str = DEFAULT_NAME, title: str | None = None,
@@ -61,7 +63,7 @@ def write_report(out, *, name: str = DEFAULT_NAME, title: str | None = None,
     for r in col.rows:
         if r["composite"] is not None:
             urls["composite"][r["job"]] = rel_url(r["composite"], out)
-    page = render_page(col, title=title or f"zcomp report: {out.resolve().name}", page_size=page_size,
+    page = render_page(col, title=title or f"zcomp report: {field_text(out.resolve().name)}", page_size=page_size,
                        urls=urls, url_of=lambda p: rel_url(p, out), version=__version__)
     path = out / name
     write_text_atomic(path, page)

@@ -118,6 +118,20 @@ class ObjectShadowConfig:
                                                        "area (stratified; a 3 x 3 max filter closes the gaps)", hi=1024.0)
     mesh_max_samples: int = knob(200_000, "sampling", "at most this many shadow-map samples: a dense mesh's "
                                                       "shadow costs no more (20 ms)")
+    lamp_map_cells: int = knob(1 << 22, "sampling", "a lamp's shadow map at most this many cells whatever the "
+                                                    "lamp's place (a lamp 1 cm beside a box made one of 11 GB from "
+                                                    "its samples' tangents near its plane): 4 Mi float64 cells, "
+                                                    "32 MB, about a 2048 x 2048 image's map; met by coarser cells "
+                                                    "only where the receivers' field is that much wider than the "
+                                                    "mesh", hi=1 << 26)
+    lamp_near_plane_tan: float = knob(1e-3, "heuristic", "samples and receivers within this tangent of a lamp's "
+                                                         "plane (0.06 deg) are left out of its gnomonic map (their "
+                                                         "tangents pass its inverse)", hi=0.1)
+    lamp_one_map_tan: float = knob(1.0, "heuristic", "one gnomonic map serves a lamp that sees the mesh within "
+                                                     "this tangent of its centre (45 deg); a nearer lamp (beside "
+                                                     "the object, inside a lampshade), whose one map's cells would "
+                                                     "stretch (10 times narrower at tangent 3), gets a cube map of "
+                                                     "six faces within tangent 1", hi=10.0)
 
 
 @dataclass(frozen=True, kw_only=True)

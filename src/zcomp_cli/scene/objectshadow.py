@@ -192,7 +192,10 @@ def mesh_shadow_point(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, 
     """Visibility of camera-frame ``points`` (N, 3) toward a lamp at ``position`` (3,)
     past the mesh: a perspective shadow map from the lamp (the mesh's samples splatted
     by their direction from it, keeping the nearest to it per cell; ``cfg`` as for
-    ``mesh_shadow``).
+    ``mesh_shadow``). A lamp that sees the mesh within ``cfg.lamp_one_map_tan`` of its centre
+    gets one map toward it, covering only the field of the receivers in front of it, at
+    most ``cfg.lamp_map_cells`` cells; a lamp beside or inside the object (a lampshade)
+    a cube map (``_cube_heights``): either way the memory is bounded.
 
     Returns:
         (vis (N,) in {0, 1}, t_hit (N,) distance to the occluder, inf where lit).
@@ -201,34 +204,16 @@ def mesh_shadow_point(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, 
     q = np.asarray(position, np.float64)
     P = np.asarray(points, np.float64)
     _, _, area, _ = area_triangles(mesh)
-    if not area.sum() > 0:
+    if not area.sum() > 0 or not len(P):
         return np.ones(len(P)), np.full(len(P), np.inf)
     V = mesh.vertices[np.all(np.isfinite(mesh.vertices), axis=1)]
     axis = V.mean(0) - q
     dist_c = float(np.linalg.norm(axis))
-    if dist_c < 1e-9:
-        return np.ones(len(P)), np.full(len(P), np.inf)
-    axis /= dist_c
-    u, v = orthonormal(axis)
-    fwd = (V - q) @ axis
-    if not (fwd > 1e-6).any():
-        return np.ones(len(P)), np.full(len(P), np.inf)
-    # the gnomonic projection (tangents) of the mesh's vertices in front of the lamp
-    vf = V[fwd > 1e-6] - q
-    tu, tv = (vf @ u) / (vf @ axis), (vf @ v) / (vf @ axis)
-    ext = max(float(np.ptp(tu)), float(np.ptp(tv))) + 1e-9
-    cell = ext / cfg.mesh_shadow_cells
-    smp = _samples(mesh, ext * dist_c, cell * dist_c, cfg) - q
-    sf = smp @ axis
-    keep = sf > 1e-6
-    smp, sf = smp[keep], sf[keep]
-    # heights toward the light: minus the distance from it (the nearest sample wins)
-    grid, u0, v0 = _splat((smp @ u) / sf, (smp @ v) / sf, -np.linalg.norm(smp, axis=1), cell)
     d = P - q
-    df = d @ axis
-    front = df > 1e-6
-    occ = np.full(len(P), -np.inf)
-    occ[front] = _lookup(grid, u0, v0, cell, (d[front] @ u) / df[front], (d[front] @ v) / df[front])
+    one = None
+    if dist_c > 1e-9:
+        one = _one_map_heights(mesh, q, V - q, d, axis / dist_c, dist_c, cfg)
+    occ, cell = one if one is not None else _cube_heights(mesh, q, V - q, d, cfg)
     r = np.linalg.norm(d, axis=1)
     l = -d / np.maximum(r, 1e-12)[:, None]
     ndl = np.clip(np.sum(np.asarray(normals, np.float64) * l, axis=1), 0.2, 1.0)
@@ -238,6 +223,81 @@ def mesh_shadow_point(mesh: PosedMesh, points: np.ndarray, normals: np.ndarray, 
     vis = (~blocked).astype(np.float64)
     t_hit = np.where(blocked, r + occ, np.inf)
     return vis, t_hit
+
+
+def _one_map_heights(mesh, q, Vq, d, axis, dist_c, cfg):
+    """One gnomonic map along ``axis`` from the lamp at ``q`` (``Vq``: the vertices,
+    ``d``: the receivers, both less ``q``): (heights (N,): minus the distance to the nearest sample toward the
+    lamp, -inf where none; the map's cell in tangent units), or None when the lamp sees
+    the mesh wider than ``cfg.lamp_one_map_tan`` about ``axis`` (or part of it behind)."""
+    u, v = orthonormal(axis)
+    fwd = Vq @ axis
+    if not (fwd > 1e-6).all():
+        return None
+    tu, tv = (Vq @ u) / fwd, (Vq @ v) / fwd
+    if max(np.abs(tu).max(), np.abs(tv).max()) > cfg.lamp_one_map_tan:
+        return None
+    # the vertices' extent in tangents sets the cell (the map's resolution across the mesh)
+    ext = max(float(np.ptp(tu)), float(np.ptp(tv))) + 1e-9
+    cell = ext / cfg.mesh_shadow_cells
+    occ = np.full(len(d), -np.inf)
+    df = d @ axis
+    front = df > cfg.lamp_near_plane_tan * np.linalg.norm(d, axis=1)
+    smp = _samples(mesh, ext * dist_c, cell * dist_c, cfg) - q
+    sf = smp @ axis
+    keep = sf > cfg.lamp_near_plane_tan * np.linalg.norm(smp, axis=1)  # at or behind the lamp's plane: dropped
+    if not front.any() or not keep.any():
+        return occ, cell
+    smp, sf = smp[keep], sf[keep]
+    ru, rv = (d[front] @ u) / df[front], (d[front] @ v) / df[front]
+    occ[front], cell = _field_map(smp, (smp @ u) / sf, (smp @ v) / sf, ru, rv, cell, cfg.lamp_map_cells)
+    return occ, cell
+
+
+def _field_map(smp, su, sv, ru, rv, cell, max_cells):
+    """Heights (minus the distance from the lamp, the nearest sample winning) the
+    receivers at tangents (``ru``, ``rv``) look up in a map of samples ``smp`` at
+    tangents (``su``, ``sv``): the map covers the samples' box cut to the receivers' (a
+    sample no receiver looks at is left out), its ``cell`` grown where that field would
+    pass ``max_cells``. Returns (heights, the cell used)."""
+    out = np.full(len(ru), -np.inf)
+    u0, u1 = max(su.min(), ru.min()), min(su.max(), ru.max())
+    v0, v1 = max(sv.min(), rv.min()), min(sv.max(), rv.max())
+    if u0 > u1 or v0 > v1:  # no receiver looks past the mesh
+        return out, cell
+    cell = max(cell, float(np.sqrt((u1 - u0 + 8 * cell) * (v1 - v0 + 8 * cell) / max_cells)))
+    m = 2 * cell  # a sample just outside the field still closes a receiver's cell
+    ins = (su >= u0 - m) & (su <= u1 + m) & (sv >= v0 - m) & (sv <= v1 + m)
+    grid, g0u, g0v = _splat(su[ins], sv[ins], -np.linalg.norm(smp[ins], axis=1), cell)
+    return _lookup(grid, g0u, g0v, cell, ru, rv), cell
+
+
+def _cube_heights(mesh, q, Vq, d, cfg):
+    """The heights (as ``_one_map_heights``) of a cube map about the lamp at ``q``: six
+    gnomonic faces, each over tangents within 1 (each receiver and sample on the face of
+    its dominant axis, samples also a few cells past it so that the edges close), each
+    at most ``cfg.mesh_shadow_cells`` cells wide and no finer than its samples cover
+    (``cfg.mesh_sample_density`` a cell). Returns (heights, the coarsest cell)."""
+    fine = 2.0 / cfg.mesh_shadow_cells
+    near = max(float(np.linalg.norm(Vq, axis=1).min()), 1e-6)
+    smp = _samples(mesh, 2.0 * near, fine * near, cfg) - q
+    occ = np.full(len(d), -np.inf)
+    used = fine
+    for k in range(3):
+        o1, o2 = (k + 1) % 3, (k + 2) % 3
+        for sgn in (1.0, -1.0):
+            a_r, a_s = sgn * d[:, k], sgn * smp[:, k]
+            rec = (a_r > 0) & (np.abs(d[:, o1]) <= a_r) & (np.abs(d[:, o2]) <= a_r)
+            lim = (1.0 + 8 * fine) * a_s
+            sm = (a_s > 0) & (np.abs(smp[:, o1]) <= lim) & (np.abs(smp[:, o2]) <= lim)
+            if not rec.any() or not sm.any():
+                continue
+            su, sv = smp[sm, o1] / a_s[sm], smp[sm, o2] / a_s[sm]
+            cell = max(fine, float(np.sqrt(np.ptp(su) * np.ptp(sv) * cfg.mesh_sample_density / sm.sum())))
+            occ[rec], cell = _field_map(smp[sm], su, sv, d[rec, o1] / a_r[rec], d[rec, o2] / a_r[rec], cell,
+                                        cfg.lamp_map_cells)
+            used = max(used, cell)
+    return occ, used
 
 
 def _defaults(cfg, bias_rel):

@@ -292,7 +292,7 @@ class CyclesRenderer(Renderer):
     def _describe(self, req: RenderRequest, model, seed: int, box, *, with_scene: bool = True) -> tuple[dict, dict]:
         """The Blender item and its arrays for one request (``scene``); without the
         scene's mesh when not ``with_scene`` (``render_alone``)."""
-        from zcomp_cli.scene.depthmesh import build_depth_mesh, has_geometry
+        from zcomp_cli.scene.depthmesh import has_geometry
         from zcomp_cli.scene.lightmodel import ShadowKind
 
         s = self._settings
@@ -311,14 +311,11 @@ class CyclesRenderer(Renderer):
         h = hashlib.sha256()
         for a in (d, n, albedo, valid, np.asarray(model.up, np.float64), np.float64(model.albedo_offset)):
             h.update(np.ascontiguousarray(a).tobytes())
-        h.update(repr([w.to_info() for w in model.walls]).encode())
+        h.update(repr(([w.to_info() for w in model.walls], sc.mesh_regions(d.shape, box))).encode())
         key = h.hexdigest()[:24] if with_scene else None
         arrays = self._meshes.get(key) if with_scene else {}
-        if arrays is None:
-            mesh = build_depth_mesh(d, n, req.camera, model.up, valid=valid, walls=sc.walls_behind(model.walls),
-                                    cfg=s.light.mesh)
-            diffuse = np.clip(albedo + float(model.albedo_offset), 0.0, 1.0)
-            arrays = sc.with_ground(sc.scene_mesh_arrays(mesh, diffuse, n_walls=len(model.walls)), mesh, diffuse)
+        if arrays is None:  # (a large frame: meshed finely only around the window)
+            arrays = sc.scene_arrays(d, n, albedo, valid, req.camera, model, box, cfg=s.light.mesh)
             # the last few scenes' meshes (a job's two passes): memory flat in the scenes
             self._meshes = {**dict(list(self._meshes.items())[-3:]), key: arrays}
         arrays = dict(arrays)

@@ -241,5 +241,86 @@ def scene_mesh_arrays(mesh, albedo: np.ndarray, n_walls: int = 0) -> dict[str, n
             "colors": colors[used].astype(np.float32)}
 
 
-__all__ = ["world_rows", "fill_behind", "walls_behind", "with_ground", "WALL_BEHIND_REL", "GROUND_HALF_M", "GROUND_HALF_HEIGHTS", "blender_uv", "sky_image", "probe_image", "lamps_of", "scene_mesh_arrays",
+# What the background's mesh holds (issue 50, defect 6: meshed whole, a 2048 x 1536
+# frame cost 4.9 GB though Cycles traces only a window). A frame of at most
+# FULL_MESH_PIXELS is meshed whole, as before; a larger one at full resolution only in
+# the window Cycles traces grown by WINDOW_CONTEXT of its size on each side (at least
+# MIN_CONTEXT_PX: the contact shadows and bounce that reach the window from just beside
+# it; a given light's long shadow has grown the window already), and every STEP-th pixel
+# elsewhere, STEP chosen so that the rest holds about COARSE_MESH_PIXELS vertices (what
+# lies far from the window shadows and lights it as a whole, not by its pixels' detail).
+# Blender holds about 0.9 KB a meshed pixel (measured at 2048 x 1536).
+FULL_MESH_PIXELS = 1 << 20
+COARSE_MESH_PIXELS = 1 << 18
+WINDOW_CONTEXT = 0.1
+MIN_CONTEXT_PX = 32
+
+
+def mesh_regions(shape, box) -> tuple[tuple[int, int, int, int], int] | None:
+    """((x0, y0, x1, y1) of the frame meshed at full resolution, the step of the coarse
+    mesh elsewhere), or None when the whole frame is meshed (``box`` None: no window;
+    the frame small enough; the fine region the whole frame)."""
+    H, W = shape
+    if box is None or H * W <= FULL_MESH_PIXELS:
+        return None
+    x0, y0, x1, y1 = (int(v) for v in box)
+    gx = max(MIN_CONTEXT_PX, int(math.ceil(WINDOW_CONTEXT * (x1 - x0))))
+    gy = max(MIN_CONTEXT_PX, int(math.ceil(WINDOW_CONTEXT * (y1 - y0))))
+    fine = (max(0, x0 - gx), max(0, y0 - gy), min(W, x1 + gx), min(H, y1 + gy))
+    if fine == (0, 0, W, H):
+        return None
+    return fine, max(2, int(math.ceil(math.sqrt(H * W / COARSE_MESH_PIXELS))))
+
+
+def scene_arrays(depth, normals, albedo, valid, camera, model, box=None, cfg=None) -> dict[str, np.ndarray]:
+    """The background's mesh as Blender gets it (``scene_mesh_arrays`` and the ground
+    beyond the frame, ``with_ground``), over the whole frame or, for a large one, at full
+    resolution around the window ``box`` Cycles traces and coarse elsewhere
+    (``mesh_regions``). ``model``: the light model (its up, walls and albedo offset);
+    ``cfg``: the mesh's constants (``scene.config.MeshConfig``)."""
+    from zcomp_cli.scene.depthmesh import build_depth_mesh
+
+    diffuse = np.clip(albedo + float(model.albedo_offset), 0.0, 1.0)
+    walls = walls_behind(model.walls)
+    regions = mesh_regions(np.shape(depth), box)
+    if regions is None:
+        mesh = build_depth_mesh(depth, normals, camera, model.up, valid=valid, walls=walls, cfg=cfg)
+        return with_ground(scene_mesh_arrays(mesh, diffuse, n_walls=len(model.walls)), mesh, diffuse)
+    (fx0, fy0, fx1, fy1), step = regions
+    # the rest of the frame, every step-th pixel (its camera: the same rays through them),
+    # less what the fine region holds (one coarse cell of overlap: no crack between them)
+    c = step // 2
+    rows, cols = np.arange(c, depth.shape[0], step), np.arange(c, depth.shape[1], step)
+    K = np.array(camera.K, np.float64)
+    K[0, 0] /= step
+    K[1, 1] /= step
+    K[0, 2] = (K[0, 2] - c - 0.5) / step + 0.5
+    K[1, 2] = (K[1, 2] - c - 0.5) / step + 0.5
+    from zcomp_cli.camera import Camera
+
+    coarse_cam = Camera(K, len(cols), len(rows))
+    inner = ((rows[:, None] >= fy0 + step) & (rows[:, None] < fy1 - step)
+             & (cols[None, :] >= fx0 + step) & (cols[None, :] < fx1 - step))
+    sub = np.ix_(rows, cols)
+    coarse = build_depth_mesh(depth[sub], normals[sub], coarse_cam, model.up, valid=valid[sub] & ~inner,
+                              walls=walls, cfg=cfg)
+    out = with_ground(scene_mesh_arrays(coarse, diffuse[sub], n_walls=len(model.walls)), coarse, diffuse[sub])
+    K = np.array(camera.K, np.float64)
+    K[0, 2] -= fx0
+    K[1, 2] -= fy0
+    crop = np.s_[fy0:fy1, fx0:fx1]
+    fine = build_depth_mesh(depth[crop], normals[crop], Camera(K, fx1 - fx0, fy1 - fy0), model.up,
+                            valid=valid[crop], cfg=cfg)
+    return _joined(out, scene_mesh_arrays(fine, diffuse[crop]))
+
+
+def _joined(a: dict, b: dict) -> dict:
+    """Two meshes' arrays as one (``b``'s faces renumbered after ``a``'s vertices)."""
+    n = len(a["vertices"])
+    return {"vertices": np.concatenate([a["vertices"], b["vertices"]]),
+            "faces": np.concatenate([a["faces"], (b["faces"] + n).astype(np.int32)]),
+            "colors": np.concatenate([a["colors"], b["colors"]])}
+
+
+__all__ = ["world_rows", "mesh_regions", "scene_arrays", "fill_behind", "walls_behind", "with_ground", "WALL_BEHIND_REL", "GROUND_HALF_M", "GROUND_HALF_HEIGHTS", "blender_uv", "sky_image", "probe_image", "lamps_of", "scene_mesh_arrays",
            "SUN_WATTS_PER_SHADING", "LAMP_WATTS_PER_SHADING"]
