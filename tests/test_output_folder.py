@@ -304,12 +304,22 @@ def test_resume_removes_litter_of_killed_runs(project, tmp_path_factory):
     live.mkdir(exist_ok=True)
     tmp_png = out / "000_room_ball" / ".composite.k2j3.tmp.png"
     tmp_png.write_bytes(b"half")
+    # OUT/lights is shared by runs side by side: a dead writer's temporary goes, a live
+    # one's (this process: imageio.atomic_path's name carries the writer's pid) stays
+    (out / "lights").mkdir(exist_ok=True)
+    dead_light = out / "lights" / f".room.{dead.pid}-q1w2e3.tmp.yaml"
+    live_light = out / "lights" / f".room.{os.getpid()}-r4t5y6.tmp.yaml"
+    dead_light.write_text("half")
+    live_light.write_text("half")
     try:
         r = _run(project / "jobs.yaml", out, "--resume")
         assert r.exit_code == 0
         assert not tmp_job.exists() and not work.exists() and not tmp_png.exists()
+        assert not dead_light.exists(), "a killed writer's light temporary was left"
+        assert live_light.exists(), "a live writer's light temporary was removed"
         assert live.exists(), "a live process's temporary folder was removed"
     finally:
+        live_light.unlink(missing_ok=True)
         shutil.rmtree(live, ignore_errors=True)
 
 

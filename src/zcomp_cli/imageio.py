@@ -35,7 +35,9 @@ def atomic_path(path, suffix: str | None = None):
     """Yield a temporary path beside ``path``; on success move it over ``path``.
 
     The temporary name keeps the extension so that writers that pick the format from
-    the name (OpenImageIO, matplotlib) still work.
+    the name (OpenImageIO, matplotlib) still work, and names the writing process
+    (``.<stem>.<pid>-<random>.tmp<ext>``) so that a folder several runs write into can
+    tell a killed writer's litter from a live one's (``outguard.clean_dead_writers``).
     """
     from zcomp_cli.interrupts import deferred
 
@@ -44,7 +46,7 @@ def atomic_path(path, suffix: str | None = None):
     try:
         with deferred():  # an interrupt waits until the temporary is ours to remove
             path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{suffix}", dir=path.parent)
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.{os.getpid()}-", suffix=f".tmp{suffix}", dir=path.parent)
             os.close(fd)
     except OSError as exc:
         raise OutputError(f"cannot write: {exc.strerror or exc}", where=str(path)) from exc

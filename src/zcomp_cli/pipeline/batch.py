@@ -30,8 +30,8 @@ from zcomp_cli.pipeline.executor import Executor, LocalExecutor
 from zcomp_cli.pipeline.manifest import Manifest, RendererSpec
 from zcomp_cli.pipeline.outputs import BatchSummary, JobStatus, plan_outputs, write_summary
 from zcomp_cli.pipeline.selection import select_jobs, shard_jobs
-from zcomp_cli.pipeline.stages import (BatchContext, JobWork, Progress, SceneStore, by_scene, load_object_bundle,
-                                       render_objects, resolve_poses)
+from zcomp_cli.pipeline.stages import (LIGHTS_DIR, BatchContext, JobWork, Progress, SceneStore, by_scene,
+                                       load_object_bundle, render_objects, resolve_poses)
 
 
 log = logging.getLogger(__name__)
@@ -98,8 +98,8 @@ def run_batch(
     finished jobs are skipped and ``redo_changed`` redoes those made from other
     inputs (else they are refused)."""
     from zcomp_cli.cache import cache_root
-    from zcomp_cli.pipeline.outguard import (DigestCache, OutputLock, clean_job_folder,
-                                             sweep_dead_temporaries)
+    from zcomp_cli.pipeline.outguard import (DigestCache, OutputLock, clean_dead_writers,
+                                             clean_job_folder, sweep_dead_temporaries)
 
     t_batch = time.perf_counter()
     out_root = Path(out_root)
@@ -127,6 +127,7 @@ def run_batch(
         with OutputLock(out_root, manifest.path, _manifest_id(manifest), [j.name for j in jobs]):
             for j in jobs:  # ours now: what a killed run left in them can go
                 clean_job_folder(out_root / j.name)
+            clean_dead_writers(out_root / LIGHTS_DIR)  # shared by runs: only dead writers' litter
             sweep_dead_temporaries(cache_root(cache_dir))
             digests = DigestCache(_digest_store(cache_dir))
             to_run, skipped = plan_outputs(manifest, jobs, out_root, spec, ctx.samples, resume=resume,

@@ -28,6 +28,7 @@ import fcntl
 import hashlib
 import json
 import os
+import re
 import shutil
 import tempfile
 import threading
@@ -376,6 +377,28 @@ def clean_job_folder(job_dir: Path) -> int:
                 with contextlib.suppress(OSError):
                     p.unlink()
                     n += 1
+    return n
+
+
+# ``imageio.atomic_path``'s temporary name: ``.<stem>.<pid>-<random>.tmp<ext>``
+# (mkstemp's random part has no dot)
+_WRITER_TMP = re.compile(r"^\..*\.(\d+)-[^.]*\.tmp")
+
+
+def clean_dead_writers(folder: Path) -> int:
+    """Remove the temporary files (``imageio.atomic_path``) that writers no longer alive
+    left in ``folder``, a folder shared by runs side by side (``OUT/lights``): a live
+    run's temporary is kept, and so is one whose name does not say its writer."""
+    n = 0
+    folder = Path(folder)
+    if not folder.is_dir() or folder.is_symlink():
+        return 0
+    for p in folder.iterdir():
+        m = _WRITER_TMP.match(p.name)
+        if m and p.is_file() and not p.is_symlink() and not pid_alive(int(m.group(1))):
+            with contextlib.suppress(OSError):
+                p.unlink()
+                n += 1
     return n
 
 
