@@ -163,8 +163,8 @@ class ProbeTerm(Term):
 
     def columns(self, ctx):
         pp, k = ctx.pp, float(self.node.strength)
-        self.cols = [Column(at.sky_atom_values(pp.fp, self.lights.sky_radiance_sh, pp.sky_vis), np.full(3, k),
-                            kind="sky")]
+        self.cols = [Column(at.sky_atom_values(pp.fp, self.lights.sky_radiance_sh, pp.sky_vis,
+                                               self.lights.sky_radiance_at), np.full(3, k), kind="sky")]
         self.sources = []
         for src in self.lights.sources:
             col = sr.sun_column(pp.fp, src.direction, src.radius_deg, ctx.cfg, ctx.seed)
