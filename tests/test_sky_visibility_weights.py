@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from zcomp_cli import equirect
-from zcomp_cli.scene import sh
 from zcomp_cli.scene.planes import Wall, walls_block
 from zcomp_cli.scene.config import ProbeConfig
 from zcomp_cli.scene.probe import split_probe
