@@ -63,9 +63,15 @@ def test_an_interrupted_session_leaves_no_log(fake):
         if ev.get("event") == "start":
             os.kill(os.getpid(), signal.SIGINT)
 
-    s = runner.BlenderSession(fake)
-    s.run([{"id": "ok"}, {"id": "fine", "fail": True}])  # an earlier failure: the log was to be kept
-    with pytest.raises(KeyboardInterrupt):
-        s.run([{"id": "a", "hang": True}], on_event=interrupt_on_start)
-    s.close()
+    # Python's own SIGINT handler, whatever the launcher left (a shell's background job
+    # starts with SIGINT ignored, and the interrupt would then never come)
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        s = runner.BlenderSession(fake)
+        s.run([{"id": "ok"}, {"id": "fine", "fail": True}])  # an earlier failure: the log was to be kept
+        with pytest.raises(KeyboardInterrupt):
+            s.run([{"id": "a", "hang": True}], on_event=interrupt_on_start)
+        s.close()
+    finally:
+        signal.signal(signal.SIGINT, before)
     assert not s.log_path.exists()

@@ -125,6 +125,26 @@ def test_nnls_known_values_outliers_and_exposure_invariance():
     assert r3.weights[1][0] == 0.0
 
 
+def test_an_unseen_shadow_keeps_the_sky_an_exposure_atom_ties_to_its_sun():
+    """One exposure over a given sky and a given sun (one atom): in the shadow of
+    something the frame does not show a pixel keeps the sky (``Atom.kept``), so those
+    pixels tell the unseen shadow apart and the exposure is the lit ones'."""
+    rng = np.random.default_rng(3)
+    N = 1200
+    sky = rng.uniform(0.2, 0.4, N)
+    sun = rng.uniform(0.8, 1.2, N)
+    shadow = np.arange(N) < 0.45 * N  # near half the pixels: an off-frame wall's shadow
+    e = 1.7
+    y = e * (sky + np.where(shadow, 0.0, sun)) * rng.normal(1.0, 0.03, N)
+    train = np.arange(N) % 2 == 0
+    prior = float(np.median(y / (sky + sun)))
+    tied = Atom("exposure", sky + sun, prior=prior, direct=True, kept=sky)
+    r = fit([tied], y, train=train, cfg=SOLVER)
+    assert abs(r.weights[0][0] - e) / e < 0.03, r.weights[0][0]
+    assert np.allclose(tied.in_unseen_shadow(), sky) and np.allclose(Atom("s", sky).in_unseen_shadow(), sky)
+    assert np.allclose(Atom("d", sun, direct=True).in_unseen_shadow(), 0.0)
+
+
 def test_prior_decides_only_what_the_pixels_cannot():
     N = 200
     a = np.ones(N)

@@ -308,6 +308,28 @@ def test_values_override_the_table(sweep):
             sweep.parse_values(bad)
 
 
+def test_the_objects_ray_knobs_are_set_inside_their_settings_group(sweep):
+    cs = sweep.plan_configs((64, 48), quick=True, knobs=("bounce_rays", "reflect_rays", "march_steps"))
+    by = {c.key: c.settings for c in cs}
+    assert by["physical_bounce_rays0"] == {"transport": {"bounce_rays": 0}}
+    assert by["physical_reflect_rays0"] == {"gloss": {"reflect_rays": 0}}
+    assert by["physical_march_steps8"] == {"march_steps": 8}
+    d = sweep.physical_defaults()
+    from zcomp_cli.renderers.physical.settings import PhysicalSettings
+
+    ps = PhysicalSettings()
+    assert d["bounce_rays"] == ps.transport.bounce_rays and d["reflect_rays"] == ps.gloss.reflect_rays
+    # the renderer takes each as it is written into the manifest
+    from zcomp_cli.renderers.physical.renderer import PhysicalRenderer
+
+    for c in cs:
+        r = PhysicalRenderer(**c.settings)
+        for group, vals in c.settings.items():
+            got = r.settings()[group] if isinstance(vals, dict) else {group: r.settings()[group]}
+            for k, v in (vals.items() if isinstance(vals, dict) else [(group, vals)]):
+                assert got[k] == v
+
+
 def test_cycles_sweep_plans_samples_with_and_without_the_denoiser():
     from zcomp_cli.benchsuite.sweep import plan_configs
 

@@ -43,6 +43,7 @@ def atomic_path(path, suffix: str | None = None):
 
     path = Path(path)
     suffix = suffix if suffix is not None else path.suffix
+    tmp = None
     try:
         with deferred():  # an interrupt waits until the temporary is ours to remove
             path.parent.mkdir(parents=True, exist_ok=True)
@@ -50,6 +51,12 @@ def atomic_path(path, suffix: str | None = None):
             os.close(fd)
     except OSError as exc:
         raise OutputError(f"cannot write: {exc.strerror or exc}", where=str(path)) from exc
+    except BaseException:
+        # the interrupt held while it was made is raised as the block ends: ours to remove
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+        raise
     try:
         yield Path(tmp)
         if os.path.getsize(tmp) == 0:

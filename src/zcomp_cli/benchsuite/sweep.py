@@ -27,7 +27,9 @@ by the same code: a snapshot of the zcomp_cli package taken at the start
 Knobs:
 * physical: working ``resolution`` (native, 3/4, 1/2, keeping the aspect),
   ``march_steps``, ``n_light_candidates``, ``max_resolution`` (of the light estimation),
-  the light fit's ``cone_samples`` and ``estimate_march_steps``;
+  the light fit's ``cone_samples`` and ``estimate_march_steps``, and the object's rays
+  (``transport.light_samples``, ``transport.sky_rays``, ``transport.bounce_rays``,
+  ``gloss.reflect_rays``: what the path tracer's samples stand beside);
 * zerocomp: DDIM ``steps`` at full frame and with ``crop``, only when ZCOMP_CONTROLNET
   and ZCOMP_SD_BASE name existing folders (otherwise the skip and its reason are printed);
 * cycles: path ``samples`` with Open Image Denoise (``samples_denoised``) and without
@@ -78,7 +80,16 @@ PHYSICAL_KNOBS_FULL = {
     # accuracy for time): directions per pixel over a light's cone, steps of its march
     "cone_samples": [2, 4, 8, 16],
     "estimate_march_steps": [8, 16, 32],
+    # the object's rays (issue 48): over each light's disc, toward the sky, the bounce,
+    # the glossy reflection (0: none; the reflection falls back to the prefiltered sky)
+    "light_samples": [4, 8, 16, 32],
+    "sky_rays": [8, 16, 32, 64],
+    "bounce_rays": [0, 4, 16, 32],
+    "reflect_rays": [0, 2, 8, 16],
 }
+# the knobs the renderer takes inside one of its settings' groups ({group: {knob: v}})
+NESTED_KNOBS = {"light_samples": "transport", "sky_rays": "transport", "bounce_rays": "transport",
+                "reflect_rays": "gloss"}
 PHYSICAL_KNOBS_QUICK = {
     "resolution": [1.0, 0.5],
     "march_steps": [8, 32],
@@ -86,6 +97,10 @@ PHYSICAL_KNOBS_QUICK = {
     "max_resolution": [96, 160],
     "cone_samples": [4, 8],
     "estimate_march_steps": [8, 16],
+    "light_samples": [4, 16],
+    "sky_rays": [8, 32],
+    "bounce_rays": [0, 16],
+    "reflect_rays": [0, 8],
 }
 ZEROCOMP_STEPS_FULL = [1, 2, 4, 8, 20]
 ZEROCOMP_STEPS_QUICK = [1, 4]
@@ -141,7 +156,15 @@ def physical_defaults() -> dict:
     s = PhysicalRenderer().settings()
     s.pop("name", None)
     light = s.get("light", {})
-    return {**{k: v for k, v in light.items() if not isinstance(v, dict)}, **s}
+    nested = {k: s[g][k] for k, g in NESTED_KNOBS.items() if k in s.get(g, {})}
+    return {**{k: v for k, v in light.items() if not isinstance(v, dict)}, **nested, **s}
+
+
+def knob_settings(knob: str, value) -> dict:
+    """The renderer mapping that sets one physical ``knob``: ``{knob: value}``, or
+    ``{group: {knob: value}}`` for a knob of a settings group (``NESTED_KNOBS``)."""
+    group = NESTED_KNOBS.get(knob)
+    return {knob: value} if group is None else {group: {knob: value}}
 
 
 def zerocomp_weights() -> tuple[dict | None, str]:
@@ -213,7 +236,7 @@ def plan_configs(native: tuple[int, int], *, quick: bool = False, knobs=ALL_KNOB
                     if v == defaults[knob]:
                         default.series.append((knob, str(v)))
                         continue
-                    configs.append(Config(f"physical_{knob}{v}", "physical", settings={knob: v},
+                    configs.append(Config(f"physical_{knob}{v}", "physical", settings=knob_settings(knob, v),
                                           series=[(knob, str(v))]))
     if "zerocomp" in knobs and zerocomp is not None:
         for crop in (False, True):

@@ -57,9 +57,16 @@ def _temporary_log() -> Path:
     from zcomp_cli.interrupts import deferred
 
     # the pid in the name lets a later run remove it if this process is killed
-    with deferred():
-        fd, tmp = tempfile.mkstemp(prefix=f"{LOG_PREFIX}{os.getpid()}-", suffix=".log")
-        os.close(fd)
+    tmp = None
+    try:
+        with deferred():
+            fd, tmp = tempfile.mkstemp(prefix=f"{LOG_PREFIX}{os.getpid()}-", suffix=".log")
+            os.close(fd)
+    except BaseException:  # an interrupt held while it was made, raised as the block ends
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+        raise
     return Path(tmp)
 
 
@@ -78,8 +85,14 @@ def _spawn(path: Path, arg: str, **popen_kw) -> subprocess.Popen:
     env = dict(os.environ)
     env.setdefault("PYTHONUNBUFFERED", "1")
     env[PARENT_ENV] = str(os.getpid())
-    with deferred():
-        tmp = tempfile.mkdtemp(prefix=f"{TMP_PREFIX}{os.getpid()}-")
+    tmp = None
+    try:
+        with deferred():
+            tmp = tempfile.mkdtemp(prefix=f"{TMP_PREFIX}{os.getpid()}-")
+    except BaseException:  # an interrupt held while it was made, raised as the block ends
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+        raise
     env["TMPDIR"] = env["TMP"] = env["TEMP"] = tmp
     try:
         # -P: no current folder on the child's sys.path (launch puts the script's folder there)

@@ -180,14 +180,17 @@ def sky_lobes(frame) -> list[tuple[str, np.ndarray]]:
     return out
 
 
-def sky_atom_values(fp: FitPixels, radiance_sh: np.ndarray, samples) -> np.ndarray:
+def sky_atom_values(fp: FitPixels, radiance_sh: np.ndarray, samples, radiance_at=None) -> np.ndarray:
     """The shading a sky of SH radiance ``radiance_sh`` ((9,) grey: (N,); (9, 3): (N, 3))
     gives the fit pixels, times its visible share through ``samples``
-    (``sky_visibility``)."""
+    (``sky_visibility``), each direction weighed by the SH radiance there, or by
+    ``radiance_at`` (directions (M, 3) -> (M, 3)) where the sky's map is known (a
+    probe's: ``probe.ProbeLights.sky_radiance_at``), as the synthesis weighs it."""
     c = np.asarray(radiance_sh, np.float64)
     grey = c.ndim == 1
     c = c.reshape(9, -1)
-    s = np.maximum(sh.evaluate(sh.shading_coeffs(c), fp.normals), 0.0) * weighted_visibility(*samples, c)
+    s = np.maximum(sh.evaluate(sh.shading_coeffs(c), fp.normals), 0.0) * weighted_visibility(
+        *samples, c if radiance_at is None else radiance_at)
     return s[:, 0] if grey else s
 
 

@@ -163,8 +163,8 @@ class ProbeTerm(Term):
 
     def columns(self, ctx):
         pp, k = ctx.pp, float(self.node.strength)
-        self.cols = [Column(at.sky_atom_values(pp.fp, self.lights.sky_radiance_sh, pp.sky_vis), np.full(3, k),
-                            kind="sky")]
+        self.cols = [Column(at.sky_atom_values(pp.fp, self.lights.sky_radiance_sh, pp.sky_vis,
+                                               self.lights.sky_radiance_at), np.full(3, k), kind="sky")]
         self.sources = []
         for src in self.lights.sources:
             col = sr.sun_column(pp.fp, src.direction, src.radius_deg, ctx.cfg, ctx.seed)
@@ -404,15 +404,27 @@ class _Tied:
 
     @classmethod
     def of(cls, name: str, parts: list, prior=None, direct: bool = False) -> "_Tied":
-        values = 0
+        """The atom of ``parts``; a direct one keeps its parts that are not direct (the
+        sky tied to a sun, the probe's sky under one exposure with a given sun) in an
+        unseen shadow (``solver.Atom.kept``)."""
+        values, kept = 0, 0
+        coloured = any(np.ndim(m) == 1 for _, m, _ in parts) or any(np.ndim(c.values) == 2 for c, _, _ in parts)
         for c, m, d in parts:
             v = np.asarray(c.values, np.float64)
             if np.ndim(m) == 1:  # a coloured factor (an absolute strength): the atom is coloured
                 v = (v[:, None] if v.ndim == 1 else v) * np.asarray(m)[None]
-                values = values + (v if d == 1.0 else v / d)
+                v = v if d == 1.0 else v / d
             else:
-                values = values + (v if (m == 1.0 and d == 1.0) else m * v / d)
-        return cls(parts, Atom(name, values, prior=prior, direct=direct))
+                v = v if (m == 1.0 and d == 1.0) else m * v / d
+            if coloured and v.ndim == 1:
+                v = np.repeat(v[:, None], 3, 1)
+            values = values + v
+            if not c.direct:
+                kept = kept + v
+        keep = None
+        if direct and not np.isscalar(kept):
+            keep = np.broadcast_to(kept, np.shape(values)).astype(np.float64)
+        return cls(parts, Atom(name, values, prior=prior, direct=direct, kept=keep))
 
 
 def _atoms(ctx: Context, terms: list[Term], level: np.ndarray) -> tuple[list[_Tied], float, float, dict]:

@@ -67,13 +67,24 @@ def unseen_loss(sigma):
 class Atom:
     """One column of the dictionary: ``values`` (N,) grey or (N, 3) coloured; ``prior``
     the (C,) weight the ridge pulls it toward (None: 0); ``direct``: an unseen occluder
-    can hide it (a sun's or a lamp's light, not the sky's: module docstring); ``name``
-    for messages only."""
+    can hide it (a sun's or a lamp's light, not the sky's: module docstring); ``kept``:
+    where it is direct, what an unseen shadow leaves of its values (same shape: an atom
+    that ties the sky to a sun, or an exposure over both, keeps its sky; None: nothing);
+    ``name`` for messages only."""
 
     name: str
     values: np.ndarray
     prior: object = None
     direct: bool = False
+    kept: np.ndarray | None = None
+
+    def in_unseen_shadow(self) -> np.ndarray:
+        """Its values in an unseen shadow: ``kept`` (0 where none), all of them where
+        it is not direct."""
+        if not self.direct:
+            return np.asarray(self.values, np.float64)
+        return np.zeros_like(np.asarray(self.values, np.float64)) if self.kept is None \
+            else np.asarray(self.kept, np.float64)
 
     @property
     def coloured(self) -> bool:
@@ -101,14 +112,15 @@ def robust_scale(r: np.ndarray, data_scale: float, cfg: SolverConfig | None = No
     return max(cfg.mad_to_sigma * float(np.median(np.abs(r))), cfg.sigma_floor * data_scale, 1e-12)
 
 
-def _design(atoms, channels: int) -> tuple[np.ndarray, list[tuple[int, int]]]:
+def _design(atoms, channels: int, values=None) -> tuple[np.ndarray, list[tuple[int, int]]]:
     """Stack the atoms into a (N * C, P) design for C channels: a grey atom has C
-    columns (one per channel), a coloured one a single column. Returns (X, per atom the
-    (first column, number of columns))."""
+    columns (one per channel), a coloured one a single column; ``values`` (a function
+    of an atom: its (N,) or (N, 3) values; None: ``Atom.values``). Returns (X, per atom
+    the (first column, number of columns))."""
     N = len(np.atleast_1d(atoms[0].values))
     cols, spans = [], []
     for a in atoms:
-        v = np.asarray(a.values, np.float64)
+        v = np.asarray(a.values if values is None else values(a), np.float64)
         if v.ndim == 2:
             spans.append((sum(c.shape[1] for c in cols), 1))
             cols.append(v[:, :channels].T.reshape(-1, 1) if channels > 1 else v[:, :1])
@@ -168,12 +180,12 @@ def fit(atoms, target: np.ndarray, *, train: np.ndarray | None = None, ridge: fl
                 if k > 1 else float(np.mean(a.prior))
     col_scale = np.sqrt(np.maximum((X[tr] ** 2).mean(0), 1e-30))
     lam = np.sqrt(max(ridge, 0.0) * tr.sum()) * col_scale
-    is_direct = np.zeros(X.shape[1], bool)
-    for a, (c0, k) in zip(atoms, spans):
-        is_direct[c0:c0 + k] = bool(a.direct)
     Xt, yt = X[tr], yv[tr]
-    Xs = np.where(is_direct[None], 0.0, Xt)  # an unseen shadow: the sky alone
-    mix = bool(is_direct.any())
+    # an unseen shadow: the sky alone (what each atom keeps there); Xd the direct part
+    Xd = X - _design(atoms, C, Atom.in_unseen_shadow)[0]
+    Xdt = Xd[tr]
+    Xs = Xt - Xdt
+    mix = any(a.direct for a in atoms)
     beta = p0.copy() if (mix and p0.any()) else np.zeros(X.shape[1])
     sigma = None
     pi = cfg.unseen_init if mix else 0.0
@@ -184,9 +196,9 @@ def fit(atoms, target: np.ndarray, *, train: np.ndarray | None = None, ridge: fl
         # a shadow the frame does not show would be an outlier, and it would stay there
         r0 = yt - Xt @ p0
         s0 = robust_scale(r0, scale, cfg)
-        resp = unseen_responsibility(r0, Xt[:, is_direct] @ p0[is_direct], s0, pi, cfg.huber_c)
+        resp = unseen_responsibility(r0, Xdt @ p0, s0, pi, cfg.huber_c)
         w_lit = huber_weights(r0, s0, cfg.huber_c)[0] * resp
-        w_sh = huber_weights(r0 + Xt[:, is_direct] @ p0[is_direct], s0, cfg.huber_c)[0] * (1.0 - resp)
+        w_sh = huber_weights(r0 + Xdt @ p0, s0, cfg.huber_c)[0] * (1.0 - resp)
     for _ in range(cfg.irls_iters):
         if w_lit is None:
             w_lit, w_sh = np.ones(len(yt)), np.zeros(len(yt))
@@ -194,7 +206,7 @@ def fit(atoms, target: np.ndarray, *, train: np.ndarray | None = None, ridge: fl
         b = np.concatenate([yt * np.sqrt(w_lit), yt * np.sqrt(w_sh), lam * p0])
         beta, _ = nnls(A, b, maxiter=50 * A.shape[1])
         r = yt - Xt @ beta
-        d = Xt[:, is_direct] @ beta[is_direct] if mix else np.zeros_like(r)
+        d = Xdt @ beta if mix else np.zeros_like(r)
         if mix:
             resp = unseen_responsibility(r, d, sigma if sigma is not None else robust_scale(r, scale, cfg), pi, cfg.huber_c)
         near = np.where(resp >= 0.5, r, r + d)  # each pixel's residual under its likelier case
@@ -207,7 +219,7 @@ def fit(atoms, target: np.ndarray, *, train: np.ndarray | None = None, ridge: fl
     r_all = yv - X @ beta
     _, loss = huber_weights(r_all, sigma, cfg.huber_c)
     if mix:
-        d_all = X[:, is_direct] @ beta[is_direct]
+        d_all = Xd @ beta
         g = unseen_responsibility(r_all, d_all, sigma, pi, cfg.huber_c)
         # a pixel in an unseen shadow costs its residual against the sky alone, and the
         # one-sigma price of being a shadow nothing in the frame casts

@@ -68,8 +68,12 @@ class _FileLock:
     def try_acquire(self) -> dict | None:
         """Take the lock; None on success, else what the current holder wrote. Whole or
         not at all: an interrupt waits (a lock file opened but not recorded would stay)."""
-        with deferred():
-            return self._try_acquire()
+        try:
+            with deferred():
+                return self._try_acquire()
+        except BaseException:  # an interrupt held meanwhile: a lock taken is given back
+            self.release()
+            raise
 
     def _try_acquire(self) -> dict | None:
         for _ in range(20):

@@ -53,7 +53,9 @@ class ProbeLights:
     (``sky_radiance_sh`` (9, 3), upper hemisphere, probe units); ``name`` for reports;
     ``residual`` (H, W, 3) the map with each source's texels set to the sky's level,
     placed by ``frame``, ``convention`` and ``rotation_deg`` (what a glossy reflection
-    looks up: the sources are reflected each as a light)."""
+    looks up: the sources are reflected each as a light); ``sky_map`` (h, w, 3) the sky
+    (the residual above the horizon, 0 below) at ``ProbeConfig.sky_width``, what the SH
+    is projected from and what ``sky_radiance_at`` reads."""
 
     sources: tuple
     sky_radiance_sh: np.ndarray
@@ -62,6 +64,29 @@ class ProbeLights:
     frame: np.ndarray
     convention: str
     rotation_deg: float
+    sky_map: np.ndarray | None = None
+
+    def sky_radiance_at(self, directions: np.ndarray) -> np.ndarray:
+        """(..., 3) the sky's radiance (probe units) toward camera-frame unit
+        ``directions`` (..., 3): ``sky_map`` bilinear (wrapping in longitude), 0 below
+        the horizon; the SH sky where no map is kept. What weighs the sky's directions
+        where its visibility is measured (``skyvis.weighted_visibility``): a sky
+        brightest low behind a wall is hidden by it as much as it is bright there, which
+        an order-2 SH, spread over the hemisphere, does not tell."""
+        d = np.asarray(directions, np.float64)
+        if self.sky_map is None:
+            return np.maximum(sh.basis(d.reshape(-1, 3)) @ self.sky_radiance_sh, 0.0).reshape(d.shape[:-1] + (3,))
+        m = self.sky_map
+        h, w = m.shape[:2]
+        u, v = equirect.direction_to_uv(d.reshape(-1, 3), self.frame, self.convention, self.rotation_deg)
+        x = np.asarray(u) * w - 0.5
+        y = np.clip(np.asarray(v) * h - 0.5, 0, h - 1)
+        x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+        fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+        y1 = np.minimum(y0 + 1, h - 1)
+        xa, xb = x0 % w, (x0 + 1) % w
+        out = ((1 - fy) * ((1 - fx) * m[y0, xa] + fx * m[y0, xb]) + fy * ((1 - fx) * m[y1, xa] + fx * m[y1, xb]))
+        return out.reshape(d.shape[:-1] + (3,))
 
 
 def read_probe(path, cfg: ProbeConfig | None = None) -> np.ndarray:
@@ -167,8 +192,10 @@ def split_probe(img: np.ndarray, frame, *, convention: str = equirect.DEFAULT_CO
     m = (d_s @ up) > 0
     sky_sh = sh.project(d_s[m], small[m], om_s[m])
     work.setflags(write=False)
+    small = np.where(m[..., None], small, 0.0)
+    small.setflags(write=False)
     return ProbeLights(sources=tuple(sources), sky_radiance_sh=sky_sh, name=name, residual=work, frame=frame,
-                       convention=convention, rotation_deg=float(rotation_deg))
+                       convention=convention, rotation_deg=float(rotation_deg), sky_map=small)
 
 
 def load_probe(path, frame, *, convention: str = equirect.DEFAULT_CONVENTION,

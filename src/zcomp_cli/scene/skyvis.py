@@ -57,16 +57,27 @@ def sky_samples(points: np.ndarray, normals: np.ndarray, ys: np.ndarray, xs: np.
     return np.stack(dirs), np.stack(vis)
 
 
-def weighted_visibility(dirs: np.ndarray, vis: np.ndarray, radiance_sh: np.ndarray) -> np.ndarray:
-    """The visible share of a sky of SH radiance ``radiance_sh`` (9, C) from the samples
-    of ``sky_samples``: sum_k L(w_k) V_k / sum_k L(w_k) (cosine-distributed samples, so
-    this is the irradiance's share): (N, C) in [0, 1]; 1 where the sky sends nothing."""
+def weighted_visibility(dirs: np.ndarray, vis: np.ndarray, radiance, *, sums: bool = False) -> np.ndarray:
+    """The visible share of a sky from the samples of ``sky_samples``: sum_k L(w_k) V_k /
+    sum_k L(w_k) (cosine-distributed samples, so this is the irradiance's share): (N, C)
+    in [0, 1]; 1 where the sky sends nothing. ``radiance``: the sky's SH radiance
+    (9, C), or a function of unit directions (M, 3) -> radiance (M, C) (a probe's map,
+    ``probe.ProbeLights.sky_radiance_at``): each direction weighs as much as the sky is
+    bright there (a weight not finite or negative: none). ``sums``: (N, 2C) the sums sum_k L V and sum_k L instead, for a caller
+    that pools neighbours before dividing (a share from a few samples, where one
+    bright direction decides it, is biased; a ratio of pooled sums is not)."""
     from zcomp_cli.scene import sh
 
     K, N = vis.shape
-    L = np.maximum(sh.basis(dirs.reshape(-1, 3)) @ np.asarray(radiance_sh, np.float64), 0.0).reshape(K, N, -1)
+    if callable(radiance):
+        L = np.asarray(radiance(dirs.reshape(-1, 3)), np.float64)
+        L = np.maximum(np.nan_to_num(L, nan=0.0, posinf=0.0, neginf=0.0), 0.0).reshape(K, N, -1)
+    else:
+        L = np.maximum(sh.basis(dirs.reshape(-1, 3)) @ np.asarray(radiance, np.float64), 0.0).reshape(K, N, -1)
     num = (L * vis[..., None]).sum(0)
     den = L.sum(0)
+    if sums:
+        return np.concatenate([num, den], 1)
     return np.where(den > 1e-12, num / np.maximum(den, 1e-300), 1.0)
 
 

@@ -158,12 +158,14 @@ class PhysicalRenderer(Renderer):
         return img, layer
 
     def _sky_visibility(self, d, n, todo, camera, occluder, geo_all, albedo_mean, model: LightModel, unknown=None):
-        """(the visible share of ``model``'s sky (its SH radiance weighs the directions, its
-        walls occlude) at the todo pixels (M, 3), the scene-only occluder mask or None):
-        the scene's screen-space occlusion on a stride-2 grid (4 on large frames), each
-        direction weighted by the sky's radiance there (``weighted_visibility``),
-        class-aware blur; the object's mesh occlusion at every pixel (``_object_sky``);
-        the bounce off the occluders."""
+        """(the visible share of ``model``'s sky (its radiance weighs the directions: a
+        given probe's map, else its SH; its walls occlude) at the todo pixels (M, 3), the
+        scene-only occluder mask or None): the scene's screen-space occlusion on a
+        stride-2 grid (4 on large frames), each direction weighted by the sky's radiance
+        there (``weighted_visibility``'s sums, pooled by a class-aware blur before they
+        are divided: a share from a pixel's few directions, where one bright direction
+        decides it, is biased toward 1); the object's mesh occlusion at every pixel
+        (``_object_sky``)."""
         radiance_sh, walls = model.sky.radiance_sh, model.walls
         cfg = self._settings.transport
         H, W = d.shape
@@ -180,7 +182,8 @@ class PhysicalRenderer(Renderer):
         grow = blur_reach(rad) + ao_st
         need = cv2.dilate(todo[ay0:ay1, ax0:ax1].astype(np.uint8), np.ones((2 * grow + 1,) * 2, np.uint8)) > 0
         ok &= need[::ao_st, ::ao_st]
-        ao_c = np.ones(gy.shape + (3,))
+        # the sky's sums sum L V and sum L (3 + 3), pooled by the blur before they are divided
+        ao_c = np.ones(gy.shape + (6,))
         scene_only = None
         if occluder is not None:
             # the real mesh is the object's occluder; the depth's shell only the scene's
@@ -191,7 +194,7 @@ class PhysicalRenderer(Renderer):
         if ok.any():
             smp = sky_samples(P[ok], N[ok], gy[ok], gx[ok], d, camera, cfg=self._settings.light.march,
                               occluder_mask=scene_only, walls=walls)
-            ao_c[ok] = weighted_visibility(*smp, radiance_sh)
+            ao_c[ok] = weighted_visibility(*smp, sky_radiance_of(model, radiance_sh), sums=True)
         h_, w_ = ay1 - ay0, ax1 - ax0
         up2 = lambda a: np.repeat(np.repeat(a, ao_st, 0), ao_st, 1)[:h_, :w_]
         okf = geo_all[ay0:ay1, ax0:ax1]
@@ -200,13 +203,12 @@ class PhysicalRenderer(Renderer):
         # (a light rim): only pixels of their anchor's class vouch for it; the
         # normalised blur fills the others from their own class
         same = up2(ok) & (up2(cls[::ao_st, ::ao_st]) == cls)
-        ao = classwise_blur(up2(ao_c), cls, okf & same, rad, fill=okf)[ys - ay0, xs - ax0]
+        both = classwise_blur(up2(ao_c), cls, okf & same, rad, fill=okf)[ys - ay0, xs - ax0]
+        num, den = both[:, :3], both[:, 3:]
+        ao = np.where(den > 1e-12, num / np.maximum(den, 1e-300), 1.0)
         if occluder is not None:
             ao = ao * (1.0 - self._object_sky(d, n, todo, camera, occluder, model, ys, xs, rad,
                                               todo if unknown is None else unknown))
-        # occluded directions still see light bounced off the occluders
-        rho = float(np.clip(np.mean(albedo_mean), 0.0, 0.9))
-        ao = ao + (1.0 - ao) * rho * cfg.sky_bounce
         return ao, scene_only
 
     def _object_sky(self, d, n, todo, camera, occluder, model, ys, xs, blur_px, unknown):
@@ -253,14 +255,14 @@ class PhysicalRenderer(Renderer):
     def _parts(self, d, n, todo, camera, model: LightModel, albedo_mean, occluder, unknown=None):
         """The two parts of the diffuse shading of the ``todo`` pixels: (sky and the
         ground's bounce (M, 3), the suns' and lamps' (M, 3), the sky's visible share
-        (M, 3), unit normals (M, 3), each sun and lamp as (light, directions (M, 3),
-        facing shading (M, 3), visibility (M,)), the texels that occlude as the scene's
-        (H, W) bool or None)."""
+        with the occluders' bounce (M, 3), unit normals (M, 3), each sun and lamp as
+        (light, directions (M, 3), facing shading (M, 3), visibility (M,)), the texels
+        that occlude as the scene's (H, W) bool or None, the sky's visible share alone
+        (M, 3))."""
         H, W = d.shape
         ys, xs = np.nonzero(todo)
         geo_all = has_geometry(d, n)
-        vis_sky, scene_only = self._sky_visibility(d, n, todo, camera, occluder, geo_all, albedo_mean, model,
-                                                   unknown)
+        seen, scene_only = self._sky_visibility(d, n, todo, camera, occluder, geo_all, albedo_mean, model, unknown)
         nv = n[ys, xs].astype(np.float64)
         nv = nv / np.maximum(length(nv), 1e-12)[:, None]
         nv[~geo_all[ys, xs]] = 0.0
@@ -268,6 +270,10 @@ class PhysicalRenderer(Renderer):
         from zcomp_cli.scene.lightmodel import ground_view
 
         sky = np.maximum(shm.evaluate(shm.shading_coeffs(model.sky.radiance_sh), nv), 0.0)
+        # occluded directions still see light bounced off the occluders (the object's
+        # own rays bring it there: ``_object_layer`` reads ``seen``)
+        rb = float(np.clip(np.mean(albedo_mean), 0.0, 0.9)) * self._settings.transport.sky_bounce
+        vis_sky = seen + (1.0 - seen) * rb
         ambient = sky * vis_sky + ground_view(nv, model.up)[:, None] * model.sky.ground[None]
         direct = np.zeros_like(ambient)
         lit = []
@@ -287,7 +293,7 @@ class PhysicalRenderer(Renderer):
                     v_t = 1.0 - (1.0 - v_t) * fade
                 direct += (np.maximum(0.0, np.sum(nv * L, 1)) * v_t)[:, None] * E
                 lit.append((light, L, E, v_t))
-        return ambient, direct, vis_sky, nv, lit, scene_only
+        return ambient, direct, vis_sky, nv, lit, scene_only, seen
 
     def _synthesise(self, d, n, todo, camera, model: LightModel, albedo_mean, occluder, unknown, albedo, coverage,
                     roughness=None, metallic=None, image=None, own=None):
@@ -301,8 +307,8 @@ class PhysicalRenderer(Renderer):
 
         cfg = self._settings.transport
         ys, xs = np.nonzero(todo)
-        ambient, direct, vis_sky, nv, lit, scene_only = self._parts(d, n, todo, camera, model, albedo_mean, occluder,
-                                                                    unknown)
+        ambient, direct, vis_sky, nv, lit, scene_only, seen = self._parts(d, n, todo, camera, model, albedo_mean,
+                                                                          occluder, unknown)
         y0, x0, y1, x1 = _window(ys, xs, *d.shape, int(np.ceil(cfg.edge_reach_px)) + 2)
         ly, lx = ys - y0, xs - x0
         t = np.zeros((y1 - y0, x1 - x0), bool)
@@ -327,7 +333,7 @@ class PhysicalRenderer(Renderer):
             a_o, a_s = split(a, crop(None if own is None else own.albedo), cov, t, cfg)
             win = (y0, x0, y1, x1, t, cls, obj)
             O = self._object_layer(d, camera, model, occluder, scene_only, albedo_mean, roughness, metallic, image,
-                                   win, (ys, xs, nv, vis_sky, lit, ambient, direct), S, rad, a_o, cov, own)
+                                   win, (ys, xs, nv, vis_sky, lit, ambient, direct, seen), S, rad, a_o, cov, own)
             # each layer carried past where it was shaded, to the pixels it covers in part
             O = extend(O, obj, edge & ~obj, cfg)
             F = extend(scene(a_s, S), t & ~obj, edge & obj, cfg)
@@ -352,7 +358,7 @@ class PhysicalRenderer(Renderer):
 
         cfg, pc = self._settings.transport, self._settings.gloss
         y0, x0, y1, x1, t, cls, obj = win
-        ys, xs, nv, vis_sky, lit, ambient, direct = parts
+        ys, xs, nv, vis_sky, lit, ambient, direct, seen = parts
         ly, lx = ys - y0, xs - x0
         sel = obj[ly, lx]
         photo = np.nan_to_num(np.array(image, np.float64)[..., :3])
@@ -365,8 +371,7 @@ class PhysicalRenderer(Renderer):
             got = bounce(model, camera, d, P, nv[sel], ys[sel], xs[sel], occluder=occluder, scene_only=scene_only,
                          images=images, k=cfg.bounce_rays, steps=self._settings.light.march.sky_steps,
                          march=self._settings.light.march)
-            # the sky's visibility without the occluders' bounce, which the rays bring
-            rb = float(np.clip(np.mean(albedo_mean), 0.0, 0.9)) * cfg.sky_bounce
+            # the sky's visible share without the occluders' bounce, which the rays bring
             sky = np.maximum(shm.evaluate(shm.shading_coeffs(model.sky.radiance_sh), nv[sel]), 0.0)
             from zcomp_cli.renderers.physical.softshadow import classwise_blur
 
@@ -375,7 +380,7 @@ class PhysicalRenderer(Renderer):
             gi[ly[sel], lx[sel]] = got
             got = classwise_blur(gi, cls, obj, cfg.bounce_blur_px)[ly[sel], lx[sel]] if cfg.bounce_blur_px > 0 else got
             raw = np.zeros(t.shape + (3,))
-            raw[ly[sel], lx[sel]] = sky * (vis_sky[sel] - rb) / (1.0 - rb) + got + direct[sel]
+            raw[ly[sel], lx[sel]] = sky * seen[sel] + got + direct[sel]
             S = np.where(obj[..., None], film_filter(raw, cls, obj, cfg), S)
             own_rad[y0:y1, x0:x1][obj] = (a_o * S)[obj]
         G, keep = np.zeros_like(S), np.ones(t.shape + (1,))
@@ -546,6 +551,21 @@ def _window(ys, xs, H, W, margin, even=False):
 
 
 _POOLS: dict = {}
+
+
+def sky_radiance_of(model: LightModel, radiance_sh: np.ndarray):
+    """What weighs the sky's directions where its visibility is measured
+    (``skyvis.weighted_visibility``): a given probe's map
+    (``probe.ProbeLights.sky_radiance_at``, the split the light stage made), else the
+    model's SH sky ``radiance_sh`` (9, 3), as the light fit weighs them."""
+    ref = model.probe
+    if ref is None:
+        return radiance_sh
+    from zcomp_cli.knobs import from_mapping
+    from zcomp_cli.scene.config import ProbeConfig
+    from zcomp_cli.scene.probe import load_given_probe
+
+    return load_given_probe(ref.params, ref.frame, cfg=from_mapping(ProbeConfig, ref.cfg, "probe")).sky_radiance_at
 
 
 def sky_pool_of(model: LightModel, gcfg, cfg) -> tuple:

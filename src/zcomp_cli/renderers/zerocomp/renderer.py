@@ -29,8 +29,10 @@ from zcomp_cli.renderers.zerocomp.conditioning import (
     square_window,
 )
 
-# Jobs per UNet/ControlNet call (x 2 passes each). See docs/zerocomp.md, "Throughput".
-DEFAULT_BATCH_SIZE = 4
+# Jobs per UNet/ControlNet call (x 2 passes each): the best jobs/s of 1/4/8/16 measured on
+# an H200 at 512 px, 20 steps (docs/bench_zerocomp_gpu.json: 2.62 jobs/s at 8, 4.7 GiB;
+# 4 gave 2.13, 16 gave 2.48). See docs/zerocomp.md, "Throughput".
+DEFAULT_BATCH_SIZE = 8
 
 
 class ZeroCompRenderer(Renderer):
