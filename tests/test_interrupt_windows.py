@@ -7,7 +7,10 @@ from __future__ import annotations
 
 import os
 import signal
+import subprocess
+import sys
 import tempfile
+from pathlib import Path
 
 import pytest
 
@@ -56,3 +59,15 @@ def test_a_lock_taken_while_an_interrupt_is_held_is_given_back(tmp_path, monkeyp
     with pytest.raises(interrupts.Interrupted):
         lock.try_acquire()
     assert lock.fd is None and not (tmp_path / ".zcomp-run-1.lock").exists()
+
+
+def test_once_the_command_is_over_no_stop_signal_changes_its_exit():
+    """After the command (outputs and summary written), SIGINT is ignored like SIGTERM
+    and SIGHUP: a SIGINT in the tear-down killed a finished run with -2."""
+    code = ("import signal\nfrom zcomp_cli.cli import _ignore_signals_from_now as f\nf()\n"
+            "print(all(signal.getsignal(s) is signal.SIG_IGN for s in "
+            "(signal.SIGINT, signal.SIGTERM, signal.SIGHUP)))")
+    src = Path(__file__).resolve().parents[1] / "src"
+    env = dict(os.environ, PYTHONPATH=str(src))
+    r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and r.stdout.strip() == "True", r.stdout + r.stderr

@@ -168,14 +168,16 @@ def cli(ctx, verbose: int, quiet: bool):
 
 def _ignore_signals_from_now() -> None:
     """The command is over (its outputs and summary are written or it has failed): a
-    SIGTERM or SIGHUP during the interpreter's tear-down (a fraction of a second; Ray's
-    shutdown) is ignored and the process exits with the command's own code. (No Python
-    handler runs during finalization, where the default action would kill the process
-    with the signal, as if the finished run had been interrupted; an ignored signal
+    SIGINT, SIGTERM or SIGHUP during the interpreter's tear-down (a fraction of a
+    second; Ray's shutdown) is ignored and the process exits with the command's own
+    code. (No Python handler runs during finalization, where the default action would
+    kill the process with the signal, as if the finished run had been interrupted; a
+    SIGINT there raised a KeyboardInterrupt nothing caught, and the process died of it
+    with its outputs written: the signal fuzz's "-2 with outputs". An ignored signal
     stays ignored there.)"""
     import signal
 
-    for sig in (signal.SIGTERM, signal.SIGHUP):
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         with contextlib.suppress(ValueError, OSError):
             signal.signal(sig, signal.SIG_IGN)
 
