@@ -124,5 +124,18 @@ def direction_to_uv(direction, frame, convention: str = DEFAULT_CONVENTION,
     return u, v
 
 
+def bilinear_taps(u, v, height: int, width: int):
+    """The four texels of an ``height`` x ``width`` map around (u, v) ((N,) each, as
+    ``direction_to_uv`` gives them) and their weights: (rows y0, y1 (clamped at the
+    poles), columns x0, x1 (wrapping in longitude), fx, fy (N, 1)); a texel's value
+    is ``(1-fy)((1-fx) m[y0, x0] + fx m[y0, x1]) + fy((1-fx) m[y1, x0] + fx m[y1, x1])``."""
+    x = np.asarray(u, np.float64) * width - 0.5
+    y = np.clip(np.asarray(v, np.float64) * height - 0.5, 0, height - 1)
+    x0 = np.floor(x).astype(int)
+    y0 = np.floor(y).astype(int)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    return y0, np.minimum(y0 + 1, height - 1), x0 % width, (x0 + 1) % width, fx, fy
+
+
 __all__ = ["CONVENTIONS", "DEFAULT_CONVENTION", "ASPECT_TOL", "aspect_ok", "longitude", "pixel_directions", "solid_angles",
-           "direction_to_uv"]
+           "direction_to_uv", "bilinear_taps"]

@@ -39,24 +39,21 @@ def atomic_path(path, suffix: str | None = None):
     (``.<stem>.<pid>-<random>.tmp<ext>``) so that a folder several runs write into can
     tell a killed writer's litter from a live one's (``outguard.clean_dead_writers``).
     """
-    from zcomp_cli.interrupts import deferred
+    from zcomp_cli.interrupts import deferred, made_whole
 
     path = Path(path)
     suffix = suffix if suffix is not None else path.suffix
-    tmp = None
-    try:
-        with deferred():  # an interrupt waits until the temporary is ours to remove
-            path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.{os.getpid()}-", suffix=f".tmp{suffix}", dir=path.parent)
-            os.close(fd)
+
+    def make():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, made = tempfile.mkstemp(prefix=f".{path.stem}.{os.getpid()}-", suffix=f".tmp{suffix}", dir=path.parent)
+        os.close(fd)
+        return made
+
+    try:  # an interrupt waits until the temporary is ours to remove
+        tmp = made_whole(make, _unlink_quietly)
     except OSError as exc:
         raise OutputError(f"cannot write: {exc.strerror or exc}", where=str(path)) from exc
-    except BaseException:
-        # the interrupt held while it was made is raised as the block ends: ours to remove
-        if tmp is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-        raise
     try:
         yield Path(tmp)
         if os.path.getsize(tmp) == 0:
@@ -66,13 +63,16 @@ def atomic_path(path, suffix: str | None = None):
             os.chmod(tmp, 0o666 & ~_umask())
             os.replace(tmp, path)
     except OSError as exc:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
+        _unlink_quietly(tmp)
         raise OutputError(f"cannot write: {exc.strerror or exc}", where=str(path)) from exc
     except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
+        _unlink_quietly(tmp)
         raise
+
+
+def _unlink_quietly(path) -> None:
+    with contextlib.suppress(OSError):
+        os.unlink(path)
 
 
 def _umask() -> int:

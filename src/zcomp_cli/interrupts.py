@@ -47,6 +47,21 @@ def deferred():
             raise Interrupted(signum)
 
 
+def made_whole(make, undo):
+    """``make()`` under :func:`deferred`, its result returned; an interrupt held
+    meanwhile is raised as the block ends, before the caller owns what was made, so
+    ``undo(result)`` removes it first (a temporary file, a folder)."""
+    made = None
+    try:
+        with deferred():
+            made = make()
+    except BaseException:
+        if made is not None:
+            undo(made)
+        raise
+    return made
+
+
 def interrupt(signum: int) -> None:
     """What a signal handler does: raise ``Interrupted`` now, or when the current
     :func:`deferred` block ends."""

@@ -54,20 +54,15 @@ KEEP_MARK = "[zcomp] log kept: an item failed"
 
 
 def _temporary_log() -> Path:
-    from zcomp_cli.interrupts import deferred
+    from zcomp_cli.interrupts import made_whole
+
+    def make():
+        fd, made = tempfile.mkstemp(prefix=f"{LOG_PREFIX}{os.getpid()}-", suffix=".log")
+        os.close(fd)
+        return made
 
     # the pid in the name lets a later run remove it if this process is killed
-    tmp = None
-    try:
-        with deferred():
-            fd, tmp = tempfile.mkstemp(prefix=f"{LOG_PREFIX}{os.getpid()}-", suffix=".log")
-            os.close(fd)
-    except BaseException:  # an interrupt held while it was made, raised as the block ends
-        if tmp is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-        raise
-    return Path(tmp)
+    return Path(made_whole(make, lambda p: Path(p).unlink(missing_ok=True)))
 
 
 def _spawn(path: Path, arg: str, **popen_kw) -> subprocess.Popen:
@@ -80,19 +75,13 @@ def _spawn(path: Path, arg: str, **popen_kw) -> subprocess.Popen:
     empty ``/tmp/blender_*`` behind; this one goes when the child ends, or at a later
     run's sweep when zcomp itself was killed (``outguard.sweep_dead_temporaries``)."""
     from zcomp_cli.blender.launch import PARENT_ENV
-    from zcomp_cli.interrupts import deferred
+    from zcomp_cli.interrupts import made_whole
 
     env = dict(os.environ)
     env.setdefault("PYTHONUNBUFFERED", "1")
     env[PARENT_ENV] = str(os.getpid())
-    tmp = None
-    try:
-        with deferred():
-            tmp = tempfile.mkdtemp(prefix=f"{TMP_PREFIX}{os.getpid()}-")
-    except BaseException:  # an interrupt held while it was made, raised as the block ends
-        if tmp is not None:
-            shutil.rmtree(tmp, ignore_errors=True)
-        raise
+    tmp = made_whole(lambda: tempfile.mkdtemp(prefix=f"{TMP_PREFIX}{os.getpid()}-"),
+                     lambda p: shutil.rmtree(p, ignore_errors=True))
     env["TMPDIR"] = env["TMP"] = env["TEMP"] = tmp
     try:
         # -P: no current folder on the child's sys.path (launch puts the script's folder there)

@@ -64,28 +64,20 @@ class ProbeLights:
     frame: np.ndarray
     convention: str
     rotation_deg: float
-    sky_map: np.ndarray | None = None
+    sky_map: np.ndarray
 
     def sky_radiance_at(self, directions: np.ndarray) -> np.ndarray:
         """(..., 3) the sky's radiance (probe units) toward camera-frame unit
-        ``directions`` (..., 3): ``sky_map`` bilinear (wrapping in longitude), 0 below
-        the horizon; the SH sky where no map is kept. What weighs the sky's directions
-        where its visibility is measured (``skyvis.weighted_visibility``): a sky
-        brightest low behind a wall is hidden by it as much as it is bright there, which
-        an order-2 SH, spread over the hemisphere, does not tell."""
+        ``directions`` (..., 3): ``sky_map`` bilinear (``equirect.bilinear_taps``), 0
+        below the horizon. What weighs the sky's directions where its visibility is
+        measured (``skyvis.weighted_visibility``): a sky brightest low behind a wall is
+        hidden by it as much as it is bright there, which an order-2 SH, spread over the
+        hemisphere, does not tell."""
         d = np.asarray(directions, np.float64)
-        if self.sky_map is None:
-            return np.maximum(sh.basis(d.reshape(-1, 3)) @ self.sky_radiance_sh, 0.0).reshape(d.shape[:-1] + (3,))
         m = self.sky_map
-        h, w = m.shape[:2]
         u, v = equirect.direction_to_uv(d.reshape(-1, 3), self.frame, self.convention, self.rotation_deg)
-        x = np.asarray(u) * w - 0.5
-        y = np.clip(np.asarray(v) * h - 0.5, 0, h - 1)
-        x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
-        fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-        y1 = np.minimum(y0 + 1, h - 1)
-        xa, xb = x0 % w, (x0 + 1) % w
-        out = ((1 - fy) * ((1 - fx) * m[y0, xa] + fx * m[y0, xb]) + fy * ((1 - fx) * m[y1, xa] + fx * m[y1, xb]))
+        y0, y1, x0, x1, fx, fy = equirect.bilinear_taps(u, v, *m.shape[:2])
+        out = (1 - fy) * ((1 - fx) * m[y0, x0] + fx * m[y0, x1]) + fy * ((1 - fx) * m[y1, x0] + fx * m[y1, x1])
         return out.reshape(d.shape[:-1] + (3,))
 
 

@@ -69,13 +69,7 @@ class PrefilteredProbe:
         d = np.asarray(directions, np.float64).reshape(-1, 3)
         _, h, w, _ = self.maps.shape
         u, v = equirect.direction_to_uv(d, self.frame, self.convention, self.rotation_deg)
-        x = u * w - 0.5
-        y = np.clip(v * h - 0.5, 0, h - 1)
-        x0 = np.floor(x).astype(int)
-        y0 = np.floor(y).astype(int)
-        fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-        y1 = np.minimum(y0 + 1, h - 1)
-        x0w, x1w = x0 % w, (x0 + 1) % w
+        y0, y1, x0w, x1w, fx, fy = equirect.bilinear_taps(u, v, h, w)
         r = np.clip(np.asarray(roughness, np.float64).reshape(-1), self.roughness[0], self.roughness[-1])
         lv = np.interp(r, self.roughness, np.arange(len(self.roughness)))
         l0 = np.clip(np.floor(lv).astype(int), 0, len(self.roughness) - 2)
