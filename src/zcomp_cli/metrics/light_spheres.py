@@ -239,7 +239,7 @@ def render_spheres(light: dict, center=None, *, size: int = SPHERE_SIZE) -> dict
     up = lt["up"]
     shading = np.zeros((m, 3))
     spec = np.zeros((m, 3))
-    a_env, b_env = env_brdf(rough, ndv)
+    a_env, b_env = env_brdf(rough, ndv, fresnel="schlick")
     for coeffs, ground in lt["skies"]:
         shading += np.maximum(sh.evaluate(sh.shading_coeffs(coeffs), n), 0.0)
         shading += np.clip(0.5 * (1.0 - n @ up), 0.0, 1.0)[:, None] * ground[None]
@@ -259,7 +259,7 @@ def render_spheres(light: dict, center=None, *, size: int = SPHERE_SIZE) -> dict
             continue
         shading += np.maximum(n @ d, 0.0)[:, None] * e[None]
         # e is the shading of a facing surface: its irradiance over pi
-        spec += np.pi * e[None] * ggx_direct(n, v, np.tile(d, (m, 1)), rough, f0, tan_r)
+        spec += np.pi * e[None] * ggx_direct(n, v, np.tile(d, (m, 1)), rough, f0, tan_r, fresnel="schlick", energy=False)
     out = {}
     for key, val in (("diffuse", DIFFUSE_ALBEDO * shading), ("silver", spec)):
         img = np.zeros((size, size, 3))

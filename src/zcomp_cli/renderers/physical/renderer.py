@@ -396,11 +396,12 @@ class PhysicalRenderer(Renderer):
             met = None if metallic is None else layer(metallic, "metallic")
             sub = [(li, Ld[sel], E[sel], v[sel]) for li, Ld, E, v in lit]
             env = None
+            base = full(a_o, np.zeros(d.shape + (3,)))
             if pc.reflect_rays > 0:
-                env = self._environment(model, camera, d, nv[sel], ys[sel], xs[sel], rough, occluder, scene_only,
-                                        images, cls, obj, (y0, x0))
-            gl, kp = self._glossy(model, camera, d, nv[sel], ys[sel], xs[sel], np.ones(int(sel.sum())),
-                                  full(a_o, np.zeros(d.shape + (3,))), rough, met, vis_sky[sel], sub, env=env)
+                env = self._environment(model, camera, d, nv[sel], ys[sel], xs[sel], rough, met, base, occluder,
+                                        scene_only, images, cls, obj, (y0, x0))
+            gl, kp = self._glossy(model, camera, d, nv[sel], ys[sel], xs[sel], np.ones(int(sel.sum())), base, rough,
+                                  met, vis_sky[sel], sub, env=env)
             both = np.zeros(t.shape + (4,))
             both[ly[sel], lx[sel]] = np.concatenate([gl, kp[:, None]], 1)
             both = film_filter(both, cls, obj, cfg)
@@ -416,7 +417,7 @@ class PhysicalRenderer(Renderer):
         beneath keeps what the specular layer does not reflect (a metal none). ``env``
         (M, 3): the radiance the lobe meets, gathered (``reflect``), instead of the
         occluded prefiltered sky."""
-        from zcomp_cli.renderers.physical.gloss import ggx_direct, prefiltered_light, specular_albedo
+        from zcomp_cli.renderers.physical.gloss import DIELECTRIC_F0, ggx_direct, prefiltered_light, specular_albedo
 
         pc = self._settings.gloss
         P = camera.ray(xs + 0.5, ys + 0.5) * d[ys, xs][:, None]
@@ -425,25 +426,36 @@ class PhysicalRenderer(Renderer):
         r = 2.0 * ndv[:, None] * nv - v
         rough = np.clip(np.nan_to_num(np.asarray(roughness, np.float64)[ys, xs]), 0.0, 1.0)
         met = np.zeros(len(ys)) if metallic is None else np.clip(np.nan_to_num(np.asarray(metallic)[ys, xs]), 0, 1)
-        f0 = 0.04 * (1.0 - met)[:, None] + np.clip(albedo[ys, xs], 0, 1) * met[:, None]
+        # Cycles' Principled BSDF: a dielectric layer (the exact Fresnel of IOR 1.5)
+        # weighted 1 - metallic, a metal one (Schlick's curve from the base colour)
+        # weighted metallic
+        layers = [(1.0 - met, np.full((len(ys), 1), DIELECTRIC_F0), "dielectric")]
+        if np.any(met > 0):
+            layers.append((met, np.clip(albedo[ys, xs], 0, 1), "schlick"))
         if env is None:
             pf = prefiltered_light(model, pc)
             L_sky = pf.lookup(r, rough)
             # the lobe's share below the horizon sees the support, which the sky's
             # occluders do not hide
             env = vis_sky.mean(1, keepdims=True) * L_sky + pf.lookup(r, rough, ground=model.sky.ground) - L_sky
-        out = env * specular_albedo(rough, ndv, f0, pc)
+        albedos = [specular_albedo(rough, ndv, f0, pc, fresnel=kind) for _, f0, kind in layers]
+        out = env * sum(w[:, None] * a for (w, _, _), a in zip(layers, albedos))
         for light, Ld, E, v_t in lit:
             # E is the shading of a facing surface: its irradiance over pi
-            out = out + (np.pi * v_t)[:, None] * E * ggx_direct(nv, v, Ld, rough, f0, light.tan_radius(P), cfg=pc)
+            spec = sum(w[:, None] * ggx_direct(nv, v, Ld, rough, f0, light.tan_radius(P), fresnel=kind, cfg=pc)
+                       for w, f0, kind in layers)
+            out = out + (np.pi * v_t)[:, None] * E * spec
         # Cycles' Principled layering: the diffuse gets one minus the dielectric
         # layer's directional albedo toward the viewer
-        keep = (1.0 - met) * (1.0 - specular_albedo(rough, ndv, np.full((len(ys), 1), 0.04), pc)[:, 0])
+        keep = (1.0 - met) * (1.0 - albedos[0][:, 0])
         return cov[:, None] * out, keep
 
-    def _environment(self, model, camera, d, nv, ys, xs, roughness, occluder, scene_only, images, cls, obj, corner):
+    def _environment(self, model, camera, d, nv, ys, xs, roughness, metallic, albedo, occluder, scene_only, images,
+                     cls, obj, corner):
         """(M, 3) the surroundings the object's glossy lobe reflects at pixels (ys, xs)
-        (``reflect.environment``), averaged over the neighbours' rays within the object
+        (``reflect.environment``; ``metallic`` (H, W) or None and the base colour
+        ``albedo`` (H, W, 3) give its layers' Fresnel), averaged over the neighbours'
+        rays within the object
         (``GlossConfig.reflect_blur_px``; ``cls``/``obj`` the window's classes and object
         pixels, its ``corner`` (y0, x0))."""
         from zcomp_cli.renderers.physical.gloss import prefiltered_light
@@ -454,9 +466,10 @@ class PhysicalRenderer(Renderer):
         P = camera.ray(xs + 0.5, ys + 0.5) * d[ys, xs][:, None]
         v = -P / np.maximum(np.linalg.norm(P, axis=1, keepdims=True), 1e-12)
         rough = np.clip(np.nan_to_num(np.asarray(roughness, np.float64)[ys, xs]), 0.0, 1.0)
+        met = np.zeros(len(ys)) if metallic is None else np.clip(np.nan_to_num(np.asarray(metallic)[ys, xs]), 0, 1)
         env = environment(model, camera, d, P, nv, v, rough, ys, xs, occluder=occluder, scene_only=scene_only,
                           images=images, prefiltered=prefiltered_light(model, pc), gcfg=pc,
-                          march=self._settings.light.march)
+                          march=self._settings.light.march, layers=(met, np.clip(albedo[ys, xs], 0, 1)))
         y0, x0 = corner
         img = np.zeros(obj.shape + (3,))
         img[ys - y0, xs - x0] = env
