@@ -81,7 +81,7 @@ BUILTIN_RENDERERS: dict[str, RendererEntry] = {
             RendererOption("steps", "steps", int, "DDIM steps (default 20)", "N"),
             RendererOption("batch_size", "batch-size", int,
                            "jobs per GPU batch, N jobs x 2 passes per UNet/ControlNet call "
-                           "(default 4; docs/zerocomp.md, Throughput)", "N"),
+                           "(default 8; docs/zerocomp.md, Throughput)", "N"),
             RendererOption("window", "window", str,
                            "square window the model sees: auto (default), center (official "
                            "centre crop) or roi (crop around the job's region)", "MODE"),
