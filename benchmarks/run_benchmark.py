@@ -58,7 +58,9 @@ the error of the part added between them:
 * ``full``: everything the path tracer knew: the scene's HDR map as a probe (its
   rotation, Blender's convention, its strength), every lamp at its position with its
   power (suns with their irradiance and size), and the camera's pitch; only the
-  exposure is fitted. This row is the transport's own limit.
+  exposure is fitted. This row is the transport's own limit;
+* ``exposure``: ``full`` and the photograph's exposure: nothing is fitted. Its gap to
+  ``full`` is what the light stage's fitted exposure costs.
 
 ``--true-direction`` is ``--oracle direction``. ``--oracle-renderers physical,cycles``
 adds each level's row for each renderer (``cycles-oracle-full``: the path tracer on the
@@ -285,7 +287,7 @@ def _share_under(vals: list[float], deg: float) -> float | None:
 SECOND_TRUE_LIGHT_FRAC = 0.25
 
 
-ORACLE_LEVELS = ("direction", "size", "full")
+ORACLE_LEVELS = ("direction", "size", "full", "exposure")
 
 
 def _true_radius_deg(t: dict, case: dict) -> float:
@@ -353,7 +355,7 @@ def write_oracle_jobs(bench_dir: Path, level: str) -> Path:
         if c["id"] not in doc["scenes"]:
             continue
         scene = doc["scenes"][c["id"]]
-        if level == "full":
+        if level in ("full", "exposure"):
             from zcomp_cli.benchsuite.scenes import BenchScene, lamps_for_blender
 
             probe, tilt = _probe_spec(c)
@@ -370,6 +372,8 @@ def write_oracle_jobs(bench_dir: Path, level: str) -> Path:
                                    "facing": [float(v) for v in travel], "color": [float(v) for v in lp["color"]]})
             scene["light"] = lights
             scene.update(tilt)
+            if level == "exposure":
+                scene["exposure"] = float(c["exposure"])
             continue
         tl = [t for t in true_lights(c) if t["visible"]]
         if not tl:
