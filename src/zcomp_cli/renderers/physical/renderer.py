@@ -413,7 +413,8 @@ class PhysicalRenderer(Renderer):
         it) (``gloss`` module docstring): the prefiltered sky toward the mirror direction
         times the split-sum environment BRDF, occluded by the sky's visibility, plus
         each sun and lamp of ``lit`` (``_parts``) through the GGX BRDF times its own
-        visibility; F0 0.04 for a dielectric, the albedo for a metal. The diffuse
+        visibility; a dielectric's exact Fresnel (F0 0.04), a metal's Schlick curve from
+        its albedo, weighted by ``metallic``, with multiple scattering's energy. The diffuse
         beneath keeps what the specular layer does not reflect (a metal none). ``env``
         (M, 3): the radiance the lobe meets, gathered (``reflect``), instead of the
         occluded prefiltered sky."""
