@@ -259,7 +259,8 @@ def render_spheres(light: dict, center=None, *, size: int = SPHERE_SIZE) -> dict
             continue
         shading += np.maximum(n @ d, 0.0)[:, None] * e[None]
         # e is the shading of a facing surface: its irradiance over pi
-        spec += np.pi * e[None] * ggx_direct(n, v, np.tile(d, (m, 1)), rough, f0, tan_r, fresnel="schlick", energy=False)
+        spec += np.pi * e[None] * ggx_direct(n, v, np.tile(d, (m, 1)), rough, f0, tan_r, fresnel="schlick",
+                                             energy=False)
     out = {}
     for key, val in (("diffuse", DIFFUSE_ALBEDO * shading), ("silver", spec)):
         img = np.zeros((size, size, 3))
