@@ -163,6 +163,18 @@ def fresnel_shape(cos_i: np.ndarray, fresnel: str) -> np.ndarray:
     raise ValueError(f"fresnel must be one of {FRESNELS}, got {fresnel!r}")
 
 
+def principled_layers(metallic: np.ndarray, base: np.ndarray | None) -> list[tuple[np.ndarray, np.ndarray, str]]:
+    """Cycles' Principled BSDF's specular layers at N points, as (weight (N,), f0 (N, C),
+    ``fresnel``) each: the dielectric (its exact Fresnel, F0 0.04) weighted 1 -
+    ``metallic`` (N,) in [0, 1], and where any point is metallic the metal (Schlick's curve
+    from the ``base`` colour (N, 3), clipped to [0, 1]) weighted ``metallic``."""
+    met = np.asarray(metallic, np.float64).reshape(-1)
+    layers = [(1.0 - met, np.full((len(met), 1), DIELECTRIC_F0), "dielectric")]
+    if np.any(met > 0):
+        layers.append((met, np.clip(np.asarray(base, np.float64), 0, 1), "schlick"))
+    return layers
+
+
 @functools.cache
 def _env_lut(size: int, samples: int, min_alpha: float, fresnel: str = "schlick") -> np.ndarray:
     """(size, size, 2) the split-sum (A, B) of ``ggx_direct``'s single-scattering BRDF
@@ -381,5 +393,5 @@ def prefiltered_light(model: LightModel, cfg: GlossConfig) -> PrefilteredProbe:
 
 
 __all__ = ["env_brdf", "specular_albedo", "ggx_direct", "multiscatter", "fresnel_dielectric", "fresnel_shape",
-           "DIELECTRIC_F0", "DIELECTRIC_IOR", "FRESNELS", "model_radiance_map", "prefiltered_light", "prefilter",
+           "principled_layers", "DIELECTRIC_F0", "DIELECTRIC_IOR", "FRESNELS", "model_radiance_map", "prefiltered_light", "prefilter",
            "PrefilteredProbe"]

@@ -68,7 +68,7 @@ def lobe_weights(nv, view, dirs, alpha, nl, layers=None):
     Schlick curve from its base colour; ``layers``: (metallic (M,), base colour (M, 3)),
     None a dielectric. Returns ((k, M, 3) weights, (k, M) G v.h / n.h, (k, M) v.h,
     (k, M) n.h)."""
-    from zcomp_cli.renderers.physical.gloss import DIELECTRIC_F0, _smith_g, fresnel_shape
+    from zcomp_cli.renderers.physical.gloss import _smith_g, fresnel_shape, principled_layers
 
     h = dirs + view[None]
     h /= np.maximum(np.linalg.norm(h, axis=2, keepdims=True), 1e-12)
@@ -76,12 +76,10 @@ def lobe_weights(nv, view, dirs, alpha, nl, layers=None):
     nh = np.clip(np.sum(h * nv[None], 2), 1e-6, 1.0)
     ndv = np.clip(np.sum(nv * view, 1), 1e-6, 1.0)
     g = np.where(nl > 0, _smith_g(np.asarray(alpha)[None], ndv[None], np.clip(nl, 1e-6, 1.0)) * vh / nh, 0.0)
-    F = np.repeat((DIELECTRIC_F0 + (1.0 - DIELECTRIC_F0) * fresnel_shape(vh, "dielectric"))[..., None], 3, 2)
-    if layers is not None and np.any(np.asarray(layers[0]) > 0):
-        met, base = (np.asarray(x, np.float64) for x in layers)
-        schlick = base[None] + (1.0 - base[None]) * fresnel_shape(vh, "schlick")[..., None]
-        F = (1.0 - met)[None, :, None] * F + met[None, :, None] * schlick
-    return g[..., None] * F, g, vh, nh
+    met, base = (np.zeros(vh.shape[1]), None) if layers is None else layers
+    F = sum(w[None, :, None] * (f0[None] + (1.0 - f0[None]) * fresnel_shape(vh, kind)[..., None])
+            for w, f0, kind in principled_layers(met, base))
+    return g[..., None] * np.broadcast_to(F, vh.shape + (3,)), g, vh, nh
 
 
 def bounce(model, camera, depth, P, nv, ys, xs, *, occluder, scene_only, images, k: int, steps: int,

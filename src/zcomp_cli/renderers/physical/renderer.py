@@ -418,7 +418,7 @@ class PhysicalRenderer(Renderer):
         beneath keeps what the specular layer does not reflect (a metal none). ``env``
         (M, 3): the radiance the lobe meets, gathered (``reflect``), instead of the
         occluded prefiltered sky."""
-        from zcomp_cli.renderers.physical.gloss import DIELECTRIC_F0, ggx_direct, prefiltered_light, specular_albedo
+        from zcomp_cli.renderers.physical.gloss import ggx_direct, prefiltered_light, principled_layers, specular_albedo
 
         pc = self._settings.gloss
         P = camera.ray(xs + 0.5, ys + 0.5) * d[ys, xs][:, None]
@@ -427,12 +427,7 @@ class PhysicalRenderer(Renderer):
         r = 2.0 * ndv[:, None] * nv - v
         rough = np.clip(np.nan_to_num(np.asarray(roughness, np.float64)[ys, xs]), 0.0, 1.0)
         met = np.zeros(len(ys)) if metallic is None else np.clip(np.nan_to_num(np.asarray(metallic)[ys, xs]), 0, 1)
-        # Cycles' Principled BSDF: a dielectric layer (the exact Fresnel of IOR 1.5)
-        # weighted 1 - metallic, a metal one (Schlick's curve from the base colour)
-        # weighted metallic
-        layers = [(1.0 - met, np.full((len(ys), 1), DIELECTRIC_F0), "dielectric")]
-        if np.any(met > 0):
-            layers.append((met, np.clip(albedo[ys, xs], 0, 1), "schlick"))
+        layers = principled_layers(met, albedo[ys, xs])
         if env is None:
             pf = prefiltered_light(model, pc)
             L_sky = pf.lookup(r, rough)
