@@ -337,6 +337,19 @@ class LightModel:
                 best, val = to / max(float(np.linalg.norm(to)), 1e-12), v
         return best
 
+    def open_shading(self, points: np.ndarray, normal) -> np.ndarray:
+        """(N, 3) the shading a surface of unit ``normal`` (3,) gets at ``points`` (N, 3)
+        (camera frame, metres) with nothing hiding its lights: the sky's (with the ground's
+        bounce) and every sun's and lamp's at n.l, a lamp's falling off with its distance.
+        What a support beyond the frame receives: its radiance is its albedo times this."""
+        q = np.asarray(points, np.float64).reshape(-1, 3)
+        n = _vec(normal)
+        out = np.repeat(self.sky.shading(n[None]), len(q), axis=0)
+        for light in (*self.suns, *self.lamps):
+            L, _, E = light.toward(q)
+            out += np.maximum(L @ n, 0.0)[:, None] * E
+        return out
+
     def ambient_share(self) -> float:
         """Sky shading over all shading on a support facing up, unshadowed (the share a
         full shadow keeps)."""

@@ -9,12 +9,17 @@ each meets, weighted by the BRDF over the rays' density with its Fresnel term
 (``lobe_weights``; the split sum's n.l took a grazing lobe's light 5-22 % too low where
 the sky is brighter on its grazing side): the photograph's (or the synthesised floor's)
 at the texel a ray meets, the object's own diffuse radiance where it meets the object,
-the support's radiance beyond the frame, and where it escapes the prefiltered sky at
+the support's beyond the frame (what it reflects of the light, measured where the frame
+shows it, times the light's shading at the point the ray meets:
+``LightModel.open_shading``, a lamp's falling off with its distance), and where it
+escapes the prefiltered sky at
 the ray's own direction, filtered to its share of the lobe (filtered importance
 sampling). The neighbours' rays are averaged over the object (``reflect_blur_px``).
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 
@@ -22,14 +27,55 @@ from zcomp_cli.scene import gather
 from zcomp_cli.scene.sampling import pixel_jitter
 
 
+class Surroundings(NamedTuple):
+    """What the object's rays read where they meet something: ``scene`` (H, W, 3) the
+    scene's radiance (the photograph, the synthesised scene where it was re-shaded);
+    ``own`` (H, W, 3) the object's radiance; ``shown`` (H, W) bool the pixels showing the
+    object; ``support`` (3,) what the support reflects of the light
+    (``support_reflectance``) or None (not measured: the support beyond the frame is as
+    bright as the sky's ``ground``)."""
+
+    scene: np.ndarray
+    own: np.ndarray
+    shown: np.ndarray
+    support: np.ndarray | None = None
+
+
+def support_reflectance(points: np.ndarray, normals: np.ndarray, image: np.ndarray, valid: np.ndarray,
+                        model) -> np.ndarray | None:
+    """(3,) what the support reflects of the light, linear RGB: the mean, over its pixels
+    (``depthmesh.support_mask``) among ``valid`` (H, W), of the photograph ``image``
+    (H, W, 3) over the shading ``model`` (a ``LightModel``) gives them with nothing
+    hiding its lights (``LightModel.open_shading``), at camera-frame ``points`` (H, W, 3)
+    of unit ``normals`` (H, W, 3). Its albedo (with its specular layer) times the share
+    of the light the scene lets reach it (walls hiding the sky, shadows), as the frame
+    shows them: a support point beyond the frame reflects this much of the light there.
+    The mean, not the median: a ray bundle gathers a checkered floor's mean, and the
+    median of a two-tone checker is one of its tones (seed 2719's case 15: 0.6 of the
+    mean). None where fewer than 3 pixels show the support or the light leaves them
+    dark."""
+    from zcomp_cli.scene.depthmesh import support_mask
+
+    img = np.asarray(image, np.float64)[..., :3]
+    ok = np.asarray(valid, bool) & np.all(np.isfinite(img), -1) & np.all(np.isfinite(points), -1) \
+        & np.all(np.isfinite(normals), -1)
+    sup, _ = support_mask(np.nan_to_num(points), np.nan_to_num(normals), ok, model.up)
+    if sup.sum() < 3:
+        return None
+    E = model.open_shading(points[sup], model.up)
+    lit = E.mean(1) > 1e-6 * max(float(E.mean(1).max()), 1e-30)
+    if lit.sum() < 3:
+        return None
+    return np.mean(np.clip(img[sup][lit], 0.0, None) / E[lit], 0)
+
+
 def environment(model, camera, depth, P, nv, view, rough, ys, xs, *, occluder, scene_only, images, prefiltered,
                 gcfg, march, layers=None) -> np.ndarray:
     """(M, 3) the radiance the GGX lobe of roughness ``rough`` (M,) reflects toward
     ``view`` (M, 3) at the object's points ``P`` (M, 3) of unit normals ``nv`` (M, 3),
-    pixels (``ys``, ``xs``); ``images``: (scene radiance (H, W, 3): the photograph, the
-    synthesised scene where it was re-shaded; the object's radiance (H, W, 3); the pixels
-    showing the object (H, W) bool); ``layers``: (metallic (M,), base colour (M, 3)), whose
-    Fresnel weighs the lobe (None: a dielectric)."""
+    pixels (``ys``, ``xs``); ``images``: what the rays read (``Surroundings``);
+    ``layers``: (metallic (M,), base colour (M, 3)), whose Fresnel weighs the lobe (None:
+    a dielectric)."""
     alpha = np.maximum(rough * rough, gcfg.min_alpha)
     k = int(gcfg.reflect_rays)
     dirs, nl = gather.ggx_directions(nv, view, alpha, k, pixel_jitter(ys, xs, salt=7))
@@ -87,8 +133,8 @@ def bounce(model, camera, depth, P, nv, ys, xs, *, occluder, scene_only, images,
     """(M, 3) the shading (irradiance over pi) the object's points ``P`` (M, 3) of unit
     normals ``nv`` (M, 3) receive from what is not sky: ``k`` cosine-distributed rays per
     point (turned per pixel), each bringing the radiance of what it meets (``_met``: the
-    floor, a wall, the object itself); the rays that escape bring nothing here (the sky's
-    irradiance is counted with its visibility)."""
+    floor, a wall, the object itself; ``images``: ``Surroundings``); the rays that escape
+    bring nothing here (the sky's irradiance is counted with its visibility)."""
     from zcomp_cli.scene.skyvis import hemisphere_directions
 
     dirs = np.stack(hemisphere_directions(nv, pixel_jitter(ys, xs, salt=9), int(k)))
@@ -99,10 +145,13 @@ def bounce(model, camera, depth, P, nv, ys, xs, *, occluder, scene_only, images,
 def _met(model, camera, depth, P, nv, dirs, ys, xs, steps, occluder, scene_only, images, march):
     """((k, M, 3) the radiance each ray ``dirs`` (k, M, 3) meets first, 0 where it escapes
     to the sky; (k, M) bool, it escapes): the photograph's (or the synthesised scene's) at
-    the texel or support point it meets in the frame, the support's beyond it or a wall
-    beyond the frame as lit as the support, the object's own radiance where it meets the
-    object and that point shows in the frame, else the object's mean."""
-    scene_rad, obj_rad, obj_px = images
+    the texel or support point it meets in the frame; the support's beyond it, what it
+    reflects (``Surroundings.support``) of the light's shading at that point (without
+    that measure, and on a wall beyond the frame, the support's radiance the light fit
+    measured: ``Sky.ground``); the
+    object's own radiance where it meets the object and that point shows in the frame,
+    else the object's mean."""
+    scene_rad, obj_rad, obj_px, reflects = images
     support = None if model.anchor is None else (model.anchor, model.up)
     seen = gather.trace(P, nv, dirs, depth, camera, cfg=march, steps=steps, jitter=pixel_jitter(ys, xs, salt=8),
                         occluder_mask=scene_only, mesh=occluder, support=support, walls=model.walls)
@@ -112,6 +161,13 @@ def _met(model, camera, depth, P, nv, dirs, ys, xs, steps, occluder, scene_only,
     at = (ty >= 0) & ((kind == gather.SCENE) | (kind == gather.SUPPORT))
     L[at] = scene_rad[ty[at], tx[at]]
     L[((kind == gather.SCENE) & (ty < 0)) | (kind == gather.BEYOND)] = ground
+    beyond = kind == gather.BEYOND
+    if reflects is not None and beyond.any():
+        # the point met on the support plane (as gather.trace found it)
+        start = np.broadcast_to(P, dirs.shape)[beyond]
+        D = dirs[beyond]
+        t = ((start - support[0]) @ support[1]) / np.maximum(-(D @ support[1]), 1e-12)
+        L[beyond] = np.asarray(reflects, np.float64)[None] * model.open_shading(start + D * t[:, None], support[1])
     self_ = kind == gather.OBJECT
     shown = np.zeros_like(self_)
     s = self_ & (ty >= 0)
@@ -122,4 +178,4 @@ def _met(model, camera, depth, P, nv, dirs, ys, xs, steps, occluder, scene_only,
     return L, kind == gather.SKY
 
 
-__all__ = ["environment", "bounce", "lobe_weights"]
+__all__ = ["Surroundings", "support_reflectance", "environment", "bounce", "lobe_weights"]

@@ -304,6 +304,7 @@ class PhysicalRenderer(Renderer):
         radiance there the surface's behind it where the object covers it in part
         (``pixel.split``: the two albedos), the object's where wholly."""
         from zcomp_cli.renderers.physical.pixel import extend, film_filter, split
+        from zcomp_cli.renderers.physical.reflect import support_reflectance
 
         cfg = self._settings.transport
         ys, xs = np.nonzero(todo)
@@ -332,8 +333,15 @@ class PhysicalRenderer(Renderer):
             crop = lambda m_: None if m_ is None else np.asarray(m_, np.float64)[y0:y1, x0:x1]
             a_o, a_s = split(a, crop(None if own is None else own.albedo), cov, t, cfg)
             win = (y0, x0, y1, x1, t, cls, obj)
+            # what the support reflects of the light where the frame shows it (its known
+            # pixels the object does not cover): a ray meeting it beyond the frame reads
+            # that much of the light there
+            shown = (d > 0) & (coverage <= 0) & (True if unknown is None else ~unknown)
+            sup = None if image is None else support_reflectance(
+                camera.unproject(d.astype(np.float32)).astype(np.float64), n, image, shown, model)
             O = self._object_layer(d, camera, model, occluder, scene_only, albedo_mean, roughness, metallic, image,
-                                   win, (ys, xs, nv, vis_sky, lit, ambient, direct, seen), S, rad, a_o, cov, own)
+                                   win, (ys, xs, nv, vis_sky, lit, ambient, direct, seen), S, rad, a_o, cov, own,
+                                   support=sup)
             # each layer carried past where it was shaded, to the pixels it covers in part
             O = extend(O, obj, edge & ~obj, cfg)
             F = extend(scene(a_s, S), t & ~obj, edge & obj, cfg)
@@ -344,16 +352,17 @@ class PhysicalRenderer(Renderer):
         return rad[ly, lx], None
 
     def _object_layer(self, d, camera, model, occluder, scene_only, albedo_mean, roughness, metallic, image, win,
-                      parts, S, rad, a_o, cov, own=None):
+                      parts, S, rad, a_o, cov, own=None, support=None):
         """(h, w, 3) the object's radiance over the window ``win`` (y0, x0, y1, x1, the todo
         pixels, the classes, the object's pixels) at its pixels: its albedo ``a_o`` times
         its diffuse shading -- the scene's and its own bounce gathered along rays
         (``reflect.bounce``) instead of the support's radiance below the horizon and the
         occluders' bounce as a share of the scene's albedo -- times what its glossy layer
         leaves, plus the glossy layer (``_glossy``, reflecting what its lobe meets:
-        ``reflect.environment``)."""
+        ``reflect.environment``); ``support`` (3,) what the support reflects of the
+        light or None (``reflect.Surroundings``)."""
         from zcomp_cli.renderers.physical.pixel import film_filter, split
-        from zcomp_cli.renderers.physical.reflect import bounce
+        from zcomp_cli.renderers.physical.reflect import Surroundings, bounce
         from zcomp_cli.scene import sh as shm
 
         cfg, pc = self._settings.transport, self._settings.gloss
@@ -365,7 +374,7 @@ class PhysicalRenderer(Renderer):
         photo[y0:y1, x0:x1][t & ~obj] = rad[t & ~obj]
         own_rad = np.zeros(d.shape + (3,))
         own_rad[y0:y1, x0:x1][obj] = (a_o * S)[obj]
-        images = (photo, own_rad, _pasted(np.zeros(d.shape), obj, (y0, x0)) > 0)
+        images = Surroundings(photo, own_rad, _pasted(np.zeros(d.shape), obj, (y0, x0)) > 0, support)
         if cfg.bounce_rays > 0 and sel.any():
             P = camera.ray(xs[sel] + 0.5, ys[sel] + 0.5) * d[ys[sel], xs[sel]][:, None]
             got = bounce(model, camera, d, P, nv[sel], ys[sel], xs[sel], occluder=occluder, scene_only=scene_only,
