@@ -17,6 +17,7 @@ from pathlib import Path
 
 import click
 
+from zcomp_cli.blender import DEFAULT_SAMPLES
 from zcomp_cli.cli.options import (K_opt, cache_dir_opt, fov_opt, out_dir_opt, overwrite_opt, parse_K,
                                    resolution_opt)
 
@@ -57,7 +58,8 @@ def _single_job(mesh, position, rotation_deg, quaternion, scale, height, fov_deg
 @K_opt
 @resolution_opt
 @out_dir_opt
-@click.option("--samples", type=click.IntRange(min=1), default=None, help="Cycles samples of the anti-aliased pass (default 16).")
+@click.option("--samples", type=click.IntRange(min=1), default=None,
+              help=f"Cycles samples of the anti-aliased pass (default {DEFAULT_SAMPLES}).")
 @click.option("--no-cache", is_flag=True, help="Render everything and leave the cache alone.")
 @cache_dir_opt
 @overwrite_opt
@@ -110,7 +112,6 @@ def run_jobs(jobs: list, out: Path, *, samples, use_cache, cache_dir, quiet) -> 
     from rich.markup import escape
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from zcomp_cli.blender import DEFAULT_SAMPLES
     from zcomp_cli.blender.intrinsics import IntrinsicsRequest, render_object_intrinsics
 
     console = Console(stderr=True)
