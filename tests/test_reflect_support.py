@@ -13,12 +13,14 @@ import pytest
 
 from zcomp_cli.camera import Camera
 from zcomp_cli.renderers.physical.reflect import Surroundings, _met, support_reflectance
+from zcomp_cli.renderers.physical.settings import TransportConfig
 from zcomp_cli.scene import gather
 from zcomp_cli.scene.config import MarchConfig
 from zcomp_cli.scene.lightmodel import Lamp, LightModel, Sky
 from zcomp_cli.scene.skyvis import hemisphere_directions
 
 UP = np.array([0.0, 1.0, 0.0])
+TRIM = TransportConfig().support_trim
 FLOOR_Y = -1.0
 
 
@@ -67,7 +69,7 @@ def test_the_support_reflects_its_mean_albedo_under_a_lamp():
     cam = Camera.from_fov(70.0, 48, 48)
     model = _model()
     d, P, n, img, alb, floor = _floor_scene(cam, model)
-    got = support_reflectance(P, n, img, floor, model)
+    got = support_reflectance(P, n, img, floor, model, TRIM)
     # the shading falls off 10-fold across the floor; what it reflects is its albedo's
     # mean (trimmed: the checker's tones are not quite half and half here)
     np.testing.assert_allclose(got, alb[floor].mean(0), rtol=0.01)
@@ -75,7 +77,7 @@ def test_the_support_reflects_its_mean_albedo_under_a_lamp():
     # a few broken pixels and a bright prop among the floor's do not move it far
     img2 = img.copy()
     img2[floor.nonzero()[0][:5], floor.nonzero()[1][:5]] = np.nan
-    got2 = support_reflectance(P, n, img2, floor, model)
+    got2 = support_reflectance(P, n, img2, floor, model, TRIM)
     assert np.all(np.isfinite(got2))
     np.testing.assert_allclose(got2, alb[floor].mean(0), rtol=0.02)
 
@@ -84,9 +86,9 @@ def test_no_support_or_no_light_says_so():
     cam = Camera.from_fov(70.0, 16, 16)
     model = _model()
     d, P, n, img, alb, floor = _floor_scene(cam, model, checker=False)
-    assert support_reflectance(P, n, img, np.zeros_like(floor), model) is None
+    assert support_reflectance(P, n, img, np.zeros_like(floor), model, TRIM) is None
     dark = LightModel(sky=Sky(radiance_sh=np.zeros((9, 3)), ground=np.zeros(3), up=UP), anchor=model.anchor)
-    assert support_reflectance(P, n, img, floor, dark) is None
+    assert support_reflectance(P, n, img, floor, dark, TRIM) is None
 
 
 @pytest.mark.parametrize("measured", [True, False])
@@ -108,7 +110,7 @@ def test_a_ray_reads_the_floor_beyond_the_frame_as_the_frame_would_show_it(measu
     march = MarchConfig()
 
     def read(cam, d, P_, n_, img, floor):
-        sup = support_reflectance(P_, n_, img, floor, model) if measured else None
+        sup = support_reflectance(P_, n_, img, floor, model, TRIM) if measured else None
         s = Surroundings(img, np.zeros_like(img), np.zeros(d.shape, bool), sup)
         L, _ = _met(model, cam, d, P, nv, dirs, ys, xs, 16, None, None, s, march)
         seen = gather.trace(P, nv, dirs, d, cam, cfg=march, steps=16, jitter=np.zeros(1), support=(model.anchor, UP))
@@ -145,6 +147,6 @@ def test_a_glint_on_the_floor_does_not_light_the_floor_beyond_the_frame():
     img2[ys[pick], xs[pick]] *= 1000.0
     img2[ys[:3], xs[:3]] = np.inf
     img2[ys[3:6], xs[3:6]] = np.nan
-    got = support_reflectance(P, n, img2, floor, model)
+    got = support_reflectance(P, n, img2, floor, model, TRIM)
     assert np.all(np.isfinite(got))
     np.testing.assert_allclose(got, alb[floor].mean(0), rtol=0.02)

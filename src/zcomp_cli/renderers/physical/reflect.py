@@ -27,14 +27,6 @@ from zcomp_cli.scene import gather
 from zcomp_cli.scene.sampling import pixel_jitter
 
 
-# The share of the support's pixels ``support_reflectance`` leaves out at either end of
-# each channel: the floor a glint toward the camera or a prop misread as floor may take.
-# A symmetric trim keeps a two-tone checker's mean; against the plain mean the object
-# moved by -0.03 to +0.07 dB on seeds 2719, 3301 and 4441 (the full and the exposure
-# oracle; docs/calibration-record.md).
-SUPPORT_TRIM = 0.1
-
-
 class Surroundings(NamedTuple):
     """What the object's rays read where they meet something: ``scene`` (H, W, 3) the
     scene's radiance (the photograph, the synthesised scene where it was re-shaded);
@@ -50,7 +42,7 @@ class Surroundings(NamedTuple):
 
 
 def support_reflectance(points: np.ndarray, normals: np.ndarray, image: np.ndarray, valid: np.ndarray,
-                        model) -> np.ndarray | None:
+                        model, trim: float) -> np.ndarray | None:
     """(3,) what the support reflects of the light, linear RGB: the mean, over its pixels
     (``depthmesh.support_mask``) among ``valid`` (H, W), of the photograph ``image``
     (H, W, 3) over the shading ``model`` (a ``LightModel``) gives them with nothing
@@ -60,9 +52,11 @@ def support_reflectance(points: np.ndarray, normals: np.ndarray, image: np.ndarr
     shows them: a support point beyond the frame reflects this much of the light there.
     The mean, not the median: a ray bundle gathers a checkered floor's mean, and the
     median of a two-tone checker is one of its tones (seed 2719's case 15: 0.6 of the
-    mean); trimmed by ``SUPPORT_TRIM`` at either end, so that a glint of the sun toward
-    the camera (an HDR photograph's floor pixels 1000 times the rest) does not light the
-    floor beyond the frame, while a checker's two tones keep their mean. None where
+    mean); trimmed by ``trim`` at either end (``TransportConfig.support_trim``), so that
+    a glint of the sun toward the camera (an HDR photograph's floor pixels 1000 times the
+    rest) does not light the floor beyond the frame, while a checker's two tones keep
+    their mean (against the plain mean the object moved by -0.03 to +0.07 dB on seeds
+    2719, 3301 and 4441, docs/calibration-record.md). None where
     fewer than 3 pixels show the support or the light leaves them dark."""
     from zcomp_cli.scene.depthmesh import support_mask
 
@@ -78,7 +72,7 @@ def support_reflectance(points: np.ndarray, normals: np.ndarray, image: np.ndarr
         return None
     from scipy.stats import trim_mean
 
-    return np.asarray(trim_mean(np.clip(img[sup][lit], 0.0, None) / E[lit], SUPPORT_TRIM, axis=0), np.float64)
+    return np.asarray(trim_mean(np.clip(img[sup][lit], 0.0, None) / E[lit], float(trim), axis=0), np.float64)
 
 
 def environment(model, camera, depth, P, nv, view, rough, ys, xs, *, occluder, scene_only, images, prefiltered,

@@ -81,6 +81,12 @@ class TransportConfig:
                                                   "surface; 16 rays a pixel under the film's filter alone left a "
                                                   "grain 8x the sky's and the sun's on a sphere", lo=0.0,
                                  lo_open=False, hi=64.0)
+    support_trim: float = knob(0.1, "heuristic", "share of the support's pixels left out at either end of each "
+                                                 "channel when what it reflects of the light is measured for the "
+                                                 "floor beyond the frame (reflect.support_reflectance): the floor "
+                                                 "a glint toward the camera or a prop misread as floor may take, "
+                                                 "a judgement; symmetric, so a two-tone checker keeps its mean",
+                               lo=0.0, lo_open=False, hi=0.45)
     light_samples: int = knob(16, "sampling", "rays per pixel over a sun's or lamp's disc toward which the "
                                               "object's mesh is tested (its soft shadow, scene.meshrays)", hi=4096)
     sky_rays: int = knob(32, "sampling", "rays per point toward the sky the object's mesh may hide, drawn where "
