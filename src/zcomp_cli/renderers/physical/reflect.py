@@ -12,9 +12,9 @@ at the texel a ray meets, the object's own diffuse radiance where it meets the o
 the support's beyond the frame (what it reflects of the light, measured where the frame
 shows it, times the light's shading at the point the ray meets:
 ``LightModel.open_shading``, a lamp's falling off with its distance), and where it
-escapes the prefiltered sky at
-the ray's own direction, filtered to its share of the lobe (filtered importance
-sampling). The neighbours' rays are averaged over the object (``reflect_blur_px``).
+escapes the prefiltered sky at the ray's own direction, filtered to its share of the
+lobe (filtered importance sampling). The neighbours' rays are averaged over the object
+(``reflect_blur_px``).
 """
 
 from __future__ import annotations
@@ -56,8 +56,8 @@ def support_reflectance(points: np.ndarray, normals: np.ndarray, image: np.ndarr
     a glint of the sun toward the camera (an HDR photograph's floor pixels 1000 times the
     rest) does not light the floor beyond the frame, while a checker's two tones keep
     their mean (against the plain mean the object moved by -0.03 to +0.07 dB on seeds
-    2719, 3301 and 4441, docs/calibration-record.md). None where
-    fewer than 3 pixels show the support or the light leaves them dark."""
+    2719, 3301 and 4441, docs/calibration-record.md). None where fewer than 3 pixels show
+    the support or the light leaves them dark."""
     from zcomp_cli.scene.depthmesh import support_mask
 
     img = np.asarray(image, np.float64)[..., :3]
@@ -154,9 +154,8 @@ def _met(model, camera, depth, P, nv, dirs, ys, xs, steps, occluder, scene_only,
     the texel or support point it meets in the frame; the support's beyond it, what it
     reflects (``Surroundings.support``) of the light's shading at that point (without
     that measure, and on a wall beyond the frame, the support's radiance the light fit
-    measured: ``Sky.ground``); the
-    object's own radiance where it meets the object and that point shows in the frame,
-    else the object's mean."""
+    measured: ``Sky.ground``); the object's own radiance where it meets the object and
+    that point shows in the frame, else the object's mean."""
     scene_rad, obj_rad, obj_px, reflects = images
     support = None if model.anchor is None else (model.anchor, model.up)
     seen = gather.trace(P, nv, dirs, depth, camera, cfg=march, steps=steps, jitter=pixel_jitter(ys, xs, salt=8),
