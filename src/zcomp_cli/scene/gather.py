@@ -49,11 +49,14 @@ class Seen:
     mesh: ``texel`` the pixel its hit point projects to, -1 outside the frame), ``SUPPORT``
     (the support plane, seen in the frame at ``texel``), ``BEYOND`` (the support plane
     beyond the frame); ``texel`` (S, 2) int (row, column) or -1; ``depth`` (S,) the hit
-    point's z-depth (inf where none)."""
+    point's z-depth (inf where none); ``distance`` (S,) how far along its ray from its
+    point (the mesh's from the point lifted off the surface by the march's bias; inf where
+    none)."""
 
     kind: np.ndarray
     texel: np.ndarray
     depth: np.ndarray
+    distance: np.ndarray
 
 
 def ggx_directions(normals: np.ndarray, view: np.ndarray, alpha: np.ndarray, k: int, jitter: np.ndarray):
@@ -146,7 +149,7 @@ def trace(points: np.ndarray, normals: np.ndarray, dirs: np.ndarray, depth: np.n
         tex[idx] = tx
         t_hit[idx] = t_p[ok]
     z = np.where(np.isfinite(t_hit), -(P[:, 2] + D[:, 2] * np.where(np.isfinite(t_hit), t_hit, 0.0)), np.inf)
-    return Seen(kind.reshape(K, N), tex.reshape(K, N, 2), z.reshape(K, N))
+    return Seen(kind.reshape(K, N), tex.reshape(K, N, 2), z.reshape(K, N), t_hit.reshape(K, N))
 
 
 def _project(q: np.ndarray, camera, H: int, W: int) -> np.ndarray:

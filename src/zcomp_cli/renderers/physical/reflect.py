@@ -51,13 +51,13 @@ def support_reflectance(points: np.ndarray, normals: np.ndarray, image: np.ndarr
     of the light the scene lets reach it (walls hiding the sky, shadows), as the frame
     shows them: a support point beyond the frame reflects this much of the light there.
     The mean, not the median: a ray bundle gathers a checkered floor's mean, and the
-    median of a two-tone checker is one of its tones (seed 2719's case 15: 0.6 of the
-    mean); trimmed by ``trim`` at either end (``TransportConfig.support_trim``), so that
-    a glint of the sun toward the camera (an HDR photograph's floor pixels 1000 times the
-    rest) does not light the floor beyond the frame, while a checker's two tones keep
-    their mean (against the plain mean the object moved by -0.03 to +0.07 dB on seeds
-    2719, 3301 and 4441, docs/calibration-record.md). None where fewer than 3 pixels show
-    the support or the light leaves them dark."""
+    median of a two-tone checker is one of its tones (0.6 of the mean on a development
+    case, docs/calibration-record.md); trimmed by ``trim`` at either end
+    (``TransportConfig.support_trim``), so that a glint of the sun toward the camera (an
+    HDR photograph's floor pixels 1000 times the rest) does not light the floor beyond
+    the frame, while a checker's two tones keep their mean (against the plain mean the
+    object moved by -0.03 to +0.07 dB on three seeds). None where fewer than 3 pixels
+    show the support or the light leaves them dark."""
     from zcomp_cli.scene.depthmesh import support_mask
 
     img = np.asarray(image, np.float64)[..., :3]
@@ -168,11 +168,8 @@ def _met(model, camera, depth, P, nv, dirs, ys, xs, steps, occluder, scene_only,
     L[((kind == gather.SCENE) & (ty < 0)) | (kind == gather.BEYOND)] = ground
     beyond = kind == gather.BEYOND
     if reflects is not None and beyond.any():
-        # the point met on the support plane (as gather.trace found it)
-        start = np.broadcast_to(P, dirs.shape)[beyond]
-        D = dirs[beyond]
-        t = ((start - support[0]) @ support[1]) / np.maximum(-(D @ support[1]), 1e-12)
-        L[beyond] = np.asarray(reflects, np.float64)[None] * model.open_shading(start + D * t[:, None], support[1])
+        met = np.broadcast_to(P, dirs.shape)[beyond] + dirs[beyond] * seen.distance[beyond][:, None]
+        L[beyond] = np.asarray(reflects, np.float64)[None] * model.open_shading(met, support[1])
     self_ = kind == gather.OBJECT
     shown = np.zeros_like(self_)
     s = self_ & (ty >= 0)

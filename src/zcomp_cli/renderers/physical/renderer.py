@@ -336,9 +336,9 @@ class PhysicalRenderer(Renderer):
             # what the support reflects of the light where the frame shows it (its known
             # pixels the object does not cover): a ray meeting it beyond the frame reads
             # that much of the light there
-            shown = (d > 0) & (coverage <= 0) & (True if unknown is None else ~unknown)
+            background = (d > 0) & (coverage <= 0) & (True if unknown is None else ~unknown)
             sup = None if image is None else support_reflectance(
-                camera.unproject(d.astype(np.float32)).astype(np.float64), n, image, shown, model,
+                camera.unproject(d.astype(np.float32)).astype(np.float64), n, image, background, model,
                 cfg.support_trim)
             O = self._object_layer(d, camera, model, occluder, scene_only, albedo_mean, roughness, metallic, image,
                                    win, (ys, xs, nv, vis_sky, lit, ambient, direct, seen), S, rad, a_o, cov, own,
