@@ -47,18 +47,46 @@ def test_retinex_beats_trivial_baseline_on_synthetic_floors():
     assert ours < 0.03
 
 
-def test_shading_is_grey_and_reconstructs_image():
+def test_shading_is_one_colour_and_reconstructs_image():
     img, _, _ = floor_scene(7)
     img = img * 50.0  # HDR exposure: the decomposition is exposure-invariant
     a, s = retinex_albedo(img)
-    np.testing.assert_allclose(s[..., 0], s[..., 1])
-    np.testing.assert_allclose(s[..., 0], s[..., 2])
+    # one colour over the frame (the plate's white balance) times a grey shading
+    ratio = s / s[..., 1:2]
+    np.testing.assert_allclose(ratio, np.broadcast_to(ratio[:1, :1], ratio.shape), rtol=1e-4)
     ok = (a.max(-1) < 0.999) & (a.min(-1) > 0.01)
     np.testing.assert_allclose((a * s)[ok], img[ok], rtol=1e-3, atol=1e-6)
     a1, _ = retinex_albedo(img / 50.0)
     np.testing.assert_allclose(a, a1, atol=1e-4)
     lum = a @ np.array([0.299, 0.587, 0.114])
     assert abs(np.percentile(lum, 95) - 0.8) < 0.05
+    a0, s0 = retinex_albedo(img, white_balance=False)  # Retinex alone: grey shading
+    np.testing.assert_allclose(s0[..., 0], s0[..., 1])
+    np.testing.assert_allclose(s0[..., 0], s0[..., 2])
+
+
+def test_a_coloured_light_goes_to_the_shading_not_the_albedo():
+    """Tiles of random colours under a warm light (a tungsten cast): the plate's white
+    balance puts the cast in the shading; Retinex alone leaves all of it in the albedo."""
+    from zcomp_cli.estimators.white_balance import angular_error_deg
+
+    warm = np.array([1.45, 0.95, 0.55])
+    with_wb, grey, alb_wb, alb_grey = [], [], [], []
+    for seed in range(6):
+        img, alb, _ = floor_scene(seed)
+        lit = (img * warm).astype(np.float32)
+        a, s = retinex_albedo(lit)
+        a0, s0 = retinex_albedo(lit, white_balance=False)
+        with_wb.append(angular_error_deg(s.reshape(-1, 3).mean(0), warm))
+        grey.append(angular_error_deg(s0.reshape(-1, 3).mean(0), warm))
+        ok = alb.min(-1) > 0.1
+        alb_wb.append(np.median([angular_error_deg(x, y) for x, y in zip(a[ok][::37], alb[ok][::37])]))
+        alb_grey.append(np.median([angular_error_deg(x, y) for x, y in zip(a0[ok][::37], alb[ok][::37])]))
+    print(f"light colour error: white-balanced {np.mean(with_wb):.1f} deg, grey {np.mean(grey):.1f} deg; "
+          f"albedo colour error {np.mean(alb_wb):.1f} vs {np.mean(alb_grey):.1f} deg")
+    assert np.mean(grey) == pytest.approx(angular_error_deg(warm, np.ones(3)), abs=1.0)  # the whole cast
+    assert np.mean(with_wb) < 0.5 * np.mean(grey)
+    assert np.mean(alb_wb) < 0.5 * np.mean(alb_grey)
 
 
 def test_retinex_degenerate_inputs():
@@ -74,6 +102,11 @@ def test_retinex_degenerate_inputs():
         retinex_albedo(np.zeros((8, 8)))
     with pytest.raises(InputError):
         retinex_albedo(img, percentile_value=2.0)
+    for wb in (True, False):  # one saturated channel: the white balance stays finite and positive
+        red = np.zeros((16, 16, 3), np.float32)
+        red[..., 0] = np.linspace(0.1, 3e4, 256).reshape(16, 16)
+        a, s = retinex_albedo(red, white_balance=wb)
+        assert np.isfinite(a).all() and np.isfinite(s).all() and (s > 0).all()
 
 
 def test_scale_invariant_error_properties():

@@ -156,7 +156,7 @@ def estimate_scene_maps(image_lin, camera: Camera, *, depth_spec=None, normals_s
         roughness and metallic when an appearance model predicted them; the agreement
         of normals and depth (degrees) when they come from different sources.
     """
-    from zcomp_cli.estimators.albedo import retinex_albedo
+    from zcomp_cli.estimators.albedo import RETINEX_VERSION, retinex_albedo
     from zcomp_cli.estimators.cache import EstimateCache, content_key
     from zcomp_cli.estimators.normals_from_depth import DEFAULT_DISCONTINUITY, normals_from_depth
     from zcomp_cli.estimators.specs import check_estimator, form_of
@@ -279,7 +279,7 @@ def estimate_scene_maps(image_lin, camera: Camera, *, depth_spec=None, normals_s
                 sources[m] = res.source
     else:
         aspec = {k: v for k, v in (albedo_spec or {}).items() if k != "method"}
-        key = content_key(img_key, "retinex", aspec)
+        key = content_key(img_key, RETINEX_VERSION, aspec)
         albedo = cache.get("albedo", key, 3)
         if albedo is None:
             albedo, _ = retinex_albedo(img, **aspec)

@@ -6,7 +6,7 @@ its line before anything runs) and by the estimators themselves.
              {model: DIR, ...}        a transformers depth model or a diffusers depth pipeline
     normals: {from: depth, discontinuity_threshold}                       (default)
              {model: DIR, frame, encoded, ...}                            a normals pipeline
-    albedo:  {method: retinex, lum_threshold, ...}                        (default)
+    albedo:  {method: retinex, lum_threshold, white_balance, ...}         (default)
              {model: DIR, space, materials, ...}                          an intrinsics pipeline
 
 Every ``{model: DIR}`` form also takes the pipeline settings of
@@ -27,7 +27,7 @@ MODEL_KEYS = {"model", "pipeline", *PipelineSettings.KEYS}
 DEPTH_OUTPUTS = ("metric", "disparity", "affine")
 DEPTH_ALIGN = ("auto", "ground_plane", "normals", "median")
 RETINEX_KEYS = {"method", "lum_threshold", "chroma_threshold", "shading_smooth_px", "percentile",
-                "percentile_value"}
+                "percentile_value", "white_balance"}
 ALLOWED = {
     ("depth", "proxy"): GROUND_PLANE_KEYS,
     ("depth", "model"): MODEL_KEYS | GROUND_PLANE_KEYS - {"proxy"} | {"output", "median_depth", "median_depth_m",
@@ -131,8 +131,11 @@ def estimator_problems(map_name: str, spec) -> list[tuple[str | None, str]]:
     elif map_name == "albedo":
         if form == "method" and spec.get("method", "retinex") != "retinex":
             out.append(("method", f"unknown albedo method {spec['method']!r} (use retinex)"))
-        for k in RETINEX_KEYS - {"method"}:
+        for k in RETINEX_KEYS - {"method", "white_balance"}:
             _number(spec, k, out)
+        if "white_balance" in spec and not isinstance(spec["white_balance"], bool):
+            out.append(("white_balance", f"expected true (the plate's colour in the shading) or false "
+                                          f"(grey shading), got {spec['white_balance']!r}"))
         sp = spec.get("space")
         if sp is not None and sp not in ("auto", *INTRINSIC_SPACES):
             out.append(("space", f"expected auto, {', '.join(INTRINSIC_SPACES)}, got {sp!r}"))

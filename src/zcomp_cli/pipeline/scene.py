@@ -166,6 +166,10 @@ def load_scene(spec: SceneSpec, resolution: tuple[int, int] | None, *, cache_dir
     )
     files = [spec.image] + [spec.maps[k] for k in sorted(spec.maps)]
     models = _model_fingerprints(spec.estimators)  # "" without model estimators: keys as before
+    if sources.get("albedo") == "retinex":  # (the estimate's version: a changed estimate redoes the jobs)
+        from zcomp_cli.estimators.albedo import RETINEX_VERSION
+
+        models = ",".join(filter(None, [models, RETINEX_VERSION]))
     key = _hash_files(files, f"{size}|{camera.K.tolist()}|{sorted(spec.estimators.items())!r}"
                              + (f"|{models}" if models else ""))
     image, scale = _working_image(image, where, notes)
