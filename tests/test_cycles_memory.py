@@ -15,7 +15,8 @@ from zcomp_cli.testing import floor_scene
 
 
 def _model(up):
-    return SimpleNamespace(up=np.asarray(up, np.float64), walls=(), albedo_offset=0.0)
+    return SimpleNamespace(up=np.asarray(up, np.float64), walls=(),
+                           albedo_offset=lambda points, normals, albedo: np.zeros((np.size(albedo) // 3, 3)))
 
 
 def _arrays(s, box):

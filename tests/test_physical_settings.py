@@ -195,7 +195,7 @@ def test_no_bare_constant_in_the_scene_the_light_or_the_physical_renderer():
         ("stage", "KEEP_IN_MEMORY"): "a memory bound: the results do not depend on it",
         ("probe", "KEEP_SPLIT"): "a memory bound: the results do not depend on it",
         ("gloss", "KEEP_PREFILTERED"): "a memory bound: the results do not depend on it",
-        ("gloss", "DIELECTRIC_IOR"): "the Principled BSDF's IOR, which the benchmark's objects and Cycles use",
+        ("brdf", "DIELECTRIC_IOR"): "the Principled BSDF's IOR, which the benchmark's objects and Cycles use",
         ("written", "MAX_PITCH_DEG"): "the manifest's range of pitch_deg",
     }
 

@@ -15,13 +15,20 @@ rendered with the same transport the renderer synthesises with (``lightmodel``):
 The support's bounce (``bounce``) is no atom: it is measured on the photograph (the
 support's own image radiance) and subtracted.
 
-**The albedo's offset.** A surface's specular layer reflects a share of its irradiance
-whatever its albedo (Blender's Principled BSDF: about 4 % at normal incidence, more at
-grazing), so the image is ``E (albedo + g)``, not ``E albedo``: on a checker floor,
-image / albedo is brighter on the dark tiles, and a shadow darkens both alike.
-``albedo_offset`` measures ``g`` (the offset that best explains the known shading with
-the sky alone, among ``FrameConfig.albedo_offsets``; 0 where nothing tells it, such as one albedo),
-and the fit's shading is ``image / (albedo + g)``.
+**The scene's specular layer.** A dielectric surface (Blender's Principled BSDF: F0
+0.04) reflects a share R of its surround on top of its diffuse, and Cycles takes that
+share from the diffuse beneath, so the image is ``E (albedo + R (1 - albedo))``, not
+``E albedo``; R grows toward grazing views (``brdf.dielectric_offset``: 0.02-0.04 facing
+the camera, up to 0.1-0.5 across a floor seen at a grazing angle, the smoother the
+more). Fitted as ``E albedo``, that view-dependent brightening is read as light: on the
+benchmark's scenes the photograph's exposure fitted under the full light was off by a
+factor exp(0.145) on average, the floor's sheen read as a brighter light (the object
+then rendered up to 1.6x too bright) or a constant offset taken for it (0.5x too dark).
+``specular_roughness`` measures the layer's roughness (the one, among
+``FrameConfig.specular_roughness``, whose shading ``image / (albedo + offset)`` the sky
+alone explains best on held-out pixels: a roughness changes how fast the offset grows
+across the frame, and an unexplained gradient costs), and the fit's shading is
+``image / (albedo + offset)`` (``offset_shading``).
 """
 
 from __future__ import annotations
@@ -32,6 +39,7 @@ import numpy as np
 
 from zcomp_cli.camera import Camera
 from zcomp_cli.conventions import REC601, unit_normal_mask
+from zcomp_cli.scene.brdf import dielectric_offset
 from zcomp_cli.scene import sh
 from zcomp_cli.scene.config import FrameConfig, MarchConfig
 from zcomp_cli.scene.lightmodel import ground_view
@@ -194,34 +202,45 @@ def sky_atom_values(fp: FitPixels, radiance_sh: np.ndarray, samples, radiance_at
     return s[:, 0] if grey else s
 
 
-def albedo_offset(fp: FitPixels, shading: np.ndarray, base: np.ndarray, *, cfg: FrameConfig, solver) -> float:
-    """The albedo offset ``g`` (module docstring): among ``cfg.albedo_offsets``, the one
-    whose shading ``image / (albedo + g)`` (luminance) the grey columns ``base`` (N, B)
-    fit best on the held-out pixels, each larger one kept only when it explains them at
-    least ``cfg.offset_min_gain`` better (relative losses, so the shading's scale does
-    not count)."""
+def surface_offset(fp: FitPixels, roughness: float) -> np.ndarray:
+    """(N, 3) the offset the scene's specular layer of ``roughness`` adds to the fit
+    pixels' albedo, seen from the camera (module docstring); zeros for NaN."""
+    if not np.isfinite(roughness):
+        return np.zeros_like(fp.albedo)
+    ndv = -np.sum(fp.normals * fp.points, 1) / np.maximum(np.linalg.norm(fp.points, axis=1), 1e-12)
+    return dielectric_offset(ndv, roughness, fp.albedo)
+
+
+def specular_roughness(fp: FitPixels, shading: np.ndarray, base: np.ndarray, *, cfg: FrameConfig, solver) -> float:
+    """The roughness of the scene's specular layer (module docstring): among
+    ``cfg.specular_roughness``, the one whose shading ``image / (albedo + offset)``
+    (luminance) the grey columns ``base`` (N, B) fit best on the held-out pixels
+    (relative losses, so the shading's scale does not count); NaN where no fit pixel has
+    an albedo to read it on."""
     from zcomp_cli.light.solver import score_candidates
 
     a = fp.albedo @ REC601
     ok = a > 1e-3
-    if not (fp.train & ok).any():  # no fit pixel of any albedo: no offset to read (its losses were NaN)
-        return 0.0
+    if not (fp.train & ok).any():  # no fit pixel of any albedo: no layer to read (its losses were NaN)
+        return float("nan")
     img = (shading @ REC601) * a
-    best_g, best_l = 0.0, None
-    for g in cfg.albedo_offsets:
+    best_r, best_l = float("nan"), None
+    for r in cfg.specular_roughness:
+        g = surface_offset(fp, r) @ REC601
         y = np.where(ok, img / np.maximum(a + g, 1e-6), 0.0)
         lh, _ = score_candidates(base, np.zeros((len(y), 1)), y, fp.train & ok, cfg=solver)
         loss = float(lh[0])
-        if best_l is None or (best_l - loss) / (loss + 1e-12) >= cfg.offset_min_gain:
-            best_g, best_l = g, loss if best_l is None or loss < best_l else best_l
-    return best_g
+        if best_l is None or loss < best_l:
+            best_r, best_l = float(r), loss
+    return best_r
 
 
-def offset_shading(fp: FitPixels, shading: np.ndarray, g: float) -> np.ndarray:
-    """(N, 3) ``image / (albedo + g)`` of the fit pixels (``shading`` = image / albedo)."""
-    if g <= 0:
+def offset_shading(fp: FitPixels, shading: np.ndarray, roughness: float) -> np.ndarray:
+    """(N, 3) ``image / (albedo + offset)`` of the fit pixels (``shading`` = image /
+    albedo), the offset of a specular layer of ``roughness`` (NaN: none)."""
+    if not np.isfinite(roughness):
         return shading
-    return shading * fp.albedo / np.maximum(fp.albedo + g, 1e-6)
+    return shading * fp.albedo / np.maximum(fp.albedo + surface_offset(fp, roughness), 1e-6)
 
 
 def sun_columns(fp: FitPixels, dirs: np.ndarray, *, steps: int, chunk: int = 32) -> np.ndarray:
@@ -333,5 +352,5 @@ def lamp_candidates(fp: FitPixels, n_directions: int, distances_rel) -> np.ndarr
 
 
 __all__ = ["FitPixels", "working_copy", "fit_pixels", "ground_radiance", "bounce", "sky_visibility",
-           "sky_lobes", "sky_atom_values", "albedo_offset", "offset_shading", "sun_columns", "sun_column", "lamp_columns",
+           "sky_lobes", "sky_atom_values", "specular_roughness", "surface_offset", "offset_shading", "sun_columns", "sun_column", "lamp_columns",
            "lamp_candidates"]

@@ -702,7 +702,7 @@ def _model(ctx: Context, params: LightParams, suns, lamps, sky: Sky, probe_ref, 
     source = "manifest" if (params.given and not estimated) else "estimated"
     shadows = ShadowKind.CAST if direct else ShadowKind.CONTACT
     return LightModel(suns=tuple(suns), lamps=tuple(lamps), sky=sky, shadows=shadows, source=source,
-                      up_from=ctx.up_from, albedo_offset=pp.albedo_offset, probe=probe_ref, walls=pp.fp.walls,
+                      up_from=ctx.up_from, specular_roughness=pp.specular_roughness, probe=probe_ref, walls=pp.fp.walls,
                       fit=summary, anchor=pp.anchor)
 
 

@@ -2,7 +2,7 @@
 
 ``prepare`` makes, from the photograph's maps, the working copy and its fit pixels (the
 photometric fit's), the support's bounce (measured: the support's own image radiance),
-the albedo's offset (``atoms.albedo_offset``), the walls beyond the frame (``planes``),
+the scene's specular layer (``atoms.specular_roughness``), the walls beyond the frame (``planes``),
 the sky seen from each fit pixel (``skyvis``), and the scene's **depth mesh**
 (``depthmesh``: discontinuities cut, occluders extruded backwards) with its ray tracer
 (``raycast``, Embree), through which every light ray of the fit is cast, on a second
@@ -27,15 +27,17 @@ from zcomp_cli.camera import Camera
 from zcomp_cli.conventions import REC601, unit_normal_mask
 from zcomp_cli.light import atoms as at
 from zcomp_cli.light.config import LightConfig
+from zcomp_cli.scene.brdf import dielectric_offset
 
 
 @dataclass(frozen=True)
 class Prepared:
     """Step 1's products: fit pixels (their rays cast through the depth mesh), their
-    shading (image over the albedo plus its offset) less the bounce (N, 3), the sky
-    seen from them (``atoms.sky_visibility``), the ground's radiance (3,), the ground
-    frame (3, 3), the sky lobes' columns (N, L) (``atoms.sky_lobes``, in their order),
-    the albedo's offset; the shadow grid (``ShadowGrid``) or None."""
+    shading (image over the albedo plus its specular layer's offset) less the bounce
+    (N, 3), the sky seen from them (``atoms.sky_visibility``), the ground's radiance
+    (3,), the ground frame (3, 3), the sky lobes' columns (N, L) (``atoms.sky_lobes``, in
+    their order), the specular layer's roughness (NaN: none); the shadow grid
+    (``ShadowGrid``) or None."""
 
     fp: at.FitPixels
     shading: np.ndarray
@@ -43,7 +45,7 @@ class Prepared:
     ground: np.ndarray
     frame: np.ndarray
     lobe_columns: np.ndarray
-    albedo_offset: float = 0.0
+    specular_roughness: float = float("nan")
     grid: object | None = None
 
     @property
@@ -131,21 +133,27 @@ def prepare(depth, normals, shading, known, albedo, camera: Camera, up, settings
     vis = at.sky_visibility(fp)
     S = np.maximum(S - at.bounce(fp, ground), 0.0)
     lobes = np.stack([at.sky_atom_values(fp, c, vis) for _, c in at.sky_lobes(frame)], 1)
-    g = at.albedo_offset(fp, S, lobes, cfg=settings.frame, solver=settings.solver) if fp.train.any() else 0.0
+    r = (at.specular_roughness(fp, S, lobes, cfg=settings.frame, solver=settings.solver) if fp.train.any()
+         else float("nan"))
     if not shadows:
-        return Prepared(fp=fp, shading=at.offset_shading(fp, S, g), sky_vis=vis, ground=ground, frame=frame,
-                        lobe_columns=lobes, albedo_offset=g)
-    # the shadows' shading: the copy's image over its albedo (plus the offset), each
-    # area-averaged apart -- an anti-aliased albedo edge averages out in both, where the
-    # average of per-pixel ratios keeps its error
+        return Prepared(fp=fp, shading=at.offset_shading(fp, S, r), sky_vis=vis, ground=ground, frame=frame,
+                        lobe_columns=lobes, specular_roughness=r)
+    # the shadows' shading: the copy's image over its albedo (plus the specular layer's
+    # offset), each area-averaged apart -- an anti-aliased albedo edge averages out in both,
+    # where the average of per-pixel ratios keeps its error
     a2l = np.clip(np.nan_to_num(a2), 0, None)
     img2 = _area_copy(np.nan_to_num(np.asarray(shading, np.float64)) * np.clip(np.nan_to_num(albedo), 0, None),
                       s2.shape[:2])
     lum_img, lum_alb = img2 @ REC601, a2l @ REC601
-    s2o = np.where(lum_alb > 1e-4, lum_img / np.maximum(lum_alb + g, 1e-6), np.nan_to_num(s2 @ REC601))
+    g2 = 0.0
+    if np.isfinite(r):
+        pts = cam2.unproject(d2.astype(np.float32)).astype(np.float64).reshape(-1, 3)
+        ndv = -np.sum(np.nan_to_num(n2).reshape(-1, 3) * pts, 1) / np.maximum(np.linalg.norm(pts, axis=1), 1e-12)
+        g2 = dielectric_offset(ndv, r, np.clip(lum_alb, 0, 1).reshape(-1, 1))[:, 0].reshape(lum_alb.shape)
+    s2o = np.where(lum_alb > 1e-4, lum_img / np.maximum(lum_alb + g2, 1e-6), np.nan_to_num(s2 @ REC601))
     grid = ShadowGrid(mesh=mesh, caster=caster, shading=s2o, albedo=lum_alb, known=k2)
-    return Prepared(fp=fp, shading=at.offset_shading(fp, S, g), sky_vis=vis, ground=ground, frame=frame,
-                    lobe_columns=lobes, albedo_offset=g, grid=grid)
+    return Prepared(fp=fp, shading=at.offset_shading(fp, S, r), sky_vis=vis, ground=ground, frame=frame,
+                    lobe_columns=lobes, specular_roughness=r, grid=grid)
 
 
 def _area_copy(img: np.ndarray, shape) -> np.ndarray:

@@ -39,8 +39,10 @@ from zcomp_cli.scene.lightparams import LightParams
 
 # The disk cache's format: an entry written by another format is refitted. (2: a light
 # given whole is fitted without the depth mesh, its rays marched: issue 49. 3: a probe's
-# sky visibility weighed by its map, not its order-2 SH: issue 48.)
-FORMAT = 3
+# sky visibility weighed by its map, not its order-2 SH: issue 48. 4: the scene's specular
+# layer by its roughness, the offset growing toward grazing views, not one albedo offset:
+# issue 48.)
+FORMAT = 4
 # Fits kept in memory (per process): a batch visits its scenes in order, so a few are
 # enough; each holds the posterior and the evidence's small maps.
 KEEP_IN_MEMORY = 8

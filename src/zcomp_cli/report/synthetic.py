@@ -43,7 +43,7 @@ def _light(rng: random.Random, k: int) -> dict:
                         "irradiance_rgb": [rng.random() for _ in range(3)], "strength_from": "fitted"},
                        {"kind": "sky", "radiance_sh_rgb": sh, "shading_up_rgb": [0.9, 0.85, 0.96],
                         "ground_radiance_rgb": [0.59, 0.41, 0.31], "strength_from": "fitted"}],
-            "direction": d, "ambient_share": rng.random(), "albedo_offset": 0.16,
+            "direction": d, "ambient_share": rng.random(), "specular_roughness": 0.5,
             "fallback": note or None,
             "fit": {"shadow_blocks": rng.random(), "direction_uncertainty_deg": unc, "residual": rng.random() / 10,
                     "fit_pixels": 2000, "exposure": None, "note": note, "unfixed": unfixed},

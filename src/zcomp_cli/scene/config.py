@@ -7,7 +7,8 @@ screen-space march (each field declared once with its provenance and range:
   the light fit's pixels);
 * ``ProbeConfig``: a light probe's split into sources and sky (``probe``);
 * ``MarchConfig``: the screen-space march and the sky's visibility (``march``,
-  ``skyvis``).
+  ``skyvis``);
+* ``BrdfTable``: the tables of the GGX specular layer (``brdf``).
 """
 
 from __future__ import annotations
@@ -51,10 +52,10 @@ class FrameConfig:
                                                 "up", hi=90.0)
     holdout_blocks: int = knob(12, "sampling", "the frame is cut into this many blocks of its long side, held out "
                                               "in a checkerboard: a share of the frame at any resolution")
-    albedo_offsets: tuple = knob((0.0, 0.01, 0.02, 0.04, 0.08, 0.16), "sampling", "the albedo offsets (a specular "
-                                                                                 "layer's share) tried", hi=1.0)
-    offset_min_gain: float = knob(0.01, "heuristic", "a larger offset is taken when it explains held-out pixels "
-                                                    "this much better", lo=0.0, lo_open=False)
+    specular_roughness: tuple = knob((0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0), "sampling",
+                                     "the roughnesses of the scene's specular layer the fit chooses among "
+                                     "(light.atoms.specular_roughness; a dielectric's, F0 0.04): Blender's range, "
+                                     "every 0.1 from 0.2 (smoother: a mirror's reflection, not a sheen)", hi=1.0)
     wall_vertical_deg: float = knob(15.0, "heuristic", "a wall's normal is within this of the ground", hi=90.0)
     wall_azimuth_bins: int = knob(36, "sampling", "azimuth bins of the walls' vote")
     wall_offset_bin_rel: float = knob(0.03, "sampling", "offset bins of the walls' vote, a share of the depth")
@@ -150,3 +151,19 @@ class ReachConfig:
 
 
 __all__ = ["MeshConfig", "FrameConfig", "ProbeConfig", "MarchConfig", "ObjectShadowConfig", "ReachConfig"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class BrdfTable:
+    """The GGX specular layer's tables (``brdf``): the physical renderer's ``GlossConfig``
+    takes its defaults from here (the object's gloss), the light's fit uses them as they
+    are (the scene's own specular layer)."""
+
+    min_alpha: float = knob(1e-3, "heuristic", "the least GGX alpha (roughness squared): a perfect mirror's delta "
+                                               "lobe cannot be evaluated toward a light; a judgement: a roughness "
+                                               "below 0.03 is drawn as 0.03", hi=1.0)
+    env_lut_size: int = knob(32, "sampling", "roughness x n.v nodes of the split-sum environment BRDF's table "
+                                             "(bilinear between them)", hi=512)
+    env_lut_samples: int = knob(1024, "sampling", "GGX samples per node of that table (Hammersley points): within "
+                                                  "1e-4 of 64x as many at the median node, 0.025 at the worst "
+                                                  "(grazing n.v = 0.03); 0.08 s once per process", hi=65536)

@@ -289,8 +289,9 @@ class ProbeRef:
 class LightModel:
     """A scene's light: ``suns``, ``lamps``, ``sky``; ``shadows`` how the lights'
     shadows are drawn; ``source`` "manifest" or "estimated"; ``up_from`` where world up
-    came from; ``albedo_offset`` the reflectance the scene's surfaces add to their albedo
-    (their specular layer: the image is irradiance x (albedo + offset), ``atoms``);
+    came from; ``specular_roughness`` the roughness of the scene's surfaces' specular layer
+    (a dielectric's: the image is irradiance x (albedo + offset), the offset growing
+    toward grazing views, ``albedo_offset``; NaN: none, the image is irradiance x albedo);
     ``probe`` the manifest's probe (``ProbeRef``: what a glossy reflection or a path
     tracer's world reads again) or None;
     ``walls`` the scene's walls beyond the frame (``planes.Wall``), found with the fit:
@@ -304,7 +305,7 @@ class LightModel:
     shadows: ShadowKind = ShadowKind.CAST
     source: str = "estimated"
     up_from: Origin = Origin.SUPPORT
-    albedo_offset: float = 0.0
+    specular_roughness: float = float("nan")
     probe: object | None = None
     walls: tuple = ()
     fit: FitSummary = field(default_factory=FitSummary)
@@ -319,6 +320,21 @@ class LightModel:
     @property
     def up(self) -> np.ndarray:
         return self.sky.up
+
+    def albedo_offset(self, points, normals, albedo) -> np.ndarray:
+        """(N, 3) the reflectance the scene's specular layer adds to its ``albedo`` (N, 3)
+        at ``points`` (N, 3, camera frame, the camera at the origin) of unit ``normals``
+        (N, 3), seen from the camera (``brdf.dielectric_offset`` at
+        ``specular_roughness``); zeros where the model has no specular layer."""
+        from zcomp_cli.scene.brdf import dielectric_offset
+
+        a = np.asarray(albedo, np.float64).reshape(-1, 3)
+        if not np.isfinite(self.specular_roughness):
+            return np.zeros_like(a)
+        p = np.asarray(points, np.float64).reshape(-1, 3)
+        n = np.asarray(normals, np.float64).reshape(-1, 3)
+        ndv = -np.sum(n * p, 1) / np.maximum(np.linalg.norm(p, axis=1), 1e-12)
+        return dielectric_offset(ndv, self.specular_roughness, a)
 
     @property
     def key_direction(self) -> np.ndarray | None:
@@ -364,7 +380,8 @@ class LightModel:
         return {"source": self.source, "shadow": str(self.shadows), "up_camera": self.up.tolist(),
                 "up_from": str(self.up_from), "lights": lights,
                 "direction": None if kd is None else kd.tolist(),
-                "ambient_share": self.ambient_share(), "albedo_offset": self.albedo_offset,
+                "ambient_share": self.ambient_share(),
+                "specular_roughness": None if not np.isfinite(self.specular_roughness) else self.specular_roughness,
                 "fallback": (self.fit.note or None) if (self.shadows is not ShadowKind.CAST or self.fit.unfixed)
                 else None,
                 "fit": self.fit.to_info(), "probe": None if self.probe is None else str(self.probe),
@@ -374,7 +391,8 @@ class LightModel:
         """Every value, exactly (JSON: ``from_dict`` gives the same model back)."""
         return {"suns": [s.to_dict() for s in self.suns], "lamps": [lp.to_dict() for lp in self.lamps],
                 "sky": self.sky.to_dict(), "shadows": self.shadows.name, "source": self.source,
-                "up_from": self.up_from.name, "albedo_offset": float(self.albedo_offset),
+                "up_from": self.up_from.name,
+                "specular_roughness": float(self.specular_roughness) if np.isfinite(self.specular_roughness) else None,
                 "probe": None if self.probe is None else self.probe.to_dict(),
                 "walls": [w.to_dict() for w in self.walls], "fit": self.fit.to_info(),
                 "anchor": None if self.anchor is None else self.anchor.tolist()}
@@ -385,7 +403,8 @@ class LightModel:
 
         return cls(suns=tuple(Sun.from_dict(x) for x in d["suns"]), lamps=tuple(Lamp.from_dict(x) for x in d["lamps"]),
                    sky=Sky.from_dict(d["sky"]), shadows=ShadowKind[d["shadows"]], source=d["source"],
-                   up_from=Origin[d["up_from"]], albedo_offset=d["albedo_offset"],
+                   up_from=Origin[d["up_from"]],
+                   specular_roughness=float("nan") if d["specular_roughness"] is None else d["specular_roughness"],
                    probe=None if d["probe"] is None else ProbeRef.from_dict(d["probe"]),
                    walls=tuple(Wall.from_dict(w) for w in d["walls"]), fit=FitSummary.from_info(d["fit"]),
                    anchor=d["anchor"])

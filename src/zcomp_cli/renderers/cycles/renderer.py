@@ -309,7 +309,8 @@ class CyclesRenderer(Renderer):
         # the scene mesh, cached by its content (a scene's background request is the same
         # for every job)
         h = hashlib.sha256()
-        for a in (d, n, albedo, valid, np.asarray(model.up, np.float64), np.float64(model.albedo_offset)):
+        for a in (d, n, albedo, valid, np.asarray(model.up, np.float64),
+                  np.float64(model.specular_roughness)):
             h.update(np.ascontiguousarray(a).tobytes())
         h.update(repr(([w.to_info() for w in model.walls], sc.mesh_regions(d.shape, box))).encode())
         key = h.hexdigest()[:24] if with_scene else None

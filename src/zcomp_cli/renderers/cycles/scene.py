@@ -276,11 +276,14 @@ def scene_arrays(depth, normals, albedo, valid, camera, model, box=None, cfg=Non
     """The background's mesh as Blender gets it (``scene_mesh_arrays`` and the ground
     beyond the frame, ``with_ground``), over the whole frame or, for a large one, at full
     resolution around the window ``box`` Cycles traces and coarse elsewhere
-    (``mesh_regions``). ``model``: the light model (its up, walls and albedo offset);
+    (``mesh_regions``). ``model``: the light model (its up, walls and the offset its
+    specular layer adds to the albedo, seen from the camera: ``LightModel.albedo_offset``);
     ``cfg``: the mesh's constants (``scene.config.MeshConfig``)."""
     from zcomp_cli.scene.depthmesh import build_depth_mesh
 
-    diffuse = np.clip(albedo + float(model.albedo_offset), 0.0, 1.0)
+    alb = np.clip(np.asarray(albedo, np.float64), 0.0, 1.0)
+    pts = camera.unproject(np.asarray(depth, np.float32)).astype(np.float64)
+    diffuse = np.clip(alb + model.albedo_offset(pts, normals, alb).reshape(alb.shape), 0.0, 1.0)
     walls = walls_behind(model.walls)
     regions = mesh_regions(np.shape(depth), box)
     if regions is None:

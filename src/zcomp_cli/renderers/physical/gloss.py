@@ -37,7 +37,6 @@ more than it receives (a light rim at grazing angles).
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 
@@ -45,6 +44,8 @@ import numpy as np
 
 from zcomp_cli import equirect
 from zcomp_cli.renderers.physical.settings import GlossConfig
+from zcomp_cli.scene.brdf import (DIELECTRIC_F0, DIELECTRIC_IOR, FRESNELS, env_brdf, fresnel_dielectric,  # noqa: F401
+                                  fresnel_shape, multiscatter, smith_g, specular_albedo)
 from zcomp_cli.scene import sh
 from zcomp_cli.scene.probe import area_resize
 from zcomp_cli.scene.lightmodel import LightModel
@@ -134,35 +135,6 @@ def prefilter(img: np.ndarray, frame, *, convention: str = equirect.DEFAULT_CONV
                             convention=convention, rotation_deg=float(rotation_deg), name=name)
 
 
-# Blender's Principled BSDF's default IOR (a dielectric's reflectance at normal
-# incidence ((n - 1) / (n + 1))^2 = 0.04, what its "Specular IOR Level" 0.5 keeps)
-DIELECTRIC_IOR = 1.5
-DIELECTRIC_F0 = ((DIELECTRIC_IOR - 1.0) / (DIELECTRIC_IOR + 1.0)) ** 2
-FRESNELS = ("dielectric", "schlick")
-
-
-def fresnel_dielectric(cos_i: np.ndarray, eta: float) -> np.ndarray:
-    """(N,) the unpolarised Fresnel reflectance of a smooth interface of relative index
-    ``eta`` (> 1, from outside) at incidence cosines ``cos_i`` (N,) in [0, 1]."""
-    c = np.clip(np.asarray(cos_i, np.float64), 0.0, 1.0)
-    g = np.sqrt(eta * eta - 1.0 + c * c)
-    a = (g - c) / (g + c)
-    b = (c * (g + c) - 1.0) / (c * (g - c) + 1.0)
-    return 0.5 * a * a * (1.0 + b * b)
-
-
-def fresnel_shape(cos_i: np.ndarray, fresnel: str) -> np.ndarray:
-    """(N,) w in [0, 1] with the reflectance ``F = f0 + (1 - f0) w`` at the cosines
-    ``cos_i`` (N,): Schlick's ``(1 - c)^5``, or the dielectric's exact curve rescaled
-    between its F0 and 1 (Cycles' generalized Schlick of exponent -IOR)."""
-    c = np.clip(np.asarray(cos_i, np.float64), 0.0, 1.0)
-    if fresnel == "schlick":
-        return (1.0 - c) ** 5
-    if fresnel == "dielectric":
-        return np.clip((fresnel_dielectric(c, DIELECTRIC_IOR) - DIELECTRIC_F0) / (1.0 - DIELECTRIC_F0), 0.0, 1.0)
-    raise ValueError(f"fresnel must be one of {FRESNELS}, got {fresnel!r}")
-
-
 def principled_layers(metallic: np.ndarray, base: np.ndarray | None) -> list[tuple[np.ndarray, np.ndarray, str]]:
     """Cycles' Principled BSDF's specular layers at N points, as (weight (N,), f0 (N, C),
     ``fresnel``) each: the dielectric (its exact Fresnel, F0 0.04) weighted 1 -
@@ -173,127 +145,6 @@ def principled_layers(metallic: np.ndarray, base: np.ndarray | None) -> list[tup
     if np.any(met > 0):
         layers.append((met, np.clip(np.asarray(base, np.float64), 0, 1), "schlick"))
     return layers
-
-
-@functools.cache
-def _env_lut(size: int, samples: int, min_alpha: float, fresnel: str = "schlick") -> np.ndarray:
-    """(size, size, 2) the split-sum (A, B) of ``ggx_direct``'s single-scattering BRDF
-    with the ``fresnel`` curve, integrated by GGX importance sampling (``samples``
-    Hammersley points per node) as Karis 2013 precomputes it: row roughness, column
-    n.v, both from 0 to 1 (computed once per table). A + B is the albedo with F = 1."""
-    k = samples
-    i = np.arange(k)
-    u1 = (i + 0.5) / k
-    bits = i.astype(np.uint32)  # van der Corput radical inverse
-    bits = ((bits << 16) | (bits >> 16)) & 0xFFFFFFFF
-    bits = ((bits & 0x55555555) << 1) | ((bits & 0xAAAAAAAA) >> 1)
-    bits = ((bits & 0x33333333) << 2) | ((bits & 0xCCCCCCCC) >> 2)
-    bits = ((bits & 0x0F0F0F0F) << 4) | ((bits & 0xF0F0F0F0) >> 4)
-    bits = ((bits & 0x00FF00FF) << 8) | ((bits & 0xFF00FF00) >> 8)
-    u2 = bits.astype(np.float64) / 2.0 ** 32
-    nodes = np.linspace(0.0, 1.0, size)
-    out = np.zeros((size, size, 2))
-    for a_i, r in enumerate(nodes):
-        alpha = max(r * r, min_alpha)
-        # half vectors from D(h) (n.h): cos^2 = (1 - u) / (1 + (alpha^2 - 1) u)
-        ch = np.sqrt((1.0 - u1) / (1.0 + (alpha * alpha - 1.0) * u1))
-        sh_ = np.sqrt(np.maximum(1.0 - ch * ch, 0.0))
-        phi = 2.0 * np.pi * u2
-        h = np.stack([sh_ * np.cos(phi), sh_ * np.sin(phi), ch], 1)
-        for v_i, nv in enumerate(nodes):
-            nv = max(nv, 1e-3)
-            v = np.array([np.sqrt(1.0 - nv * nv), 0.0, nv])
-            vh = h @ v
-            l = 2.0 * vh[:, None] * h - v
-            nl = l[:, 2]
-            ok = (nl > 0) & (vh > 0)
-            # f (n.l) / pdf(l) = G vh / (n.h n.v), pdf(l) = D n.h / (4 v.h)
-            g = np.where(ok, _smith_g(alpha, nv, np.clip(nl, 1e-6, 1.0)) * vh / np.maximum(ch * nv, 1e-12), 0.0)
-            fc = fresnel_shape(vh, fresnel)
-            out[a_i, v_i] = (float(np.mean(g * (1.0 - fc))), float(np.mean(g * fc)))
-    out.setflags(write=False)
-    return out
-
-
-def _bilinear(lut: np.ndarray, roughness, ndv) -> np.ndarray:
-    """(N, C) the table ``lut`` (size, size, C) (row roughness, column n.v, both 0..1)
-    at ``roughness`` (N,) and ``ndv`` (N,), bilinear."""
-    m = lut.shape[0] - 1
-    r = np.clip(np.nan_to_num(np.asarray(roughness, np.float64).reshape(-1)), 0.0, 1.0) * m
-    c = np.clip(np.nan_to_num(np.asarray(ndv, np.float64).reshape(-1)), 0.0, 1.0) * m
-    r0 = np.minimum(np.floor(r).astype(int), m - 1)
-    c0 = np.minimum(np.floor(c).astype(int), m - 1)
-    fr, fc = (r - r0)[:, None], (c - c0)[:, None]
-    return ((1 - fr) * ((1 - fc) * lut[r0, c0] + fc * lut[r0, c0 + 1])
-            + fr * ((1 - fc) * lut[r0 + 1, c0] + fc * lut[r0 + 1, c0 + 1]))
-
-
-def env_brdf(roughness: np.ndarray, ndv: np.ndarray,
-             cfg: GlossConfig | None = None, *, fresnel: str = "schlick") -> tuple[np.ndarray, np.ndarray]:
-    """The split-sum environment BRDF of ``ggx_direct``'s single-scattering BRDF: (A, B)
-    (N,) for perceptual ``roughness`` (N,) and ``n.v`` (N,) in [0, 1] (bilinear in the
-    table of ``_env_lut``, ``cfg``'s) and the ``fresnel`` curve, so that the directional
-    albedo of one scattering is ``F0 A + B``."""
-    cfg = GlossConfig() if cfg is None else cfg
-    v = _bilinear(_env_lut(cfg.env_lut_size, cfg.env_lut_samples, cfg.min_alpha, fresnel), roughness, ndv)
-    return v[:, 0], v[:, 1]
-
-
-@functools.cache
-def _energy_lut(size: int, samples: int, min_alpha: float) -> np.ndarray:
-    """(size, size, 2) per roughness row and n.v column: the single-scattering albedo
-    with F = 1, E(mu), and its cosine-weighted mean over the hemisphere, E_avg = 2 int
-    E(mu) mu dmu (the same in every column)."""
-    lut = _env_lut(size, samples, min_alpha)
-    E = np.clip(lut[..., 0] + lut[..., 1], 1e-4, 1.0)
-    mu = np.linspace(0.0, 1.0, size)
-    e_avg = np.clip(2.0 * np.trapz(E * mu[None], mu, axis=1), 1e-4, 1.0)
-    out = np.stack([E, np.repeat(e_avg[:, None], size, 1)], -1)
-    out.setflags(write=False)
-    return out
-
-
-@functools.cache
-def _shape_average(fresnel: str) -> float:
-    """The cosine-weighted hemispherical mean of ``fresnel_shape``: 2 int w(mu) mu dmu
-    (1/21 for Schlick's)."""
-    mu = np.linspace(0.0, 1.0, 4097)
-    return float(2.0 * np.trapz(fresnel_shape(mu, fresnel) * mu, mu))
-
-
-def multiscatter(roughness: np.ndarray, ndv: np.ndarray, f0: np.ndarray, cfg: GlossConfig | None = None, *,
-                 fresnel: str) -> np.ndarray:
-    """(N, C) the factor that restores to the single-scattering GGX layer the light that
-    scatters more than once between its microfacets (module docstring), for perceptual
-    ``roughness`` (N,), ``ndv`` (N,) and ``f0`` (N, C) of the ``fresnel`` curve: 1 for a
-    smooth surface, up to ~1.1 for a rough dielectric."""
-    cfg = GlossConfig() if cfg is None else cfg
-    e = _bilinear(_energy_lut(cfg.env_lut_size, cfg.env_lut_samples, cfg.min_alpha), roughness, ndv)
-    E, e_avg = e[:, :1], e[:, 1:]
-    f0 = np.clip(np.asarray(f0, np.float64), 0.0, 1.0)
-    f_avg = f0 + (1.0 - f0) * _shape_average(fresnel)
-    f_ms = f_avg * e_avg / (1.0 - f_avg * (1.0 - e_avg))
-    return 1.0 + f_ms * (1.0 - E) / E
-
-
-def _smith_g(alpha, nv, nl):
-    """Height-correlated Smith masking-shadowing of GGX (Heitz 2014)."""
-    def lam(c):
-        c = np.clip(c, 1e-6, 1.0)
-        return 0.5 * (np.sqrt(1.0 + alpha * alpha * (1.0 - c * c) / (c * c)) - 1.0)
-
-    return 1.0 / (1.0 + lam(nv) + lam(nl))
-
-
-def specular_albedo(roughness: np.ndarray, ndv: np.ndarray, f0: np.ndarray,
-                    cfg: GlossConfig | None = None, *, fresnel: str) -> np.ndarray:
-    """(N, C) directional albedo ``(F0 A + B) x multiscatter`` of the GGX specular layer
-    toward the viewer, for perceptual ``roughness`` (N,), ``n.v`` (N,) and ``f0`` (N, C)
-    in [0, 1] of the ``fresnel`` curve ("dielectric": f0 is the dielectric's 0.04)."""
-    cfg = GlossConfig() if cfg is None else cfg
-    a, b = env_brdf(roughness, ndv, cfg, fresnel=fresnel)
-    f0 = np.asarray(f0, np.float64)
-    return np.clip((f0 * a[:, None] + b[:, None]) * multiscatter(roughness, ndv, f0, cfg, fresnel=fresnel), 0.0, 1.0)
 
 
 def ggx_direct(n: np.ndarray, v: np.ndarray, l: np.ndarray, roughness: np.ndarray, f0: np.ndarray,
@@ -326,7 +177,7 @@ def ggx_direct(n: np.ndarray, v: np.ndarray, l: np.ndarray, roughness: np.ndarra
     a2 = a_d * a_d
     D = a2 / (np.pi * (nh * nh * (a2 - 1.0) + 1.0) ** 2)
 
-    G = _smith_g(alpha, nv, nl)
+    G = smith_g(alpha, nv, nl)
     F = f0 + (1.0 - f0) * fresnel_shape(vh, fresnel)[:, None]
     # f (n.l) = D G F / (4 n.v)
     out = (D * G / (4.0 * np.maximum(nv, 1e-6)))[:, None] * F

@@ -124,14 +124,14 @@ def lobe_weights(nv, view, dirs, alpha, nl, layers=None):
     Schlick curve from its base colour; ``layers``: (metallic (M,), base colour (M, 3)),
     None a dielectric. Returns ((k, M, 3) weights, (k, M) G v.h / n.h, (k, M) v.h,
     (k, M) n.h)."""
-    from zcomp_cli.renderers.physical.gloss import _smith_g, fresnel_shape, principled_layers
+    from zcomp_cli.renderers.physical.gloss import fresnel_shape, principled_layers, smith_g
 
     h = dirs + view[None]
     h /= np.maximum(np.linalg.norm(h, axis=2, keepdims=True), 1e-12)
     vh = np.clip(np.sum(h * view[None], 2), 1e-6, 1.0)
     nh = np.clip(np.sum(h * nv[None], 2), 1e-6, 1.0)
     ndv = np.clip(np.sum(nv * view, 1), 1e-6, 1.0)
-    g = np.where(nl > 0, _smith_g(np.asarray(alpha)[None], ndv[None], np.clip(nl, 1e-6, 1.0)) * vh / nh, 0.0)
+    g = np.where(nl > 0, smith_g(np.asarray(alpha)[None], ndv[None], np.clip(nl, 1e-6, 1.0)) * vh / nh, 0.0)
     met, base = (np.zeros(vh.shape[1]), None) if layers is None else layers
     F = sum(w[None, :, None] * (f0[None] + (1.0 - f0[None]) * fresnel_shape(vh, kind)[..., None])
             for w, f0, kind in principled_layers(met, base))

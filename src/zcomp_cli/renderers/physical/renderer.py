@@ -325,8 +325,14 @@ class PhysicalRenderer(Renderer):
         cls = _depth_classes(d[y0:y1, x0:x1]) * 2 + obj
         S = film_filter(img(ambient + direct), cls, t, cfg)
         a = np.clip(albedo[y0:y1, x0:x1], 0.0, None)
-        g = model.albedo_offset  # the scene's specular layer: its image is E (albedo + offset)
-        scene = lambda alb, sh: (alb + np.where(alb > 1e-3, g, 0.0)) * sh
+        yy, xx = np.mgrid[y0:y1, x0:x1]
+        P_w = camera.ray(xx.ravel() + 0.5, yy.ravel() + 0.5) * d[y0:y1, x0:x1].reshape(-1, 1)
+        N_w = n[y0:y1, x0:x1].reshape(-1, 3)
+
+        def scene(alb, sh):  # the scene's specular layer: its image is E (albedo + offset), brighter toward grazing
+            off = model.albedo_offset(P_w, N_w, alb).reshape(alb.shape)
+            return (alb + np.where(alb > 1e-3, off, 0.0)) * sh
+
         rad = scene(a, S)
         if (cov > 0).any():
             edge = t & (cov > 0) & (cov < cfg.whole_coverage)

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from zcomp_cli.errors import UsageError
 from zcomp_cli.knobs import KINDS, as_dict, from_mapping, knob, provenance as _provenance, sub
 from zcomp_cli.light.config import LightConfig
-from zcomp_cli.scene.config import ObjectShadowConfig
+from zcomp_cli.scene.config import BrdfTable, ObjectShadowConfig
 
 LABEL = "physical renderer setting"
 
@@ -143,14 +143,12 @@ class GlossConfig:
                                   "perceptual GGX roughness levels of the prefiltered sky (linear between them)", hi=1.0)
     model_map_width: int = knob(64, "sampling", "width of the equirectangular map (height half) a fitted light's "
                                                 "sky, order-2 SH and smooth, is rendered into for its prefilter", hi=1024)
-    min_alpha: float = knob(1e-3, "heuristic", "the least GGX alpha (roughness squared): a perfect mirror's delta "
-                                               "lobe cannot be evaluated toward a light; a judgement: a roughness "
-                                               "below 0.03 is drawn as 0.03", hi=1.0)
-    env_lut_size: int = knob(32, "sampling", "roughness x n.v nodes of the split-sum environment BRDF's table "
-                                             "(bilinear between them)", hi=512)
-    env_lut_samples: int = knob(1024, "sampling", "GGX samples per node of that table (Hammersley points): within "
-                                                  "1e-4 of 64x as many at the median node, 0.025 at the worst "
-                                                  "(grazing n.v = 0.03); 0.08 s once per process", hi=65536)
+    # the GGX tables' sizes (scene.brdf), the scene's defaults: the same tables the light's fit reads
+    min_alpha: float = knob(BrdfTable.min_alpha, "heuristic", "the least GGX alpha (scene.config.BrdfTable)", hi=1.0)
+    env_lut_size: int = knob(BrdfTable.env_lut_size, "sampling", "nodes of the split-sum environment BRDF's table "
+                                                                 "(scene.config.BrdfTable)", hi=512)
+    env_lut_samples: int = knob(BrdfTable.env_lut_samples, "sampling", "GGX samples per node of that table "
+                                                                       "(scene.config.BrdfTable)", hi=65536)
 
     reflect_rays: int = knob(8, "sampling", "GGX-distributed rays per pixel the object's reflection of its "
                                             "surroundings is gathered along (the mesh, the scene's texels, the "
