@@ -8,7 +8,7 @@ the evidence read. Every node of the tree is a **term** (``ProbeTerm``, ``SunTer
 ``LampTerm``, ``SkyTerm``) that contributes its columns through one protocol:
 
 1. ``prepare.prepare``: the fit pixels, the depth mesh and its ray tracer, the bounce,
-   the albedo's offset, the sky lobes' columns;
+   the scene's specular layer, the sky lobes' columns;
 2. ``Term.resolve``: each term's geometry -- a given direction or position as it is, a
    free direction searched (``search.search``: the posterior over directions from the
    cast shadows and the shading; the light found may be a lamp), a free angular radius

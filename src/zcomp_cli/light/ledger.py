@@ -53,7 +53,7 @@ def light_entries(fitted, params, lookup_s: float) -> list[dict]:
     prep = steps.get("prepare")
     shadows = steps.get("shadows")
     out.append(entry("light.prepare", None if prep is None else prep - (shadows or 0.0),
-                     what="fit pixels, the sky's visibility, the bounce, the albedo's offset"))
+                     what="fit pixels, the sky's visibility, the bounce, the specular layer"))
     out.append(entry("light.shadows", shadows, None if shadows is not None else
                      ("light given whole: no search, size choice or split reads the photograph's shadows"
                       if given else "too few known pixels to read shadows from"),
