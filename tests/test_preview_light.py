@@ -151,7 +151,10 @@ def test_the_sheet_of_the_shipped_example_shows_the_given_sun(tmp_path, examples
     from scipy import ndimage
 
     near = ndimage.binary_dilation(balls, iterations=3)
-    shadow = (lum(comp) < 0.8 * lum(photo)) & ~near
+    # the cast shadows: darker than the balls' occlusion of the sky, which takes up to a
+    # fifth of the floor's light where the wall's shadow leaves it only the sky (at 0.8,
+    # that ring around every ball made the shadow's centre sway by a pixel about the base)
+    shadow = (lum(comp) < 0.6 * lum(photo)) & ~near
     assert shadow.sum() > 50
     # the shadow side: from the balls' base point, away from the sun along the ground
     base = M[:3, 3]

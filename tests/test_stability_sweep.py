@@ -139,7 +139,7 @@ def test_the_path_tracers_camera_clips_nothing_the_depth_map_holds():
     assert lo <= 1e-4 and hi >= 3.5e4 * 11.5  # a ray 85 deg off the axis in a 170 deg view
 
 
-def test_the_albedos_offset_is_not_scored_without_pixels_of_any_albedo():
+def test_the_specular_layer_is_not_read_without_pixels_of_any_albedo():
     """A scene whose albedo is 0 everywhere: the offset's candidates were scored on no
     pixel (the mean of an empty slice, NaN, then silently compared)."""
     import warnings
