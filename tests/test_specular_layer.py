@@ -85,3 +85,24 @@ def test_a_floors_sheen_is_not_read_as_light(roughness, monkeypatch):
     assert m.specular_roughness == pytest.approx(roughness, abs=0.15)
     assert abs(np.log(with_layer / truth)) < 0.5 * abs(np.log(without / truth))
     assert abs(np.log(with_layer / truth)) < 0.05
+
+
+def test_cycles_scene_draws_the_layer_as_the_camera_sees_it():
+    """The path tracer's background mesh carries the same offset as the fit read: each
+    vertex's colour is its albedo plus the layer's offset at its view angle, more on the
+    far floor (grazing) than the near; none without a layer."""
+    from zcomp_cli.renderers.cycles import scene as sc
+    from zcomp_cli.scene.depthmesh import has_geometry
+
+    s = floor_scene(64, 48, pitch_deg=-12.0, camera_height=1.0)
+    valid = has_geometry(s.depth.astype(np.float64), s.normals.astype(np.float64))
+    sky = Sky(radiance_sh=np.zeros((9, 3)), ground=np.zeros(3), up=s.up_cam)
+    plain = sc.scene_arrays(s.depth, s.normals, s.albedo, valid, s.camera, LightModel(sky=sky))
+    sheen = sc.scene_arrays(s.depth, s.normals, s.albedo, valid, s.camera,
+                            LightModel(sky=sky, specular_roughness=0.4))
+    assert np.array_equal(plain["vertices"], sheen["vertices"])
+    extra = (sheen["colors"] - plain["colors"]).mean(1)
+    dist = np.linalg.norm(plain["vertices"], axis=1)
+    near, far = dist < np.percentile(dist, 25), dist > np.percentile(dist, 75)
+    assert np.all(extra >= -1e-6) and extra[near].mean() > 0.01
+    assert extra[far].mean() > 1.5 * extra[near].mean()
