@@ -41,7 +41,7 @@ import numpy as np
 
 from zcomp_cli.camera import Camera
 from zcomp_cli.conventions import REC601, unit_normal_mask
-from zcomp_cli.scene.brdf import dielectric_offset
+from zcomp_cli.scene.brdf import camera_offset
 from zcomp_cli.scene import sh
 from zcomp_cli.scene.config import FrameConfig, MarchConfig
 from zcomp_cli.scene.lightmodel import ground_view
@@ -204,15 +204,6 @@ def sky_atom_values(fp: FitPixels, radiance_sh: np.ndarray, samples, radiance_at
     return s[:, 0] if grey else s
 
 
-def surface_offset(fp: FitPixels, roughness: float) -> np.ndarray:
-    """(N, 3) the offset the scene's specular layer of ``roughness`` adds to the fit
-    pixels' albedo, seen from the camera (module docstring); zeros for NaN."""
-    if not np.isfinite(roughness):
-        return np.zeros_like(fp.albedo)
-    ndv = -np.sum(fp.normals * fp.points, 1) / np.maximum(np.linalg.norm(fp.points, axis=1), 1e-12)
-    return dielectric_offset(ndv, roughness, fp.albedo)
-
-
 def specular_roughness(fp: FitPixels, shading: np.ndarray, base: np.ndarray, *, cfg: FrameConfig, solver) -> float:
     """The roughness of the scene's specular layer (module docstring): among
     ``cfg.specular_roughness``, the one whose shading ``image / (albedo + offset)``
@@ -228,7 +219,7 @@ def specular_roughness(fp: FitPixels, shading: np.ndarray, base: np.ndarray, *, 
     img = (shading @ REC601) * a
     best_r, best_l = float("nan"), None
     for r in cfg.specular_roughness:
-        g = surface_offset(fp, r) @ REC601
+        g = camera_offset(fp.points, fp.normals, r, fp.albedo) @ REC601
         y = np.where(ok, img / np.maximum(a + g, 1e-6), 0.0)
         lh, _ = score_candidates(base, np.zeros((len(y), 1)), y, fp.train & ok, cfg=solver)
         loss = float(lh[0])
@@ -242,7 +233,8 @@ def offset_shading(fp: FitPixels, shading: np.ndarray, roughness: float) -> np.n
     albedo), the offset of a specular layer of ``roughness`` (NaN: none)."""
     if not np.isfinite(roughness):
         return shading
-    return shading * fp.albedo / np.maximum(fp.albedo + surface_offset(fp, roughness), 1e-6)
+    return shading * fp.albedo / np.maximum(fp.albedo + camera_offset(fp.points, fp.normals, roughness, fp.albedo),
+                                            1e-6)
 
 
 def sun_columns(fp: FitPixels, dirs: np.ndarray, *, steps: int, chunk: int = 32) -> np.ndarray:
@@ -354,5 +346,5 @@ def lamp_candidates(fp: FitPixels, n_directions: int, distances_rel) -> np.ndarr
 
 
 __all__ = ["FitPixels", "working_copy", "fit_pixels", "ground_radiance", "bounce", "sky_visibility",
-           "sky_lobes", "sky_atom_values", "specular_roughness", "surface_offset", "offset_shading", "sun_columns",
+           "sky_lobes", "sky_atom_values", "specular_roughness", "offset_shading", "sun_columns",
            "sun_column", "lamp_columns", "lamp_candidates"]

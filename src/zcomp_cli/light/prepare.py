@@ -27,7 +27,7 @@ from zcomp_cli.camera import Camera
 from zcomp_cli.conventions import REC601, unit_normal_mask
 from zcomp_cli.light import atoms as at
 from zcomp_cli.light.config import LightConfig
-from zcomp_cli.scene.brdf import dielectric_offset
+from zcomp_cli.scene.brdf import camera_offset
 
 
 @dataclass(frozen=True)
@@ -145,11 +145,8 @@ def prepare(depth, normals, shading, known, albedo, camera: Camera, up, settings
     img2 = _area_copy(np.nan_to_num(np.asarray(shading, np.float64)) * np.clip(np.nan_to_num(albedo), 0, None),
                       s2.shape[:2])
     lum_img, lum_alb = img2 @ REC601, a2l @ REC601
-    g2 = 0.0
-    if np.isfinite(r):
-        pts = cam2.unproject(d2.astype(np.float32)).astype(np.float64).reshape(-1, 3)
-        ndv = -np.sum(np.nan_to_num(n2).reshape(-1, 3) * pts, 1) / np.maximum(np.linalg.norm(pts, axis=1), 1e-12)
-        g2 = dielectric_offset(ndv, r, np.clip(lum_alb, 0, 1).reshape(-1, 1))[:, 0].reshape(lum_alb.shape)
+    g2 = camera_offset(cam2.unproject(d2.astype(np.float32)), np.nan_to_num(n2), r,
+                       np.clip(lum_alb, 0, 1).reshape(-1, 1)).reshape(lum_alb.shape)
     s2o = np.where(lum_alb > 1e-4, lum_img / np.maximum(lum_alb + g2, 1e-6), np.nan_to_num(s2 @ REC601))
     grid = ShadowGrid(mesh=mesh, caster=caster, shading=s2o, albedo=lum_alb, known=k2)
     return Prepared(fp=fp, shading=at.offset_shading(fp, S, r), sky_vis=vis, ground=ground, frame=frame,

@@ -191,5 +191,18 @@ def dielectric_offset(ndv, roughness: float, albedo, cfg: BrdfTable | None = Non
     return R * (1.0 - a)
 
 
-__all__ = ["dielectric_offset", "DIELECTRIC_IOR", "DIELECTRIC_F0", "FRESNELS", "fresnel_dielectric", "fresnel_shape", "env_brdf",
+def camera_offset(points, normals, roughness: float, albedo, cfg: BrdfTable | None = None) -> np.ndarray:
+    """(N, C) ``dielectric_offset`` of surfaces at ``points`` (N, 3; the camera frame, the
+    camera at the origin) of unit ``normals`` (N, 3) and ``albedo`` (N, C), seen from the
+    camera; zeros where ``roughness`` is NaN (no specular layer)."""
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    a = np.asarray(albedo, np.float64).reshape(len(p), -1)
+    if not np.isfinite(roughness):
+        return np.zeros_like(a)
+    n = np.asarray(normals, np.float64).reshape(-1, 3)
+    ndv = -np.sum(n * p, 1) / np.maximum(np.linalg.norm(p, axis=1), 1e-12)
+    return dielectric_offset(ndv, roughness, a, cfg)
+
+
+__all__ = ["dielectric_offset", "camera_offset", "DIELECTRIC_IOR", "DIELECTRIC_F0", "FRESNELS", "fresnel_dielectric", "fresnel_shape", "env_brdf",
            "multiscatter", "specular_albedo", "smith_g"]

@@ -324,17 +324,11 @@ class LightModel:
     def albedo_offset(self, points, normals, albedo) -> np.ndarray:
         """(N, 3) the reflectance the scene's specular layer adds to its ``albedo`` (N, 3)
         at ``points`` (N, 3, camera frame, the camera at the origin) of unit ``normals``
-        (N, 3), seen from the camera (``brdf.dielectric_offset`` at
-        ``specular_roughness``); zeros where the model has no specular layer."""
-        from zcomp_cli.scene.brdf import dielectric_offset
+        (N, 3), seen from the camera (``brdf.camera_offset`` at ``specular_roughness``);
+        zeros where the model has no specular layer."""
+        from zcomp_cli.scene.brdf import camera_offset
 
-        a = np.asarray(albedo, np.float64).reshape(-1, 3)
-        if not np.isfinite(self.specular_roughness):
-            return np.zeros_like(a)
-        p = np.asarray(points, np.float64).reshape(-1, 3)
-        n = np.asarray(normals, np.float64).reshape(-1, 3)
-        ndv = -np.sum(n * p, 1) / np.maximum(np.linalg.norm(p, axis=1), 1e-12)
-        return dielectric_offset(ndv, self.specular_roughness, a)
+        return camera_offset(points, normals, self.specular_roughness, np.asarray(albedo).reshape(-1, 3))
 
     @property
     def key_direction(self) -> np.ndarray | None:
