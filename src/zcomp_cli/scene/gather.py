@@ -26,7 +26,7 @@ import numpy as np
 
 from zcomp_cli.scene.config import MarchConfig
 from zcomp_cli.scene.march import march_visibility
-from zcomp_cli.scene.sampling import length
+from zcomp_cli.scene.sampling import length, orthonormal_rows
 
 
 class Met(enum.IntEnum):
@@ -82,14 +82,6 @@ def ggx_directions(normals: np.ndarray, view: np.ndarray, alpha: np.ndarray, k: 
         dirs.append(d)
         wts.append(np.maximum(np.sum(n * d, 1), 0.0))
     return np.stack(dirs), np.stack(wts)
-
-
-def orthonormal_rows(n: np.ndarray):
-    """Two unit vectors orthogonal to each row of ``n`` (N, 3) and to each other."""
-    a = np.where(np.abs(n[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
-    u = np.cross(n, a)
-    u /= np.maximum(length(u), 1e-12)[:, None]
-    return u, np.cross(n, u)
 
 
 def caster(mesh):

@@ -81,6 +81,21 @@ class Sun:
         """The tangent of its angular radius (the penumbra's spread per metre)."""
         return np.tan(np.deg2rad(min(self.radius_deg, 89.0)))
 
+    def disc(self, points: np.ndarray, offsets: np.ndarray):
+        """The sun as samples of its disc seen from ``points`` (N, 3): (unit directions
+        (k, N, 3) toward each, distances (k, N) inf, the shading (k, N, 3) a surface facing
+        a sample gets were the whole sun there); ``offsets`` (k, N, 2) on the unit disc
+        (``sampling.disc_samples``) span its angular radius about its direction. A mean
+        over the samples of a response to each is the response to the whole disc."""
+        from zcomp_cli.scene.sampling import length, orthonormal_rows
+
+        off = np.asarray(offsets, np.float64)
+        L = np.broadcast_to(self.direction, off.shape[1:2] + (3,))
+        u, v = orthonormal_rows(L)
+        d = L[None] + self.tan_radius() * (off[..., :1] * u[None] + off[..., 1:] * v[None])
+        d = d / np.maximum(length(d), 1e-12)[..., None]
+        return d, np.full(off.shape[:2], np.inf), np.broadcast_to(self.irradiance, d.shape)
+
     def to_info(self) -> dict:
         return {"kind": "sun", "direction_camera": self.direction.tolist(),
                 "direction_from": str(self.direction_from), "angular_radius_deg": self.radius_deg,
@@ -145,6 +160,28 @@ class Lamp:
         _, r, _ = self.toward(points)
         s = np.clip(self.radius_m / np.maximum(r, 1e-6), 0.0, 0.99)
         return s / np.sqrt(1 - s * s)
+
+    def disc(self, points: np.ndarray, offsets: np.ndarray):
+        """The lamp as points of its disc seen from ``points`` (N, 3): (unit directions
+        (k, N, 3) toward each, distances (k, N), the shading (k, N, 3) a surface facing a
+        sample gets were the whole lamp there: its profile toward the point over the
+        distance squared); ``offsets`` (k, N, 2) on the unit disc
+        (``sampling.disc_samples``) scaled by its radius, in a panel's own plane, else in
+        the plane facing each point (a sphere's outline). A mean over the samples of a
+        response to each is the response to the whole lamp."""
+        from zcomp_cli.scene.sampling import length, orthonormal_rows
+
+        P = np.asarray(points, np.float64).reshape(-1, 3)
+        off = np.asarray(offsets, np.float64)
+        f = self.toward(P)[0] if self.facing is None else np.broadcast_to(self.facing, P.shape)
+        u, v = orthonormal_rows(f)
+        d = (self.position[None, None] + self.radius_m * (off[..., :1] * u[None] + off[..., 1:] * v[None])
+             - P[None])
+        t = length(d)
+        d = d / np.maximum(t, 1e-12)[..., None]
+        prof = 1.0 if self.facing is None else 4.0 * np.maximum(-(d @ self.facing), 0.0)
+        r = np.maximum(t, 1e-6)
+        return d, t, (prof / (r * r))[..., None] * self.intensity
 
     def to_info(self) -> dict:
         return {"kind": "lamp", "position_camera": self.position.tolist(),

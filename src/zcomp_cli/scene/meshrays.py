@@ -22,17 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from zcomp_cli.scene.gather import caster, orthonormal_rows
-from zcomp_cli.scene.sampling import length
-
-
-def disc_samples(k: int, jitter: np.ndarray) -> np.ndarray:
-    """(k, N, 2) points on the unit disc, ``k`` stratified in area (sunflower spiral), the
-    spiral turned by ``jitter`` (N,) in [0, 1) per point."""
-    i = np.arange(k)[:, None]
-    r = np.sqrt((i + 0.5) / k)
-    ph = 2 * np.pi * (i * 0.618034 + np.asarray(jitter, np.float64)[None])
-    return np.stack([r * np.cos(ph), r * np.sin(ph)], -1)
+from zcomp_cli.scene.gather import caster
+from zcomp_cli.scene.sampling import disc_samples, length
 
 
 def _bounds(mesh):
@@ -86,25 +77,12 @@ def light_visibility(mesh, points: np.ndarray, normals: np.ndarray, light, k: in
     if not cand.any():
         return vis
     idx = np.flatnonzero(cand)
-    s, Lc, ta = start[idx], L[idx], tan_a[idx]
-    if light.varies and getattr(light, "facing", None) is not None:
-        # a panel: its samples lie in its own plane
-        f = np.broadcast_to(light.facing, Lc.shape)
-    else:
-        f = Lc
-    u, v = orthonormal_rows(f)
-    off = disc_samples(int(k), jitter[idx])
+    s = start[idx]
     # every sample of every point in one call to the ray tracer
-    spread = off[..., :1] * u[None] + off[..., 1:] * v[None]  # (k, M, 3)
-    S = np.broadcast_to(s, spread.shape).reshape(-1, 3)
-    if light.varies:
-        d = (light.position[None, None] + light.radius_m * spread - s[None]).reshape(-1, 3)
-        t = length(d)
-        d = d / np.maximum(t, 1e-12)[:, None]
-    else:
-        d = (Lc[None] + ta[None, :, None] * spread).reshape(-1, 3)
-        d = d / np.maximum(length(d), 1e-12)[:, None]
-        t = None
+    d, t, _ = light.disc(s, disc_samples(int(k), jitter[idx]))  # (k, M, 3), (k, M)
+    S = np.broadcast_to(s, d.shape).reshape(-1, 3)
+    d = d.reshape(-1, 3)
+    t = t.reshape(-1) if light.varies else None
     near = _may_hit(S, d, c, R, 0.0, t)
     hit = np.zeros(len(S), bool)
     if near.any():

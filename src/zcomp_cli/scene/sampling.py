@@ -89,5 +89,22 @@ def pixel_jitter(ys: np.ndarray, xs: np.ndarray, salt: int = 0) -> np.ndarray:
     return ((bayer[(ys + salt) % 4, (xs + 3 * salt) % 4] + 0.5) / 16.0)
 
 
+def orthonormal_rows(n: np.ndarray):
+    """Two unit vectors orthogonal to each row of ``n`` (N, 3) and to each other."""
+    a = np.where(np.abs(n[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
+    u = np.cross(n, a)
+    u /= np.maximum(length(u), 1e-12)[:, None]
+    return u, np.cross(n, u)
+
+
+def disc_samples(k: int, jitter: np.ndarray) -> np.ndarray:
+    """(k, N, 2) points on the unit disc, ``k`` stratified in area (sunflower spiral), the
+    spiral turned by ``jitter`` (N,) in [0, 1) per point."""
+    i = np.arange(k)[:, None]
+    r = np.sqrt((i + 0.5) / k)
+    ph = 2 * np.pi * (i * 0.618034 + np.asarray(jitter, np.float64)[None])
+    return np.stack([r * np.cos(ph), r * np.sin(ph)], -1)
+
+
 __all__ = ["length", "fibonacci_sphere", "hemisphere", "spacing_deg", "orthonormal", "cone_directions", "fine_spiral",
-           "pixel_jitter"]
+           "pixel_jitter", "orthonormal_rows", "disc_samples"]

@@ -186,6 +186,31 @@ def ggx_direct(n: np.ndarray, v: np.ndarray, l: np.ndarray, roughness: np.ndarra
     return np.where(ok[:, None], out, 0.0)
 
 
+def ggx_light(n: np.ndarray, v: np.ndarray, roughness: np.ndarray, layers, directions: np.ndarray,
+              shading: np.ndarray, tan_radius=0.0, *, cfg: GlossConfig | None = None) -> np.ndarray:
+    """(N, C) the radiance a sun or lamp reflects toward ``v`` off the specular
+    ``layers`` (``principled_layers``: (weight (N,), f0 (N, C), fresnel) each), the light
+    given as k samples of its disc (``Sun.disc``, ``Lamp.disc``): ``directions`` (k, N, 3)
+    unit, toward each, ``shading`` (k, N, 3) a facing surface's shading were the whole
+    light there. pi times the mean over the samples of each one's shading times
+    ``ggx_direct`` toward it, its lobe widened by ``tan_radius`` (scalar or (N,)): the
+    angular radius of a sample's share of the disc. One sample at the disc's centre
+    with its whole radius is the widened-lobe approximation (Karis 2013), which puts a
+    broad light's highlight where its centre's mirror image falls; its samples put it
+    where the disc's does (a panel seen edge-on, a sun's disc half below the horizon).
+
+    n, v: (N, 3) unit normal and direction to the viewer; roughness (N,) perceptual."""
+    d = np.asarray(directions, np.float64)
+    k, N = d.shape[:2]
+    E = np.broadcast_to(np.asarray(shading, np.float64), d.shape).reshape(k * N, 3)
+    rep = lambda a: np.broadcast_to(np.asarray(a, np.float64), (k,) + np.shape(a)).reshape((k * N,) + np.shape(a)[1:])
+    tan = np.broadcast_to(np.asarray(tan_radius, np.float64), (N,))
+    out = sum(rep(w)[:, None] * ggx_direct(rep(n), rep(v), d.reshape(-1, 3), rep(roughness), rep(f0), rep(tan),
+                                           fresnel=kind, cfg=cfg)
+              for w, f0, kind in layers)
+    return np.pi * (E * out).reshape(k, N, -1).mean(0)
+
+
 def model_radiance_map(model: LightModel, size=None, cfg: GlossConfig | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(equirectangular radiance (h, w, 3) of the model's sky in the ``zcomp``
     convention, its ground frame (3, 3)); its suns and lamps are reflected by
@@ -243,6 +268,6 @@ def prefiltered_light(model: LightModel, cfg: GlossConfig) -> PrefilteredProbe:
     return pf if ref is None else pf.scaled(ref.scale)
 
 
-__all__ = ["env_brdf", "specular_albedo", "ggx_direct", "multiscatter", "fresnel_dielectric", "fresnel_shape",
+__all__ = ["env_brdf", "specular_albedo", "ggx_direct", "ggx_light", "multiscatter", "fresnel_dielectric", "fresnel_shape",
            "principled_layers", "DIELECTRIC_F0", "DIELECTRIC_IOR", "FRESNELS", "model_radiance_map", "prefiltered_light", "prefilter",
            "PrefilteredProbe"]

@@ -37,7 +37,7 @@ from zcomp_cli.renderers.physical.softshadow import blur_reach, classwise_blur, 
 from zcomp_cli.scene.depthmesh import has_geometry
 from zcomp_cli.scene.lightmodel import LightModel, ShadowKind
 from zcomp_cli.scene.march import grid_points, march_visibility
-from zcomp_cli.scene.sampling import length, pixel_jitter
+from zcomp_cli.scene.sampling import disc_samples, length, pixel_jitter
 from zcomp_cli.scene.skyvis import sky_samples, weighted_visibility
 
 
@@ -428,14 +428,13 @@ class PhysicalRenderer(Renderer):
         """((M, 3) the object's glossy reflection, (M,) the diffuse layer's weight beneath
         it) (``gloss`` module docstring): the prefiltered sky toward the mirror direction
         times the split-sum environment BRDF, occluded by the sky's visibility, plus
-        each sun and lamp of ``lit`` (``_parts``) through the GGX BRDF times its own
-        visibility; a dielectric's exact Fresnel (F0 0.04), a metal's Schlick curve from
+        each sun and lamp of ``lit`` (``_parts``) through the GGX BRDF, summed over points
+        of its disc (``GlossConfig.light_samples``), times its own visibility; a dielectric's exact Fresnel (F0 0.04), a metal's Schlick curve from
         its albedo, weighted by ``metallic``, with multiple scattering's energy. The diffuse
         beneath keeps what the specular layer does not reflect (a metal none). ``env``
         (M, 3): the radiance the lobe meets, gathered (``reflect``), instead of the
         occluded prefiltered sky."""
-        from zcomp_cli.renderers.physical.gloss import ggx_direct, prefiltered_light, principled_layers, specular_albedo
-
+        from zcomp_cli.renderers.physical.gloss import ggx_light, prefiltered_light, principled_layers, specular_albedo
         pc = self._settings.gloss
         P = camera.ray(xs + 0.5, ys + 0.5) * d[ys, xs][:, None]
         v = -P / np.maximum(np.linalg.norm(P, axis=1, keepdims=True), 1e-12)
@@ -452,11 +451,14 @@ class PhysicalRenderer(Renderer):
             env = vis_sky.mean(1, keepdims=True) * L_sky + pf.lookup(r, rough, ground=model.sky.ground) - L_sky
         albedos = [specular_albedo(rough, ndv, f0, pc, fresnel=kind) for _, f0, kind in layers]
         out = env * sum(w[:, None] * a for (w, _, _), a in zip(layers, albedos))
-        for light, Ld, E, v_t in lit:
-            # E is the shading of a facing surface: its irradiance over pi
-            spec = sum(w[:, None] * ggx_direct(nv, v, Ld, rough, f0, light.tan_radius(P), fresnel=kind, cfg=pc)
-                       for w, f0, kind in layers)
-            out = out + (np.pi * v_t)[:, None] * E * spec
+        for light, _, _, v_t in lit:
+            # each sun and lamp as points of its disc (``ggx_light``); the shading is a
+            # facing surface's: its irradiance over pi
+            tan = np.asarray(light.tan_radius(P) if light.varies else light.tan_radius(None), np.float64)
+            k = int(pc.light_samples) if np.max(tan) > 0 else 1
+            off = disc_samples(k, pixel_jitter(ys, xs, salt=2)) if k > 1 else np.zeros((1, len(ys), 2))
+            dirs, _, shade = light.disc(P, off)
+            out = out + v_t[:, None] * ggx_light(nv, v, rough, layers, dirs, shade, tan / np.sqrt(k), cfg=pc)
         # Cycles' Principled layering: the diffuse gets one minus the dielectric
         # layer's directional albedo toward the viewer
         keep = (1.0 - met) * (1.0 - albedos[0][:, 0])
