@@ -309,16 +309,19 @@ def test_values_override_the_table(sweep):
 
 
 def test_the_objects_ray_knobs_are_set_inside_their_settings_group(sweep):
-    cs = sweep.plan_configs((64, 48), quick=True, knobs=("bounce_rays", "reflect_rays", "march_steps"))
+    cs = sweep.plan_configs((64, 48), quick=True, knobs=("bounce_rays", "reflect_rays", "highlight_samples",
+                                                          "march_steps"))
     by = {c.key: c.settings for c in cs}
     assert by["physical_bounce_rays0"] == {"transport": {"bounce_rays": 0}}
     assert by["physical_reflect_rays0"] == {"gloss": {"reflect_rays": 0}}
+    assert by["physical_highlight_samples1"] == {"gloss": {"highlight_samples": 1}}
     assert by["physical_march_steps8"] == {"march_steps": 8}
     d = sweep.physical_defaults()
     from zcomp_cli.renderers.physical.settings import PhysicalSettings
 
     ps = PhysicalSettings()
     assert d["bounce_rays"] == ps.transport.bounce_rays and d["reflect_rays"] == ps.gloss.reflect_rays
+    assert d["highlight_samples"] == ps.gloss.highlight_samples
     # the renderer takes each as it is written into the manifest
     from zcomp_cli.renderers.physical.renderer import PhysicalRenderer
 

@@ -29,7 +29,8 @@ Knobs:
   ``march_steps``, ``n_light_candidates``, ``max_resolution`` (of the light estimation),
   the light fit's ``cone_samples`` and ``estimate_march_steps``, and the object's rays
   (``transport.light_samples``, ``transport.sky_rays``, ``transport.bounce_rays``,
-  ``gloss.reflect_rays``: what the path tracer's samples stand beside);
+  ``gloss.reflect_rays``, ``gloss.highlight_samples``: what the path tracer's samples stand
+  beside);
 * zerocomp: DDIM ``steps`` at full frame and with ``crop``, only when ZCOMP_CONTROLNET
   and ZCOMP_SD_BASE name existing folders (otherwise the skip and its reason are printed);
 * cycles: path ``samples`` with Open Image Denoise (``samples_denoised``) and without
@@ -86,10 +87,12 @@ PHYSICAL_KNOBS_FULL = {
     "sky_rays": [8, 16, 32, 64],
     "bounce_rays": [0, 4, 16, 32],
     "reflect_rays": [0, 2, 8, 16],
+    # points of each light's disc its highlight on the object sums (1: the widened lobe)
+    "highlight_samples": [1, 4, 16, 32],
 }
 # the knobs the renderer takes inside one of its settings' groups ({group: {knob: v}})
 NESTED_KNOBS = {"light_samples": "transport", "sky_rays": "transport", "bounce_rays": "transport",
-                "reflect_rays": "gloss"}
+                "reflect_rays": "gloss", "highlight_samples": "gloss"}
 PHYSICAL_KNOBS_QUICK = {
     "resolution": [1.0, 0.5],
     "march_steps": [8, 32],
@@ -101,6 +104,7 @@ PHYSICAL_KNOBS_QUICK = {
     "sky_rays": [8, 32],
     "bounce_rays": [0, 16],
     "reflect_rays": [0, 8],
+    "highlight_samples": [1, 16],
 }
 ZEROCOMP_STEPS_FULL = [1, 2, 4, 8, 20]
 ZEROCOMP_STEPS_QUICK = [1, 4]

@@ -429,8 +429,9 @@ class PhysicalRenderer(Renderer):
         it) (``gloss`` module docstring): the prefiltered sky toward the mirror direction
         times the split-sum environment BRDF, occluded by the sky's visibility, plus
         each sun and lamp of ``lit`` (``_parts``) through the GGX BRDF, summed over points
-        of its disc (``GlossConfig.light_samples``), times its own visibility; a dielectric's exact Fresnel (F0 0.04), a metal's Schlick curve from
-        its albedo, weighted by ``metallic``, with multiple scattering's energy. The diffuse
+        of its disc (``gloss.ggx_light``, ``GlossConfig.highlight_samples``), times its own
+        visibility; a dielectric's exact Fresnel (F0 0.04), a metal's Schlick curve from its
+        albedo, weighted by ``metallic``, with multiple scattering's energy. The diffuse
         beneath keeps what the specular layer does not reflect (a metal none). ``env``
         (M, 3): the radiance the lobe meets, gathered (``reflect``), instead of the
         occluded prefiltered sky."""
@@ -455,7 +456,7 @@ class PhysicalRenderer(Renderer):
             # each sun and lamp as points of its disc (``ggx_light``); the shading is a
             # facing surface's: its irradiance over pi
             tan = np.asarray(light.tan_radius(P) if light.varies else light.tan_radius(None), np.float64)
-            k = int(pc.light_samples) if np.max(tan) > 0 else 1
+            k = int(pc.highlight_samples) if np.max(tan) > 0 else 1
             off = disc_samples(k, pixel_jitter(ys, xs, salt=2)) if k > 1 else np.zeros((1, len(ys), 2))
             dirs, _, shade = light.disc(P, off)
             out = out + v_t[:, None] * ggx_light(nv, v, rough, layers, dirs, shade, tan / np.sqrt(k), cfg=pc)

@@ -150,7 +150,7 @@ class GlossConfig:
     env_lut_samples: int = knob(BrdfTable.env_lut_samples, "sampling", "GGX samples per node of that table "
                                                                        "(scene.config.BrdfTable)", hi=65536)
 
-    light_samples: int = knob(16, "sampling", "points of each sun's and lamp's disc the object's highlight sums, "
+    highlight_samples: int = knob(16, "sampling", "points of each sun's and lamp's disc the object's highlight sums, "
                                              "each lobe widened by its point's share of the disc (its angular "
                                              "radius over sqrt of this); 1: the disc's centre, its lobe widened "
                                              "by the whole radius", hi=1024)
