@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from zcomp_cli.renderers.physical.gloss import ggx_direct, ggx_light, principled_layers
-from zcomp_cli.scene.lightmodel import Lamp, Sun
+from zcomp_cli.scene.lightmodel import Lamp, Sun, disc_shading
 from zcomp_cli.scene.sampling import disc_samples
 
 UP = np.array([0.0, 1.0, 0.0])
@@ -122,3 +122,36 @@ def test_degenerate_lights_stay_finite():
     v = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
     out = ggx_light(n, v, np.array([0.0, np.nan]), principled_layers(np.zeros(2), None), d, E, 0.0)
     assert np.all(np.isfinite(out)) and np.all(out >= 0)
+
+
+@pytest.mark.parametrize("light", LIGHTS[:2], ids=["sun", "sphere"])
+def test_a_sun_or_sphere_lights_a_surface_facing_it_as_its_centre_does(light):
+    P = _floor()
+    L, _, E0 = light.toward(P)
+    off = disc_samples(16, np.linspace(0, 1, len(P), endpoint=False))
+    assert np.allclose(disc_shading(light, P, L, off), E0, rtol=1e-9)
+
+
+def test_a_panel_below_its_centre_gets_the_discs_integral():
+    h, a = 1.5, 0.6
+    lamp = Lamp(position=[0.0, h, -3.0], radius_m=a, intensity=[1.0, 1.0, 1.0], facing=[0.0, -1.0, 0.0])
+    P = np.array([[0.0, 0.0, -3.0]])
+    n = np.array([UP])
+    got = disc_shading(lamp, P, n, disc_samples(4096, np.zeros(1)))[0, 0]
+    # a Lambertian disc of radius a, h below its centre: 4 I / (h^2 + a^2), where a
+    # point gives 4 I / h^2
+    assert got == pytest.approx(4.0 / (h * h + a * a), rel=2e-3)
+
+
+def test_a_broad_sun_still_shines_past_the_terminator():
+    sun = Sun(direction=[1.0, 0.0, 0.0], radius_deg=10.0, irradiance=[1.0, 1.0, 1.0])
+    P = np.zeros((3, 3))
+    # normals at the terminator, 5 degrees past it, 15 degrees past it
+    ang = np.deg2rad([0.0, -5.0, -15.0])
+    n = np.stack([np.sin(ang), np.cos(ang), np.zeros(3)], 1)
+    got = disc_shading(sun, P, n, disc_samples(256, np.zeros(3)))[:, 0]
+    centre = np.maximum((n @ sun.direction), 0.0)
+    assert np.all(centre[:2] <= 1e-12) and got[0] > 0.02 and 0 < got[1] < got[0]
+    assert got[2] == 0.0  # past the whole disc
+    # half of the disc is above the terminator, its mean height there tan(r) 4 / 3 pi
+    assert got[0] == pytest.approx(0.5 * math.tan(math.radians(10.0)) * 4 / (3 * math.pi), rel=0.05)

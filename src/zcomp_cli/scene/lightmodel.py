@@ -84,7 +84,8 @@ class Sun:
     def disc(self, points: np.ndarray, offsets: np.ndarray):
         """The sun as samples of its disc seen from ``points`` (N, 3): (unit directions
         (k, N, 3) toward each, distances (k, N) inf, the shading (k, N, 3) a surface facing
-        a sample gets were the whole sun there); ``offsets`` (k, N, 2) on the unit disc
+        a sample gets were the whole sun there: the irradiance over the samples' mean
+        cosine to its centre, so that a surface facing it gets the irradiance); ``offsets`` (k, N, 2) on the unit disc
         (``sampling.disc_samples``) span its angular radius about its direction. A mean
         over the samples of a response to each is the response to the whole disc."""
         from zcomp_cli.scene.sampling import length, orthonormal_rows
@@ -94,7 +95,9 @@ class Sun:
         u, v = orthonormal_rows(L)
         d = L[None] + self.tan_radius() * (off[..., :1] * u[None] + off[..., 1:] * v[None])
         d = d / np.maximum(length(d), 1e-12)[..., None]
-        return d, np.full(off.shape[:2], np.inf), np.broadcast_to(self.irradiance, d.shape)
+        # a surface facing the sun gets its irradiance, whatever the samples' spread
+        facing = np.maximum(np.einsum("knc,nc->n", d, L) / len(d), 1e-12)
+        return d, np.full(off.shape[:2], np.inf), np.broadcast_to(self.irradiance / facing[:, None], d.shape)
 
     def to_info(self) -> dict:
         return {"kind": "sun", "direction_camera": self.direction.tolist(),
@@ -164,8 +167,9 @@ class Lamp:
     def disc(self, points: np.ndarray, offsets: np.ndarray):
         """The lamp as points of its disc seen from ``points`` (N, 3): (unit directions
         (k, N, 3) toward each, distances (k, N), the shading (k, N, 3) a surface facing a
-        sample gets were the whole lamp there: its profile toward the point over the
-        distance squared); ``offsets`` (k, N, 2) on the unit disc
+        sample gets were the whole lamp there: a panel's profile toward the point over the
+        distance squared, a sphere's centre's shading over the samples' mean cosine to
+        it); ``offsets`` (k, N, 2) on the unit disc
         (``sampling.disc_samples``) scaled by its radius, in a panel's own plane, else in
         the plane facing each point (a sphere's outline). A mean over the samples of a
         response to each is the response to the whole lamp."""
@@ -179,8 +183,16 @@ class Lamp:
              - P[None])
         t = length(d)
         d = d / np.maximum(t, 1e-12)[..., None]
-        prof = 1.0 if self.facing is None else 4.0 * np.maximum(-(d @ self.facing), 0.0)
         r = np.maximum(t, 1e-6)
+        if self.facing is None:
+            # a sphere lights a surface facing it as a point at its centre does: its
+            # samples share the centre's shading
+            c, _, Ec = self.toward(P)
+            w = np.maximum(np.einsum("knc,nc->n", d, c) / len(d), 1e-12)
+            return d, t, np.broadcast_to(Ec / w[:, None], d.shape)
+        # a panel is the integral over its area (below a point's, its facing shading is
+        # the point's times h^2 / (h^2 + radius^2) on its axis)
+        prof = 4.0 * np.maximum(-(d @ self.facing), 0.0)
         return d, t, (prof / (r * r))[..., None] * self.intensity
 
     def to_info(self) -> dict:
@@ -201,6 +213,19 @@ class Lamp:
         return cls(position=d["position"], radius_m=d["radius_m"], intensity=d["intensity"], facing=d["facing"],
                    position_from=Origin[d["position_from"]], radius_from=Origin[d["radius_from"]],
                    strength_from=Origin[d["strength_from"]])
+
+
+def disc_shading(light, points: np.ndarray, normals: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """(N, 3) the shading ``light`` (a ``Sun`` or ``Lamp``) gives points (N, 3) of unit
+    ``normals`` (N, 3), unshadowed: the mean over samples of its disc (``offsets`` (k, N,
+    2), ``Sun.disc``/``Lamp.disc``) of each one's shading times max(0, n.l). Where the
+    whole disc is above a point's horizon and the lamp is far, it is its centre's
+    ``max(0, n.l) E``; where the disc straddles the horizon (an object's terminator under
+    a broad light) part of it still shines, where the centre's cosine said none or too
+    much."""
+    d, _, E = light.disc(points, offsets)
+    cos = np.maximum(np.einsum("knc,nc->kn", d, np.asarray(normals, np.float64)), 0.0)
+    return (cos[..., None] * E).mean(0)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -441,5 +466,5 @@ class LightModel:
                    anchor=d["anchor"])
 
 
-__all__ = ["Origin", "ShadowKind", "Sun", "Lamp", "Sky", "FitSummary", "ProbeRef", "LightModel", "ground_view",
+__all__ = ["Origin", "ShadowKind", "Sun", "Lamp", "disc_shading", "Sky", "FitSummary", "ProbeRef", "LightModel", "ground_view",
            "MAX_RADIUS_DEG"]

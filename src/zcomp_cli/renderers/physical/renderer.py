@@ -35,7 +35,7 @@ from zcomp_cli.renderers.lighting import request_light, request_reach
 from zcomp_cli.renderers.physical.settings import PhysicalSettings
 from zcomp_cli.renderers.physical.softshadow import blur_reach, classwise_blur, penumbra_filter
 from zcomp_cli.scene.depthmesh import has_geometry
-from zcomp_cli.scene.lightmodel import LightModel, ShadowKind
+from zcomp_cli.scene.lightmodel import LightModel, ShadowKind, disc_shading
 from zcomp_cli.scene.march import grid_points, march_visibility
 from zcomp_cli.scene.sampling import disc_samples, length, pixel_jitter
 from zcomp_cli.scene.skyvis import sky_samples, weighted_visibility
@@ -291,7 +291,9 @@ class PhysicalRenderer(Renderer):
                     # an estimated light's shadow is not grown past the shading mask: it
                     # fades out at the mask's edge instead of stopping in a seam
                     v_t = 1.0 - (1.0 - v_t) * fade
-                direct += (np.maximum(0.0, np.sum(nv * L, 1)) * v_t)[:, None] * E
+                # the light over its disc: a broad one still shines past the terminator
+                direct += v_t[:, None] * disc_shading(light, P, nv, _disc_points(light, P, ys, xs, cfg.light_samples,
+                                                                                 salt=3)[0])
                 lit.append((light, L, E, v_t))
         return ambient, direct, vis_sky, nv, lit, scene_only, seen
 
@@ -455,11 +457,9 @@ class PhysicalRenderer(Renderer):
         for light, _, _, v_t in lit:
             # each sun and lamp as points of its disc (``ggx_light``); the shading is a
             # facing surface's: its irradiance over pi
-            tan = np.asarray(light.tan_radius(P) if light.varies else light.tan_radius(None), np.float64)
-            k = int(pc.highlight_samples) if np.max(tan) > 0 else 1
-            off = disc_samples(k, pixel_jitter(ys, xs, salt=2)) if k > 1 else np.zeros((1, len(ys), 2))
+            off, tan = _disc_points(light, P, ys, xs, pc.highlight_samples, salt=2)
             dirs, _, shade = light.disc(P, off)
-            out = out + v_t[:, None] * ggx_light(nv, v, rough, layers, dirs, shade, tan / np.sqrt(k), cfg=pc)
+            out = out + v_t[:, None] * ggx_light(nv, v, rough, layers, dirs, shade, tan / np.sqrt(len(off)), cfg=pc)
         # Cycles' Principled layering: the diffuse gets one minus the dielectric
         # layer's directional albedo toward the viewer
         keep = (1.0 - met) * (1.0 - albedos[0][:, 0])
@@ -548,6 +548,17 @@ class PhysicalRenderer(Renderer):
             vs = vs * light_visibility(occluder, Pp, Np, light, cfg.light_samples, pixel_jitter(ys, xs, salt=3),
                                        cfg.mesh_ray_bias_rel * np.maximum(-Pp[:, 2], 1e-6))
         return vs
+
+
+def _disc_points(light, P: np.ndarray, ys, xs, k: int, salt: int):
+    """((k, M, 2) points of the unit disc for ``light`` (``Sun.disc``, ``Lamp.disc``) at
+    the points ``P`` (M, 3) of pixels (ys, xs), turned per pixel (``pixel_jitter`` with
+    ``salt``), or its centre alone (1, M, 2) where ``k`` is 1 or the light has no size;
+    its angular radius's tangent, scalar or (M,))."""
+    tan = np.asarray(light.tan_radius(P) if light.varies else light.tan_radius(None), np.float64)
+    if int(k) <= 1 or np.max(tan) <= 0:
+        return np.zeros((1, len(ys), 2)), tan
+    return disc_samples(int(k), pixel_jitter(ys, xs, salt=salt)), tan
 
 
 def _edge_fade(region: np.ndarray, ys, xs, width_px: float, share: float) -> np.ndarray:

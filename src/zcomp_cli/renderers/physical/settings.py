@@ -87,8 +87,9 @@ class TransportConfig:
                                                  "a glint toward the camera or a prop misread as floor may take, "
                                                  "a judgement; symmetric, so a two-tone checker keeps its mean",
                                lo=0.0, lo_open=False, hi=0.45)
-    light_samples: int = knob(16, "sampling", "rays per pixel over a sun's or lamp's disc toward which the "
-                                              "object's mesh is tested (its soft shadow, scene.meshrays)", hi=4096)
+    light_samples: int = knob(16, "sampling", "points per pixel of a sun's or lamp's disc: the object's mesh is "
+                                              "tested toward them (its soft shadow, scene.meshrays) and the direct "
+                                              "shading is their mean (lightmodel.disc_shading)", hi=4096)
     sky_rays: int = knob(32, "sampling", "rays per point toward the sky the object's mesh may hide, drawn where "
                                          "the sky is bright", hi=4096)
     sky_pool: int = knob(512, "sampling", "directions drawn from the sky's map in proportion to its radiance, "
