@@ -129,6 +129,8 @@ class PhysicalRenderer(Renderer):
             pos = d > 0
             # (per channel: three contiguous gathers, a third of one (N, 3) gather's time)
             alb_mean = np.array([alb[..., c][pos].mean() for c in range(3)]) if pos.any() else np.zeros(3)
+            whole = pos & (cov > 0.5)
+            obj_mean = np.array([alb[..., c][whole].mean() for c in range(3)]) if whole.any() else None
             # shaded a little past the region asked for: the film filter and the edge's
             # layers read their neighbours, so a region of interest gets the values the
             # whole frame would
@@ -139,7 +141,8 @@ class PhysicalRenderer(Renderer):
             todo_c &= unknown
             radiance, own = self._synthesise(d, n, todo_c, req.camera, model, alb_mean, req.occluder, unknown,
                                              alb, cov, req.maps.roughness, req.maps.metallic,
-                                             alb * out_sh if req.image is None else req.image, req.object_maps)
+                                             alb * out_sh if req.image is None else req.image, req.object_maps,
+                                             obj_mean)
         img = alb * out_sh
         layer = None
         if todo.any():
@@ -158,8 +161,9 @@ class PhysicalRenderer(Renderer):
         return img, layer
 
     def _sky_visibility(self, d, n, todo, camera, occluder, geo_all, albedo_mean, model: LightModel, unknown=None):
-        """(the visible share of ``model``'s sky (its radiance weighs the directions: a
-        given probe's map, else its SH; its walls occlude) at the todo pixels (M, 3), the
+        """(the share of ``model``'s sky the scene leaves the todo pixels (M, 3) (its
+        radiance weighs the directions: a given probe's map, else its SH; its walls
+        occlude), the share of what it leaves that the object's mesh hides (M, 3), the
         scene-only occluder mask or None): the scene's screen-space occlusion on a
         stride-2 grid (4 on large frames), each direction weighted by the sky's radiance
         there (``weighted_visibility``'s sums, pooled by a class-aware blur before they
@@ -206,10 +210,10 @@ class PhysicalRenderer(Renderer):
         both = classwise_blur(up2(ao_c), cls, okf & same, rad, fill=okf)[ys - ay0, xs - ax0]
         num, den = both[:, :3], both[:, 3:]
         ao = np.where(den > 1e-12, num / np.maximum(den, 1e-300), 1.0)
+        hid = np.zeros_like(ao)
         if occluder is not None:
-            ao = ao * (1.0 - self._object_sky(d, n, todo, camera, occluder, model, ys, xs, rad,
-                                              todo if unknown is None else unknown))
-        return ao, scene_only
+            hid = self._object_sky(d, n, todo, camera, occluder, model, ys, xs, rad, todo if unknown is None else unknown)
+        return ao, hid, scene_only
 
     def _object_sky(self, d, n, todo, camera, occluder, model, ys, xs, blur_px, unknown):
         """(M, 3) the share of the sky's irradiance the object's mesh hides from the todo
@@ -252,17 +256,20 @@ class PhysicalRenderer(Renderer):
         u = np.clip((px - 1.0 - 2.0 * cfg.film_sigma_px) / (2.0 * blur_px), 0.0, 1.0)
         return occ * (t * t * (3.0 - 2.0 * t) * u * u * (3.0 - 2.0 * u))[:, None]
 
-    def _parts(self, d, n, todo, camera, model: LightModel, albedo_mean, occluder, unknown=None):
+    def _parts(self, d, n, todo, camera, model: LightModel, albedo_mean, occluder, unknown=None, object_albedo=None):
         """The two parts of the diffuse shading of the ``todo`` pixels: (sky and the
         ground's bounce (M, 3), the suns' and lamps' (M, 3), the sky's visible share
         with the occluders' bounce (M, 3), unit normals (M, 3), each sun and lamp as
         (light, directions (M, 3), facing shading (M, 3), visibility (M,)), the texels
         that occlude as the scene's (H, W) bool or None, the sky's visible share alone
-        (M, 3))."""
+        (M, 3)). The sky the scene hides still brings the light its occluders bounce at
+        the scene's mean albedo (``albedo_mean`` (3,)), the sky the object's mesh hides at
+        ``object_albedo`` (3,), the object's (None: the scene's)."""
         H, W = d.shape
         ys, xs = np.nonzero(todo)
         geo_all = has_geometry(d, n)
-        seen, scene_only = self._sky_visibility(d, n, todo, camera, occluder, geo_all, albedo_mean, model, unknown)
+        ao, hid, scene_only = self._sky_visibility(d, n, todo, camera, occluder, geo_all, albedo_mean, model, unknown)
+        seen = ao * (1.0 - hid)
         nv = n[ys, xs].astype(np.float64)
         nv = nv / np.maximum(length(nv), 1e-12)[:, None]
         nv[~geo_all[ys, xs]] = 0.0
@@ -272,8 +279,11 @@ class PhysicalRenderer(Renderer):
         sky = np.maximum(shm.evaluate(shm.shading_coeffs(model.sky.radiance_sh), nv), 0.0)
         # occluded directions still see light bounced off the occluders (the object's
         # own rays bring it there: ``_object_layer`` reads ``seen``)
-        rb = float(np.clip(np.mean(albedo_mean), 0.0, 0.9)) * self._settings.transport.sky_bounce
-        vis_sky = seen + (1.0 - seen) * rb
+        # (the scene's occluders at the scene's mean albedo, the object at its own: a dark
+        # vase's contact is dark)
+        bounce_of = lambda a: float(np.clip(np.mean(a), 0.0, 0.9)) * self._settings.transport.sky_bounce
+        rb = bounce_of(albedo_mean)
+        vis_sky = seen + (1.0 - ao) * rb + ao * hid * bounce_of(albedo_mean if object_albedo is None else object_albedo)
         ambient = sky * vis_sky + ground_view(nv, model.up)[:, None] * model.sky.ground[None]
         direct = np.zeros_like(ambient)
         lit = []
@@ -298,7 +308,7 @@ class PhysicalRenderer(Renderer):
         return ambient, direct, vis_sky, nv, lit, scene_only, seen
 
     def _synthesise(self, d, n, todo, camera, model: LightModel, albedo_mean, occluder, unknown, albedo, coverage,
-                    roughness=None, metallic=None, image=None, own=None):
+                    roughness=None, metallic=None, image=None, own=None, object_albedo=None):
         """((M, 3) radiance of the ``todo`` pixels under ``model``, (M, 3) the object's own
         or None) (module docstring, step 3): the diffuse shading filtered as the film does
         (``pixel.film_filter``) times the albedo (the scene's with its offset); where the
@@ -311,7 +321,7 @@ class PhysicalRenderer(Renderer):
         cfg = self._settings.transport
         ys, xs = np.nonzero(todo)
         ambient, direct, vis_sky, nv, lit, scene_only, seen = self._parts(d, n, todo, camera, model, albedo_mean,
-                                                                          occluder, unknown)
+                                                                          occluder, unknown, object_albedo)
         y0, x0, y1, x1 = _window(ys, xs, *d.shape, int(np.ceil(cfg.edge_reach_px)) + 2)
         ly, lx = ys - y0, xs - x0
         t = np.zeros((y1 - y0, x1 - x0), bool)
