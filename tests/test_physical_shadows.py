@@ -500,3 +500,45 @@ def test_a_meshs_triangle_areas_are_kept_for_its_arrays_only():
         area[0] = 2.0
     mesh.vertices = mesh.vertices * 2.0
     np.testing.assert_allclose(_area_triangles(mesh)[2], [2.0, 2.0])
+
+
+def test_a_dark_objects_contact_is_darker_than_a_light_ones():
+    """The sky the object's mesh hides from the floor still brings what the object
+    bounces, at the object's own albedo (the scene's occluders at the scene's): a dark
+    vase's contact is darker than a white one's by about the share it hides times the
+    bounce's difference (``TransportConfig.sky_bounce``), where both were drawn alike."""
+    import dataclasses
+
+    from zcomp_cli.renderers.physical.settings import TransportConfig
+
+    s = floor_scene(160, 120, light_dir=SUN, ambient=0.3)
+    r = 0.2
+    centre_w = np.array([0.1, r, -2.5])  # resting on the floor
+    c = s.world_to_camera(centre_w)
+    P = s.camera.unproject(s.depth).astype(np.float64)
+    rel = np.asarray(c) - P
+    dist = np.linalg.norm(rel, axis=-1)
+    occ = (r / dist) ** 2 * np.clip((rel @ s.up_cam) / dist, 0.0, 1.0)
+    ratios = {}
+    for grey in (0.05, 0.9):
+        b = sphere_object_bundle(s.camera, c, r, (grey, grey, grey), floor_normal=s.up_cam)
+        d, n, a, sel = insert_bundle(s.depth, s.normals, s.albedo, b)
+        ys, xs = np.nonzero(sel)
+        mask = np.zeros(sel.shape, bool)
+        h = ys.max() - ys.min()
+        mask[max(0, ys.min() - h // 2):ys.max() + h, max(0, xs.min() - h):xs.max() + h] = True
+        bg = RenderRequest(SceneMaps(s.depth, s.normals, s.albedo), s.shading, ~mask, s.camera, scene_key="k")
+        comp = RenderRequest(SceneMaps(d, n, a), s.shading, ~mask, s.camera, scene_key="k",
+                             coverage=sel.astype(np.float64), occluder=_sphere_mesh(c, r))
+        out = PhysicalRenderer().render([bg, comp], seed=1)
+        ratios[grey] = out.images[1].mean(-1) / np.maximum(out.images[0].mean(-1), 1e-6)
+        floor = mask & ~sel & (s.depth > 0)
+    near = floor & (occ > 0.15)
+    assert near.sum() > 10
+    gap = ratios[0.9][near] - ratios[0.05][near]
+    assert np.all(gap >= -1e-6)
+    # the hidden share (about occ of the sky, the floor's ambient share of its light)
+    # bounces (0.9 - 0.05) x sky_bounce more off the white ball
+    assert np.median(gap) > 0.25 * TransportConfig().sky_bounce * 0.85 * np.median(occ[near])
+    far = floor & (occ < 0.01)
+    assert np.abs(ratios[0.9][far] - ratios[0.05][far]).max() < 0.01
