@@ -108,6 +108,29 @@ def sky_pool(radiance: np.ndarray, directions: np.ndarray, solid_angle: np.ndarr
     return d[pick], L[pick] / np.maximum(lum[pick], 1e-12)[:, None]
 
 
+def pool_shading(pool, radiance_sh: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """(N, 3) the shading (irradiance over pi) surfaces of unit ``normals`` (N, 3) get from
+    the sky the ``pool`` was drawn from (``sky_pool``: directions in proportion to its
+    luminance, each with its colour over its luminance), its level matched to the
+    constant term of ``radiance_sh`` (9, 3), the same sky's order-2 SH (the lower
+    hemisphere left out, as the pool's). The pool's directions are the map's own: a
+    probe's lobes (a bright horizon on one side, a window) shade a ball as they are,
+    where the order-2 SH smoothed them. The SH's own shading where the pool is empty."""
+    from zcomp_cli.scene import sh
+
+    dirs, chroma = pool
+    nv = np.asarray(normals, np.float64).reshape(-1, 3)
+    c = np.asarray(radiance_sh, np.float64).reshape(sh.N_COEFFS, 3)
+    if not len(dirs):
+        return np.maximum(sh.evaluate(sh.shading_coeffs(c), nv), 0.0)
+    # Monte Carlo over the pool: E(n) = (Phi / n) sum chroma max(0, n.d), where Phi, the
+    # map's luminance over the sphere, is fixed by the SH's constant term (the same sum
+    # with Y00 in place of the cosine)
+    y00 = sh.basis(dirs[:1])[0, 0]
+    per = c[0] / np.maximum(chroma.sum(0) * y00, 1e-12)
+    return (np.maximum(nv @ dirs.T, 0.0) @ chroma) * per / np.pi
+
+
 def sky_occlusion(mesh, points: np.ndarray, normals: np.ndarray, pool, k: int, jitter: np.ndarray,
                   bias: np.ndarray) -> np.ndarray:
     """(N, 3) the share of the sky's irradiance (per colour channel) the mesh hides from
@@ -143,4 +166,4 @@ def sky_occlusion(mesh, points: np.ndarray, normals: np.ndarray, pool, k: int, j
     return out
 
 
-__all__ = ["disc_samples", "light_visibility", "sky_pool", "sky_occlusion"]
+__all__ = ["disc_samples", "light_visibility", "sky_pool", "pool_shading", "sky_occlusion"]

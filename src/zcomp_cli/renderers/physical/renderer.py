@@ -399,8 +399,14 @@ class PhysicalRenderer(Renderer):
             got = bounce(model, camera, d, P, nv[sel], ys[sel], xs[sel], occluder=occluder, scene_only=scene_only,
                          images=images, k=cfg.bounce_rays, steps=self._settings.light.march.sky_steps,
                          march=self._settings.light.march)
-            # the sky's visible share without the occluders' bounce, which the rays bring
-            sky = np.maximum(shm.evaluate(shm.shading_coeffs(model.sky.radiance_sh), nv[sel]), 0.0)
+            # the sky's visible share without the occluders' bounce, which the rays bring;
+            # a given probe's sky from its map's own directions (``meshrays.pool_shading``)
+            if model.probe is not None:
+                from zcomp_cli.scene.meshrays import pool_shading
+
+                sky = pool_shading(sky_pool_of(model, self._settings.gloss, cfg), model.sky.radiance_sh, nv[sel])
+            else:
+                sky = np.maximum(shm.evaluate(shm.shading_coeffs(model.sky.radiance_sh), nv[sel]), 0.0)
             from zcomp_cli.renderers.physical.softshadow import classwise_blur
 
             # (the neighbours' rays averaged: each pixel's are turned apart)
