@@ -542,3 +542,33 @@ def test_a_dark_objects_contact_is_darker_than_a_light_ones():
     assert np.median(gap) > 0.25 * TransportConfig().sky_bounce * 0.85 * np.median(occ[near])
     far = floor & (occ < 0.01)
     assert np.abs(ratios[0.9][far] - ratios[0.05][far]).max() < 0.01
+
+
+def test_a_probes_window_shades_a_ball_from_the_pool_as_it_is():
+    """``meshrays.pool_shading``: a sky of a dim dome and one bright window 30 degrees up
+    shades normals around the horizon as the exact integral over the map does (within
+    1 %), where its order-2 SH is 16 % off (too bright on the dark side, too dark at the
+    window's edge)."""
+    from zcomp_cli import equirect
+    from zcomp_cli.scene import sh
+    from zcomp_cli.scene.meshrays import pool_shading, sky_pool
+    from zcomp_cli.worldframe import ground_frame
+
+    up = np.array([0.0, 1.0, 0.0])
+    h, w = 64, 128
+    d = equirect.pixel_directions(h, w, ground_frame(up))
+    om = equirect.solid_angles(h, w)
+    win = np.array([0.8, 0.5, 0.0]) / np.linalg.norm([0.8, 0.5, 0.0])
+    L = (0.3 + 20.0 * np.exp(-(1.0 - d @ win) / 0.02))[..., None] * np.array([1.0, 0.9, 0.7])
+    L = L * ((d @ up) > 0)[..., None]
+    c = sh.project(d.reshape(-1, 3), L.reshape(-1, 3), om.reshape(-1))
+    ang = np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)
+    n = np.stack([np.cos(ang), np.full_like(ang, 0.3), np.sin(ang)], 1)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    exact = (np.maximum(n @ d.reshape(-1, 3).T, 0.0) * om.reshape(-1)) @ L.reshape(-1, 3) / np.pi
+    got = pool_shading(sky_pool(L, d, om, up, 512), c, n)
+    smooth = np.maximum(sh.evaluate(sh.shading_coeffs(c), n), 0.0)
+    assert np.max(np.abs(got - exact) / exact) < 0.01
+    assert np.max(np.abs(smooth - exact) / exact) > 0.1
+    # an empty pool (a black sky) falls back to the SH's own shading
+    assert np.allclose(pool_shading((np.zeros((0, 3)), np.zeros((0, 3))), c, n), smooth)
