@@ -85,9 +85,10 @@ class Sun:
         """The sun as samples of its disc seen from ``points`` (N, 3): (unit directions
         (k, N, 3) toward each, distances (k, N) inf, the shading (k, N, 3) a surface facing
         a sample gets were the whole sun there: the irradiance over the samples' mean
-        cosine to its centre, so that a surface facing it gets the irradiance); ``offsets`` (k, N, 2) on the unit disc
-        (``sampling.disc_samples``) span its angular radius about its direction. A mean
-        over the samples of a response to each is the response to the whole disc."""
+        cosine to its centre, so that a surface facing it gets the irradiance);
+        ``offsets`` (k, N, 2) on the unit disc (``sampling.disc_samples``) span its angular
+        radius about its direction. A mean over the samples of a response to each is the
+        response to the whole disc."""
         from zcomp_cli.scene.sampling import length, orthonormal_rows
 
         off = np.asarray(offsets, np.float64)
@@ -169,10 +170,10 @@ class Lamp:
         (k, N, 3) toward each, distances (k, N), the shading (k, N, 3) a surface facing a
         sample gets were the whole lamp there: a panel's profile toward the point over the
         distance squared, a sphere's centre's shading over the samples' mean cosine to
-        it); ``offsets`` (k, N, 2) on the unit disc
-        (``sampling.disc_samples``) scaled by its radius, in a panel's own plane, else in
-        the plane facing each point (a sphere's outline). A mean over the samples of a
-        response to each is the response to the whole lamp."""
+        it); ``offsets`` (k, N, 2) on the unit disc (``sampling.disc_samples``) scaled by
+        its radius, in a panel's own plane, else in the plane facing each point (a
+        sphere's outline). A mean over the samples of a response to each is the response
+        to the whole lamp."""
         from zcomp_cli.scene.sampling import length, orthonormal_rows
 
         P = np.asarray(points, np.float64).reshape(-1, 3)
@@ -466,5 +467,5 @@ class LightModel:
                    anchor=d["anchor"])
 
 
-__all__ = ["Origin", "ShadowKind", "Sun", "Lamp", "disc_shading", "Sky", "FitSummary", "ProbeRef", "LightModel", "ground_view",
-           "MAX_RADIUS_DEG"]
+__all__ = ["Origin", "ShadowKind", "Sun", "Lamp", "disc_shading", "Sky", "FitSummary", "ProbeRef", "LightModel",
+           "ground_view", "MAX_RADIUS_DEG"]

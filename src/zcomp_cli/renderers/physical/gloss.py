@@ -268,6 +268,6 @@ def prefiltered_light(model: LightModel, cfg: GlossConfig) -> PrefilteredProbe:
     return pf if ref is None else pf.scaled(ref.scale)
 
 
-__all__ = ["env_brdf", "specular_albedo", "ggx_direct", "ggx_light", "multiscatter", "fresnel_dielectric", "fresnel_shape",
-           "principled_layers", "DIELECTRIC_F0", "DIELECTRIC_IOR", "FRESNELS", "model_radiance_map", "prefiltered_light", "prefilter",
-           "PrefilteredProbe"]
+__all__ = ["env_brdf", "specular_albedo", "ggx_direct", "ggx_light", "multiscatter", "fresnel_dielectric",
+           "fresnel_shape", "principled_layers", "DIELECTRIC_F0", "DIELECTRIC_IOR", "FRESNELS", "model_radiance_map",
+           "prefiltered_light", "prefilter", "PrefilteredProbe"]

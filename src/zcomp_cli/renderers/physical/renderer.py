@@ -212,7 +212,8 @@ class PhysicalRenderer(Renderer):
         ao = np.where(den > 1e-12, num / np.maximum(den, 1e-300), 1.0)
         hid = np.zeros_like(ao)
         if occluder is not None:
-            hid = self._object_sky(d, n, todo, camera, occluder, model, ys, xs, rad, todo if unknown is None else unknown)
+            hid = self._object_sky(d, n, todo, camera, occluder, model, ys, xs, rad,
+                                   todo if unknown is None else unknown)
         return ao, hid, scene_only
 
     def _object_sky(self, d, n, todo, camera, occluder, model, ys, xs, blur_px, unknown):
@@ -454,6 +455,7 @@ class PhysicalRenderer(Renderer):
         (M, 3): the radiance the lobe meets, gathered (``reflect``), instead of the
         occluded prefiltered sky."""
         from zcomp_cli.renderers.physical.gloss import ggx_light, prefiltered_light, principled_layers, specular_albedo
+
         pc = self._settings.gloss
         P = camera.ray(xs + 0.5, ys + 0.5) * d[ys, xs][:, None]
         v = -P / np.maximum(np.linalg.norm(P, axis=1, keepdims=True), 1e-12)
