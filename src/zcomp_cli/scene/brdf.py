@@ -204,5 +204,5 @@ def camera_offset(points, normals, roughness: float, albedo, cfg: BrdfTable | No
     return dielectric_offset(ndv, roughness, a, cfg)
 
 
-__all__ = ["dielectric_offset", "camera_offset", "DIELECTRIC_IOR", "DIELECTRIC_F0", "FRESNELS", "fresnel_dielectric", "fresnel_shape", "env_brdf",
-           "multiscatter", "specular_albedo", "smith_g"]
+__all__ = ["dielectric_offset", "camera_offset", "DIELECTRIC_IOR", "DIELECTRIC_F0", "FRESNELS", "fresnel_dielectric",
+           "fresnel_shape", "env_brdf", "multiscatter", "specular_albedo", "smith_g"]

@@ -150,9 +150,6 @@ class ReachConfig:
     object_shadow: ObjectShadowConfig = sub(ObjectShadowConfig, "the object's shadow map from each light")
 
 
-__all__ = ["MeshConfig", "FrameConfig", "ProbeConfig", "MarchConfig", "ObjectShadowConfig", "ReachConfig"]
-
-
 @dataclass(frozen=True, kw_only=True)
 class BrdfTable:
     """The GGX specular layer's tables (``brdf``): the physical renderer's ``GlossConfig``
@@ -167,3 +164,6 @@ class BrdfTable:
     env_lut_samples: int = knob(1024, "sampling", "GGX samples per node of that table (Hammersley points): within "
                                                   "1e-4 of 64x as many at the median node, 0.025 at the worst "
                                                   "(grazing n.v = 0.03); 0.08 s once per process", hi=65536)
+
+
+__all__ = ["MeshConfig", "FrameConfig", "ProbeConfig", "MarchConfig", "ObjectShadowConfig", "ReachConfig", "BrdfTable"]

@@ -28,6 +28,7 @@ import numpy as np
 
 from zcomp_cli.scene import sh
 from zcomp_cli.scene.lightparams import MAX_RADIUS_DEG, Origin
+from zcomp_cli.scene.sampling import length, orthonormal_rows
 
 
 class ShadowKind(str, enum.Enum):
@@ -46,6 +47,21 @@ def _vec(a, n=3) -> np.ndarray:
     v = np.asarray(a, np.float64).reshape(n)
     v.setflags(write=False)
     return v
+
+
+def _disc_spread(offsets: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """(k, N, 3) the points ``offsets`` (k, N, 2) of the unit disc laid in the plane
+    normal to each row of ``axis`` (N, 3)."""
+    u, v = orthonormal_rows(axis)
+    return offsets[..., :1] * u[None] + offsets[..., 1:] * v[None]
+
+
+def _facing_kept(d: np.ndarray, centre: np.ndarray, shading: np.ndarray) -> np.ndarray:
+    """(k, N, 3) each sample's shading such that a surface facing the centre (unit
+    ``centre`` (N, 3)) gets ``shading`` ((N, 3) or (1, 3)) from their mean: it over the
+    samples' ``d`` (k, N, 3) mean cosine to the centre."""
+    facing = np.maximum(np.einsum("knc,nc->n", d, centre) / len(d), 1e-12)
+    return np.broadcast_to(shading / facing[:, None], d.shape)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -89,16 +105,12 @@ class Sun:
         ``offsets`` (k, N, 2) on the unit disc (``sampling.disc_samples``) span its angular
         radius about its direction. A mean over the samples of a response to each is the
         response to the whole disc."""
-        from zcomp_cli.scene.sampling import length, orthonormal_rows
-
         off = np.asarray(offsets, np.float64)
         L = np.broadcast_to(self.direction, off.shape[1:2] + (3,))
-        u, v = orthonormal_rows(L)
-        d = L[None] + self.tan_radius() * (off[..., :1] * u[None] + off[..., 1:] * v[None])
+        d = L[None] + self.tan_radius() * _disc_spread(off, L)
         d = d / np.maximum(length(d), 1e-12)[..., None]
         # a surface facing the sun gets its irradiance, whatever the samples' spread
-        facing = np.maximum(np.einsum("knc,nc->n", d, L) / len(d), 1e-12)
-        return d, np.full(off.shape[:2], np.inf), np.broadcast_to(self.irradiance / facing[:, None], d.shape)
+        return d, np.full(off.shape[:2], np.inf), _facing_kept(d, L, self.irradiance[None])
 
     def to_info(self) -> dict:
         return {"kind": "sun", "direction_camera": self.direction.tolist(),
@@ -174,25 +186,20 @@ class Lamp:
         its radius, in a panel's own plane, else in the plane facing each point (a
         sphere's outline). A mean over the samples of a response to each is the response
         to the whole lamp."""
-        from zcomp_cli.scene.sampling import length, orthonormal_rows
-
         P = np.asarray(points, np.float64).reshape(-1, 3)
         off = np.asarray(offsets, np.float64)
-        f = self.toward(P)[0] if self.facing is None else np.broadcast_to(self.facing, P.shape)
-        u, v = orthonormal_rows(f)
-        d = (self.position[None, None] + self.radius_m * (off[..., :1] * u[None] + off[..., 1:] * v[None])
-             - P[None])
+        c, _, Ec = self.toward(P)
+        f = c if self.facing is None else np.broadcast_to(self.facing, P.shape)
+        d = self.position[None, None] + self.radius_m * _disc_spread(off, f) - P[None]
         t = length(d)
         d = d / np.maximum(t, 1e-12)[..., None]
-        r = np.maximum(t, 1e-6)
         if self.facing is None:
             # a sphere lights a surface facing it as a point at its centre does: its
             # samples share the centre's shading
-            c, _, Ec = self.toward(P)
-            w = np.maximum(np.einsum("knc,nc->n", d, c) / len(d), 1e-12)
-            return d, t, np.broadcast_to(Ec / w[:, None], d.shape)
+            return d, t, _facing_kept(d, c, Ec)
         # a panel is the integral over its area (below a point's, its facing shading is
         # the point's times h^2 / (h^2 + radius^2) on its axis)
+        r = np.maximum(t, 1e-6)
         prof = 4.0 * np.maximum(-(d @ self.facing), 0.0)
         return d, t, (prof / (r * r))[..., None] * self.intensity
 
