@@ -12,7 +12,6 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 from zcomp_cli.knobs import knob, sub
@@ -51,8 +50,8 @@ class EvidenceConfig:
 
 @dataclass(frozen=True, kw_only=True)
 class SearchConfig:
-    """The direction search, its posterior, the light's size and strength (``estimate``,
-    ``shadowcast``)."""
+    """The direction search, its posterior and how it is drawn, the light's size and
+    strength (``search``, ``shadowcast``)."""
 
     temperature: float = knob(30.0, "fitted", "the posterior's one temperature: the best mean log score of the "
                                               "true direction (benchmarks/fit_light_constants.py, "
@@ -84,9 +83,14 @@ class SearchConfig:
     soft_deg: float = knob(10.0, "sampling", "the soft alternative of each candidate's shadow (its likelihood "
                                             "marginalised over a hard and a soft one): about the grid's spacing", hi=90.0)
     refine_directions: int = knob(40, "sampling", "directions of the refinement around the best coarse one")
-    cone_per_rms: float = knob(math.sqrt(2.0), "statistical", "a cone of half-angle a spreads directions with RMS "
-                                                              "a / sqrt(2): the radius that covers a posterior")
-    max_radius_deg: float = knob(45.0, "physical", "the widest light a shadow is drawn for (wider is sky)", hi=MAX_RADIUS_DEG)
+    max_modes: int = knob(4, "sampling", "the most lights the posterior over directions is drawn as (its modes, "
+                                         "each a light of the mass it holds: the expected shadow); each costs the "
+                                         "renderer a light", lo=1, hi=16)
+    mode_radius_deg: float = knob(15.0, "sampling", "a mode holds the mass within this angle of its peak: about the "
+                                                    "search grid's spacing (12.7 deg at 256 directions), below which "
+                                                    "the grid does not tell two shadows apart", hi=90.0)
+    modes_mass: float = knob(0.9, "statistical", "modes are drawn until they hold this share of the posterior (the "
+                                                 "rest, scattered, is shared among them)", hi=1.0)
     few_pixels: int = knob(50, "statistical", "fewer fit pixels than this fit nothing: the prior's light")
     bias_rel: float = knob(0.01, "sampling", "a shadow ray starts this share of its depth off the surface (the mesh "
                                             "is float32 in Embree, the depth map steps about a percent)", hi=1.0)

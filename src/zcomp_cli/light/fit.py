@@ -12,8 +12,9 @@ the evidence read. Every node of the tree is a **term** (``ProbeTerm``, ``SunTer
 2. ``Term.resolve``: each term's geometry -- a given direction or position as it is, a
    free direction searched (``search.search``: the posterior over directions from the
    cast shadows and the shading; the light found may be a lamp), a free angular radius
-   chosen (``search.choose_size``), a searched light's radius grown to its doubt
-   (``search.hedge``);
+   chosen (``search.choose_size``: from its shadow's soft edge, never from the
+   direction's doubt), a searched light drawn as its posterior's modes (each a sun or a
+   lamp of the mass it holds, all at the one size chosen);
 3. ``Term.columns``: what each term adds to the known shading at unit strength
    (``Column``), with how its strength is had -- **absolute** (a probe, an
    ``irradiance``, a ``power``, a frozen sky: physical units that hold relative to each
@@ -202,8 +203,8 @@ class _DirectTerm(Term):
         self.cols = [Column(self.light.column, self.absolute(), direct=True)]
         return self.cols
 
-    def model_light(self, e: np.ndarray, s_from: Origin):
-        fl = self.light
+    def model_light(self, e: np.ndarray, s_from: Origin, fl: sr.FitLight | None = None):
+        fl = self.light if fl is None else fl
         if fl.kind == "sun":
             return [Sun(direction=fl.param, radius_deg=fl.radius, irradiance=e, direction_from=self.origin,
                         radius_from=fl.radius_from, strength_from=s_from)], []
@@ -222,6 +223,8 @@ class SunTerm(_DirectTerm):
         self.color = np.asarray(node.color, np.float64)
         self.share = node.share if not node.irradiance.frozen else None
         self.searched = not node.direction_given
+        self.modes: list = []  # a searched light's drawn modes: (FitLight, mass) each
+        self.rest_sh = None  # and the rest of its posterior as sky (SH per unit strength)
 
     def resolve(self, ctx):
         cfg, fp = ctx.cfg, ctx.pp.fp
@@ -232,6 +235,7 @@ class SunTerm(_DirectTerm):
             ctx._scorer = sc
             ctx.diagnostics["evidence"] = ctx.search.evidence
             self.light, self.origin = ctx.search.light, Origin.SHADOWS
+            self.modes = list(ctx.search.modes)
             return
         d = self.node.direction_in(ctx.up)
         if float(d @ ctx.up) <= 0.0:
@@ -261,11 +265,37 @@ class SunTerm(_DirectTerm):
         self.strength_origin = p.origin
         return _times(p.value, SUN_SHADING_PER_IRRADIANCE) * self.color
 
+    def columns(self, ctx):
+        """A searched light's column is its modes' (``search.Search.modes``), each at the
+        posterior's mass it holds, and the rest of that mass as sky (``rest_sh``): one
+        atom, so the drawn light keeps the posterior's proportions."""
+        if not self.modes:
+            return super().columns(ctx)
+        col = sum(w * fl.column for fl, w in self.modes)
+        rest = ctx.search.rest_sh
+        if rest is not None and np.any(rest != 0.0) and len(ctx.pp.fp):
+            col = col + at.sky_atom_values(ctx.pp.fp, rest, ctx.pp.sky_vis)
+            self.rest_sh = np.asarray(rest, np.float64)
+        self.cols = [Column(np.asarray(col, np.float64), self.absolute(), direct=True)]
+        return self.cols
+
     def fill(self, ctx, exposure):
         e = self.cols[0].strength
+        if not self.modes:
+            return self._filled_one(self.light, e, exposure)
+        nodes, suns, lamps = [], [], []
+        for fl, w in self.modes:  # (heaviest first: the key light the report names)
+            node, s_, l_, _ = self._filled_one(fl, np.asarray(e, np.float64) * w, exposure)
+            nodes.append(node)
+            suns += s_
+            lamps += l_
+        rest = None if self.rest_sh is None else np.outer(self.rest_sh, np.broadcast_to(np.asarray(e, np.float64), 3))
+        return nodes, suns, lamps, rest
+
+    def _filled_one(self, fl: sr.FitLight, e: np.ndarray, exposure: float):
+        """(its node, model suns, model lamps, None) of one drawn light ``fl`` of strength ``e``."""
         s_from = self.strength_origin
-        fl = self.light
-        suns, lamps = self.model_light(e, s_from)
+        suns, lamps = self.model_light(e, s_from, fl)
         if fl.kind == "lamp":  # a searched light found a lamp: a lamp in the tree
             node = LampParams(position=Param(value=tuple(fl.param), origin=self.origin),
                               radius_m=Param(value=float(fl.radius), origin=fl.radius_from),
@@ -594,17 +624,23 @@ def fit_light(params: LightParams | None, depth, normals, shading, known, albedo
 
 
 def _sizes(ctx: Context, terms: list[Term]) -> None:
-    """Step 2's sizes: a free sun's radius chosen by the shadows' likelihoods, the
-    searched light's grown to cover its posterior's spread (``search.hedge``), unless the
-    config forces one (``shadow_softness``)."""
+    """Step 2's sizes (``search.choose_size``): a free sun's radius chosen by its shadows'
+    likelihoods; the searched light's modes all at the one size chosen at the heaviest
+    (a light's size is one, however uncertain its direction), unless the config forces
+    one (``shadow_softness``)."""
     for t in terms:
-        if isinstance(t, _DirectTerm) and t.light.radius is None:
+        if isinstance(t, SunTerm) and t.modes:
+            s = ctx.search
+            fl0 = t.modes[0][0]
+            if ctx.cfg.shadow_softness is not None:
+                r, origin = float(ctx.cfg.shadow_softness), Origin.MANIFEST
+            else:
+                r, origin = sr.chosen_radius(ctx.scorer(), sr.light_direction(fl0, s.anchor), ctx.cfg, ctx.seed)
+            t.modes = [(sr.sized(ctx.pp, fl, r, origin, ctx.cfg, ctx.seed, s.anchor), w) for fl, w in t.modes]
+            ctx.search = dataclasses.replace(s, light=t.modes[0][0], modes=tuple(t.modes))
+            t.light = t.modes[0][0]
+        elif isinstance(t, _DirectTerm) and t.light.radius is None:
             _set_light(ctx, t, sr.choose_size(ctx.pp, ctx.scorer(), t.light, ctx.cfg, ctx.seed))
-    if ctx.search is not None and ctx.cfg.shadow_softness is None:
-        t = next(t for t in terms if isinstance(t, SunTerm) and t.searched)
-        grown = sr.hedge(ctx.pp, t.light, ctx.search.posterior.rms_angle_deg(), ctx.cfg, ctx.seed)
-        if grown is not None:
-            _set_light(ctx, t, grown)
 
 
 def _set_light(ctx: Context, t: "_DirectTerm", light: sr.FitLight) -> None:
@@ -647,10 +683,9 @@ def _filled(ctx: Context, params: LightParams, terms: list[Term], exposure: floa
             probe_ref = t.ref(ctx, ex)
         elif isinstance(t, SkyTerm):
             pass
-        elif isinstance(node, LampParams):
-            node_lamps.append(node)
-        else:
-            node_suns.append(node)
+        else:  # (a searched light drawn as its modes fills a node for each)
+            for n_ in (node if isinstance(node, list) else [node]):
+                (node_lamps if isinstance(n_, LampParams) else node_suns).append(n_)
     sky_from = (Origin.PROBE if params.probe is not None else sky_node.radiance_sh.origin if sky_node.radiance_sh.frozen
                 else Origin.FIT if ctx.fitting else Origin.PRIOR)
     ground = (np.asarray(sky_node.ground.value, np.float64) if sky_node.ground.frozen else pp.ground)
@@ -681,22 +716,23 @@ def _filled_sky(node: SkyParams, sky_sh: np.ndarray, ground: np.ndarray, ctx: Co
 def _model(ctx: Context, params: LightParams, suns, lamps, sky: Sky, probe_ref, exposure: float, n_eff: float,
            residual: float) -> LightModel:
     """The ``LightModel`` of the filled terms: its lights, sky, what the fit says of
-    itself (the searched light's doubt and the note on its hedge)."""
-    pp, cfg = ctx.pp, ctx.cfg
+    itself (the searched light's doubt, and how its modes were drawn)."""
+    pp = ctx.pp
     spread = ctx.search.posterior.rms_angle_deg() if ctx.search is not None else float("nan")
+    modes = tuple(ctx.search.modes) if ctx.search is not None else ()
+    unfixed = len(modes) > 1
+    if unfixed:
+        fl = modes[0][0]
+        size = f"{fl.radius:.3g} {'deg' if fl.kind == 'sun' else 'm'}"
+        ctx.notes.append(
+            f"the photograph fixes the light's direction to within {spread:.0f} deg (RMS): drawn as the posterior's "
+            f"{len(modes)} likeliest lights ({', '.join(f'{w:.0%}' for _, w in modes)} of it), each at the light's "
+            f"size ({size}, {fl.radius_from}), the rest as sky")
     note = "; ".join(ctx.notes)
-    hedged = ctx.search is not None and ctx.search.light.radius_from is Origin.PRIOR
-    unfixed = False
-    if hedged:
-        fl = ctx.search.light
-        note = (f"the photograph fixes the light's direction to within {spread:.0f} deg (RMS): its shadow is drawn "
-                f"as soft as that ({fl.radius:.3g} {'deg' if fl.kind == 'sun' else 'm'} radius)")
-        # (the hedge reached the widest light: a lamp's as well as a sun's, its radius in
-        # metres covering that angle from the anchor)
-        unfixed = bool(min(cfg.search.cone_per_rms * spread, cfg.search.max_radius_deg)
-                       >= cfg.search.max_radius_deg - 1e-9)
+    mode_info = tuple({"kind": fl.kind, "toward": [round(float(v), 6) for v in sr.light_direction(fl, ctx.search.anchor)],
+                       "share": round(float(w), 4)} for fl, w in modes)
     summary = FitSummary(shadow_blocks=float(n_eff), uncertainty_deg=float(spread), residual=residual,
-                         pixels=len(pp.fp), exposure=exposure, note=note, unfixed=unfixed)
+                         pixels=len(pp.fp), exposure=exposure, note=note, unfixed=unfixed, modes=mode_info)
     direct = [*suns, *lamps]
     estimated = any((s.direction_from if isinstance(s, Sun) else s.position_from) in ESTIMATED for s in direct)
     source = "manifest" if (params.given and not estimated) else "estimated"

@@ -26,6 +26,20 @@ def _unit(v) -> np.ndarray:
 
 
 @dataclass(frozen=True)
+class Mode:
+    """One mode of a posterior (``DirectionPosterior.modes``): its mean ``direction``
+    (3,), its densest grid direction ``peak`` (3,), and the share of the posterior's mass
+    it holds."""
+
+    direction: np.ndarray
+    peak: np.ndarray
+    mass: float
+
+    def to_info(self) -> dict:
+        return {"direction": [round(float(v), 6) for v in self.direction], "mass": round(float(self.mass), 4)}
+
+
+@dataclass(frozen=True)
 class DirectionPosterior:
     """``dirs`` (K, 3) unit directions; ``log_post`` (K,) unnormalised log-posterior
     *densities* (per steradian); ``solid_angle`` (K,) the solid angle (sr) each stands
@@ -136,6 +150,30 @@ class DirectionPosterior:
         grid = np.array([self.log_density(x) for x in self.dirs]) if len(self.dirs) <= 4096 else self.log_post
         return 1 + int((grid > ld + 1e-9).sum())
 
+    def modes(self, max_modes: int, radius_deg: float, mass: float) -> list["Mode"]:
+        """The posterior as at most ``max_modes`` lights (DESIGN.md section 8, "the
+        posterior drawn"): the densest direction left and the mass within ``radius_deg``
+        of it are a mode, at that mass's mean direction; then the densest direction left
+        of the rest, and so on until the modes hold ``mass`` of the posterior. Each mode's
+        ``mass`` is its share of the posterior (not renormalised: their sum is the share
+        the modes stand for), heaviest first."""
+        if int(max_modes) < 1 or not radius_deg > 0.0:
+            raise ValueError(f"DirectionPosterior.modes: max_modes >= 1 and radius_deg > 0 (got {max_modes}, "
+                             f"{radius_deg})")
+        p = self.probabilities
+        left = np.ones(len(p), bool)
+        c = math.cos(math.radians(float(radius_deg)))
+        out: list[Mode] = []
+        while left.any() and len(out) < int(max_modes) and sum(m.mass for m in out) < float(mass):
+            i = int(np.flatnonzero(left)[np.argmax(self.log_post[left])])
+            inside = left & (self.dirs @ self.dirs[i] >= c)
+            w = float(p[inside].sum())
+            if not w > 0.0:
+                break
+            out.append(Mode(direction=_unit(p[inside] @ self.dirs[inside]), peak=self.dirs[i].copy(), mass=w))
+            left &= ~inside
+        return sorted(out, key=lambda m: -m.mass)
+
     def to_info(self) -> dict:
         return {"map_direction": self.map_direction.tolist(), "mean_direction": self.mean_direction.tolist(),
                 "mean_resultant_length": float(np.linalg.norm(self.mean_resultant)),
@@ -147,4 +185,4 @@ def hemisphere_solid_angles(n: int) -> float:
     return 2.0 * math.pi / max(int(n), 1)
 
 
-__all__ = ["DirectionPosterior", "hemisphere_solid_angles"]
+__all__ = ["DirectionPosterior", "Mode", "hemisphere_solid_angles"]

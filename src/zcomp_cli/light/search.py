@@ -22,17 +22,21 @@ light whose direction is free; each returns a dataclass; every constant is
    fitted by ``benchmarks/fit_light_constants.py`` with the log score of the true
    direction). A lamp is a sun with a distance: each direction's likelihood is
    marginalised over a sun and lamps along it from the caster's base;
-4. ``choose_size``: a sun's angular radius, one rule for every sun: the likelihoods of
-   its cone-averaged shadow among ``search.radii_deg`` and the Sun's own, the Sun's
-   where they cannot tell;
+4. ``choose_size``: a light's size, one rule for every sun and lamp: the likelihoods of
+   its cone-averaged shadow among ``search.radii_deg`` and the Sun's own, the Sun's (a
+   bulb's) where they cannot tell -- the penumbra's width says it, never the
+   direction's doubt;
 5. ``split_from_shadows``: the sun/sky split from the shadows themselves (the
    shadowed/lit ratio across the edges of the most probable light's shadow, Madsen and
    Nielsen), shrunk toward the prior split by the tied shadow that measurement stands
    on; one robust NNLS then fits the exposure and the sky's shape (``fit``);
-6. ``hedge``: one light at the posterior's mean direction, its angular radius grown to
-   cover the posterior's spread (the expectation of its shadow over the posterior,
-   under squared error the best composite): a confident posterior gives a crisp shadow,
-   a vague one a soft and lighter one from the likely side (the contact shadow stays).
+6. the lights drawn: the posterior's modes (``DirectionPosterior.modes``), each a sun or
+   a lamp of the mass it holds, all at the size step 4 chose, and the mass outside them
+   as sky (its radiance where that mass lies): the expected shadow over the posterior.
+   A confident posterior is one crisp light; a spread one its likely lights, each as
+   faint as its mass, over a soft shade from the rest -- never one light at a mean
+   direction where the posterior may have no mass, nor one widened to stand for the
+   doubt.
 
 The stated uncertainty (``fit.direction_uncertainty_deg``) is the posterior's RMS angle
 about its mean direction; the fit returns the posterior (``posterior.DirectionPosterior``)
@@ -53,7 +57,8 @@ from zcomp_cli.light.posterior import DirectionPosterior
 from zcomp_cli.light.prepare import Prepared
 from zcomp_cli.light.shadowcast import shadow_fit, sun_visibility
 from zcomp_cli.light.solver import base_sigma, score_candidates
-from zcomp_cli.scene.lightparams import SUN_RADIUS_DEG, Origin
+from zcomp_cli.scene import sh
+from zcomp_cli.scene.lightparams import LAMP_RADIUS_M, SUN_RADIUS_DEG, Origin
 from zcomp_cli.scene.sampling import fine_spiral, hemisphere, spacing_deg
 
 
@@ -93,9 +98,13 @@ def log_elevation_prior(dirs: np.ndarray, up, power: float) -> np.ndarray:
 class Search:
     """Step 3: the posterior over directions (``DirectionPosterior``), and per grid
     direction its shadow log-likelihood, photometric log-likelihood, the shadowed/lit
-    ratio its shadow fits and the shadow it casts on the receivers (blocks); the chosen
-    light (a sun of the mean direction, or a lamp along it) and the most probable one
-    (``map_light``: the posterior's mode, what the split is read across)."""
+    ratio its shadow fits and the shadow it casts on the receivers (blocks); the lights
+    drawn (``modes``: (``FitLight``, the posterior's mass it holds) per mode, heaviest
+    first; ``light`` the heaviest; ``mode_mass`` the modes' mass; ``rest_sh`` (9,) the
+    rest of the posterior as a sky's radiance SH per unit of the light's strength,
+    camera frame), the most probable light (``map_light``: what the split is read
+    across) and the caster's base the lamps' directions are measured from
+    (``anchor``)."""
 
     posterior: DirectionPosterior
     ll_shadow: np.ndarray
@@ -106,6 +115,10 @@ class Search:
     evidence: object
     receivers: object
     map_light: FitLight | None = None
+    anchor: np.ndarray | None = None
+    modes: tuple = ()
+    mode_mass: float = 1.0
+    rest_sh: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -358,73 +371,94 @@ def search(pp: Prepared, settings: LightConfig, seed: int = 0) -> tuple[Search, 
     post = DirectionPosterior.from_parts(dirs, np.concatenate([marg[~inside], m_f]),
                                          log_elevation_prior(dirs, up, cfg.elevation_prior_power), om, T)
     opts = np.concatenate([option[~inside], opt_f])
-    # the light: the posterior's mean direction, as a sun or as a lamp at the distance
-    # the most probable direction's best option says
-    mean_dir = post.mean_direction
-    if mean_dir @ up <= math.sin(math.radians(cfg.min_elevation_deg)):
-        mean_dir = post.map_direction
+    # the lights drawn: the posterior's modes, each a sun or a lamp as its peak's best
+    # option says, of the mass it holds (step 6)
+    modes = post.modes(cfg.max_modes, cfg.mode_radius_deg, cfg.modes_mass)
+    drawn = []
+    for m in modes:
+        k = int(opts[int(np.argmax(post.dirs @ m.peak))])
+        # (their columns are made at their size, step 4)
+        drawn.append(FitLight("sun", m.direction, None, np.zeros(0)) if k < 0 else
+                     FitLight("lamp", anchor + dists[k] * m.direction, None, np.zeros(0)))
+    total = sum(m.mass for m in modes)
+    # the posterior's mass outside the modes, drawn as sky: a sun of unit strength is the
+    # radiance pi delta(w - d) in shading units (``fit``), so its mass p_i at d_i adds
+    # pi p_i Y(d_i) to the sky's radiance SH (camera frame)
+    rest = np.ones(len(post.dirs), bool)
+    for m in modes:
+        rest &= post.dirs @ m.peak < math.cos(math.radians(cfg.mode_radius_deg))
+    p = post.probabilities
+    rest_sh = math.pi * sh.project(post.dirs[rest], p[rest] / post.solid_angle[rest], post.solid_angle[rest])[:, 0]
     i_map = int(np.argmax(post.log_post))
     k = int(opts[i_map])
-    if k < 0:
-        _, _, col = sc.suns(mean_dir[None])
-        light = FitLight("sun", mean_dir, None, col[:, 0])
-        best_light = FitLight("sun", post.dirs[i_map], None, np.zeros(0))
-    else:
-        q = anchor + dists[k] * mean_dir
-        _, _, col = sc.lamps(q[None])
-        light = FitLight("lamp", q, None, col[:, 0], radius_from=Origin.DEFAULT)
-        best_light = FitLight("lamp", anchor + dists[k] * post.dirs[i_map], None, np.zeros(0))
+    best_light = FitLight("sun" if k < 0 else "lamp", post.dirs[i_map] if k < 0 else anchor + dists[k] * post.dirs[i_map],
+                          None, np.zeros(0))
     return Search(posterior=post, ll_shadow=np.concatenate([llsh_c[~inside], sh_f]),
                   ll_photo=np.concatenate([llp[~inside], llp_f]), ratio=np.concatenate([ratio_c[~inside], r_f]),
-                  shadow_blocks=np.concatenate([area_c[~inside], a_f]), light=light, evidence=ev,
-                  receivers=sc.rec, map_light=best_light), sc
+                  shadow_blocks=np.concatenate([area_c[~inside], a_f]), light=drawn[0], evidence=ev,
+                  receivers=sc.rec, map_light=best_light, anchor=anchor,
+                  modes=tuple(zip(drawn, [m.mass for m in modes])), mode_mass=float(total), rest_sh=rest_sh), sc
 
 
-def choose_size(pp: Prepared, sc: _Scorer, light: FitLight, settings: LightConfig, seed: int) -> FitLight:
-    """Step 4 (a lamp is returned as it is): a sun's angular radius, the one rule for
-    every sun whose size is not given: among the Sun's own (``SUN_RADIUS_DEG``, the
-    default) and ``search.radii_deg``, the one whose cone-averaged shadow has the largest summed
-    log-likelihood -- unless the default is within one unit of tempered log-likelihood
-    of it (the pixels cannot tell: the default stays). The renderer's ``shadow_softness``
-    forces one."""
-    if light.kind != "sun":
-        return light
-    if settings.shadow_softness is not None:
+def choose_size(pp: Prepared, sc: _Scorer, light: FitLight, settings: LightConfig, seed: int,
+                anchor=None) -> FitLight:
+    """Step 4: a light's size, one rule for every sun and lamp whose size is not given:
+    its angular radius seen from the caster's base (``anchor``; a sun's is the same from
+    everywhere) among the Sun's own (``SUN_RADIUS_DEG``, the default) and
+    ``search.radii_deg``, the one whose cone-averaged shadow has the largest summed
+    log-likelihood -- unless the default is within one unit of tempered log-likelihood of
+    it (the pixels cannot tell: the default stays, a bulb's ``LAMP_RADIUS_M`` for a
+    lamp). The width of a shadow's soft edge against its caster's distance is what tells
+    the radii apart (a light's size is the penumbra's, never the direction's doubt). A
+    lamp's radius in metres covers that angle at its distance from ``anchor``. The
+    renderer's ``shadow_softness`` forces one (a sun's angle)."""
+    if light.kind == "sun" and settings.shadow_softness is not None:
         r = float(settings.shadow_softness)
         return dataclasses.replace(light, radius=r, radius_from=Origin.MANIFEST, column=at.sun_column(
             pp.fp, light.param, r, steps=settings.estimate_march_steps, cone_samples=settings.cone_samples, seed=seed))
+    r, origin = chosen_radius(sc, light_direction(light, pp.anchor if anchor is None else anchor), settings, seed)
+    return sized(pp, light, r, origin, settings, seed, anchor)
+
+
+def light_direction(light: FitLight, anchor) -> np.ndarray:
+    """(3,) toward ``light`` from ``anchor`` (a sun's direction as it is)."""
+    if light.kind == "sun":
+        return np.asarray(light.param, np.float64)
+    v = np.asarray(light.param, np.float64) - np.asarray(anchor, np.float64)
+    return v / max(float(np.linalg.norm(v)), 1e-12)
+
+
+def chosen_radius(sc: _Scorer, direction, settings: LightConfig, seed: int) -> tuple[float, Origin]:
+    """(angular radius in degrees, its origin): ``choose_size``'s rule at ``direction``
+    (``Origin.DEFAULT`` where the shadows cannot tell the radii apart, ``Origin.SHADOWS``
+    where they chose it)."""
     radii = (SUN_RADIUS_DEG,) + tuple(r for r in settings.search.radii_deg if r != SUN_RADIUS_DEG)
     scored = []
     for r in radii:
-        sf, lh, col = sc.suns(light.param[None], r, seed=seed)
+        sf, lh, _ = sc.suns(np.asarray(direction, np.float64)[None], r, seed=seed)
         ll, _ = sc.loglik(sf, lh, 0.0)
-        scored.append((float(ll[0]) / settings.search.temperature, r, col[:, 0]))
+        scored.append((float(ll[0]) / settings.search.temperature, r))
     best = max(scored, key=lambda x: x[0])
     if best[0] - scored[0][0] < 1.0:
-        best, origin = scored[0], Origin.DEFAULT
-    else:
-        origin = Origin.FIT
-    return dataclasses.replace(light, radius=best[1], column=best[2], radius_from=origin)
+        return SUN_RADIUS_DEG, Origin.DEFAULT
+    return float(best[1]), Origin.SHADOWS
 
 
-def hedge(pp: Prepared, light: FitLight, spread_deg: float, settings: LightConfig, seed: int) -> FitLight | None:
-    """Step 6's hedge: the searched light with its angular size grown to cover its
-    posterior's spread (``search.cone_per_rms`` times the RMS angle, at most
-    ``search.max_radius_deg``): the expectation of its shadow over the posterior. None
-    where it would not grow."""
-    fp = pp.fp
-    cover = min(settings.search.cone_per_rms * float(spread_deg), settings.search.max_radius_deg)
+def sized(pp: Prepared, light: FitLight, radius_deg: float, origin: Origin, settings: LightConfig, seed: int,
+          anchor=None) -> FitLight:
+    """``light`` at angular radius ``radius_deg`` seen from ``anchor`` (``chosen_radius``),
+    its column made again: a sun's radius is that angle; a lamp's the metres that cover it
+    at its distance from ``anchor`` (a bulb's ``LAMP_RADIUS_M`` where the radius is the
+    default)."""
     if light.kind == "sun":
-        if cover <= (light.radius or 0.0):
-            return None
-        col = at.sun_column(fp, light.param, float(cover), steps=settings.estimate_march_steps,
+        col = at.sun_column(pp.fp, light.param, float(radius_deg), steps=settings.estimate_march_steps,
                             cone_samples=settings.cone_samples, seed=seed)
-        return dataclasses.replace(light, radius=float(cover), radius_from=Origin.PRIOR, column=col)
-    wide = float(np.linalg.norm(light.param - pp.anchor)) * math.tan(math.radians(cover))
-    if wide <= (light.radius or 0.0):
-        return None
-    col = lamp_column(fp, light.param, wide, light.facing, settings, seed)
-    return dataclasses.replace(light, radius=wide, radius_from=Origin.PRIOR, column=col)
+        return dataclasses.replace(light, radius=float(radius_deg), radius_from=origin, column=col)
+    a = pp.anchor if anchor is None else anchor
+    rm = (LAMP_RADIUS_M if origin is Origin.DEFAULT else
+          float(np.linalg.norm(np.asarray(light.param) - a)) * math.tan(math.radians(radius_deg)))
+    col = lamp_column(pp.fp, light.param, rm, light.facing, settings, seed)
+    return dataclasses.replace(light, radius=rm, radius_from=origin, column=col)
 
 
 def sun_column(fp, direction, radius_deg: float, settings: LightConfig, seed: int) -> np.ndarray:
@@ -483,5 +517,5 @@ def split_from_shadows(sc: "_Scorer", light: FitLight) -> tuple[float, float]:
     return _shrunk_share(rho, n_eff, sigma, cfg), n_eff
 
 
-__all__ = ["FitLight", "Search", "search", "search_scorer", "choose_size", "hedge", "split_from_shadows",
+__all__ = ["FitLight", "Search", "search", "search_scorer", "choose_size", "chosen_radius", "sized", "split_from_shadows",
            "sun_column", "lamp_column", "log_elevation_prior"]

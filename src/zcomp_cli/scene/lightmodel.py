@@ -299,7 +299,10 @@ class FitSummary:
     ``pixels``: fit pixels; ``exposure``: the one weight of the manifest's lights given
     in physical units (the photograph's exposure; nan without such lights); ``note``:
     what the fit could not do, in words; ``unfixed``: the photograph does not fix the
-    light's direction (its light drawn as wide as a shadow-casting light may be)."""
+    light's direction (its light drawn as more than one of its posterior's modes);
+    ``modes``: the searched light's modes as drawn, heaviest first (``kind`` sun or
+    lamp, ``toward`` its direction from the support's caster, ``share`` of the drawn
+    light)."""
 
     shadow_blocks: float = float("nan")
     uncertainty_deg: float = float("nan")
@@ -308,17 +311,18 @@ class FitSummary:
     exposure: float = float("nan")
     note: str = ""
     unfixed: bool = False
+    modes: tuple = ()
 
     def to_info(self) -> dict:
         return {"shadow_blocks": self.shadow_blocks, "direction_uncertainty_deg": self.uncertainty_deg,
                 "residual": self.residual, "fit_pixels": self.pixels, "exposure": self.exposure, "note": self.note,
-                "unfixed": self.unfixed}
+                "unfixed": self.unfixed, "modes": [dict(m) for m in self.modes]}
 
     @classmethod
     def from_info(cls, d: dict) -> "FitSummary":
         return cls(shadow_blocks=d["shadow_blocks"], uncertainty_deg=d["direction_uncertainty_deg"],
                    residual=d["residual"], pixels=d["fit_pixels"], exposure=d["exposure"], note=d["note"],
-                   unfixed=d["unfixed"])
+                   unfixed=d["unfixed"], modes=tuple(dict(m) for m in d.get("modes", ())))
 
 
 @dataclass(frozen=True, kw_only=True)
