@@ -221,7 +221,7 @@ def test_light_schema_defaults_and_kinds(tmp_path):
     ({"type": "spot", "direction": [0, 1, 0]}, "scenes.s.light.type", "unsupported"),
     ({"direction": [0, 1, 0], "strength": 2, "irradiance": 3}, "scenes.s.light.irradiance", "not both"),
     ([{"type": "probe", "hdr": "a.exr"}, {"type": "probe", "hdr": "b.exr"}], "scenes.s.light", "at most one probe"),
-    ([{"direction": [0, 1, 0]}] * 4, "scenes.s.light", "at most 3"),
+    ([{"direction": [0, 1, 0]}] * 9, "scenes.s.light", "at most 8"),
     ([{"type": "probe", "hdr": "a.exr"}, {"direction": [0, 1, 0], "strength": 2}], "scenes.s.light", "share"),
     ({"type": "lamp", "position": [0, 1, 2], "colour": [1, 1, 1]}, "scenes.s.light.colour", "unknown key"),
 ])

@@ -181,3 +181,67 @@ def test_all_minus_inf_is_the_flat_posterior():
     p = DirectionPosterior(d, lp, om)
     assert not p.probabilities[:20].any() and p.probabilities.sum() == pytest.approx(1.0)
     assert np.isfinite(p.rms_angle_deg()) and np.isfinite(p.log_density(UP))
+
+
+# -- the posterior drawn as its modes (issue 47) ------------------------------------------------
+
+
+def _two_bumps(d, om, a, b, mass_a, width_deg=4.0):
+    """A posterior of two narrow bumps at ``a`` and ``b`` holding ``mass_a`` and
+    ``1 - mass_a`` of the mass (their log densities offset by the log of the masses)."""
+    ang_a = np.degrees(np.arccos(np.clip(d @ a, -1, 1)))
+    ang_b = np.degrees(np.arccos(np.clip(d @ b, -1, 1)))
+    la = math.log(mass_a) - 0.5 * (ang_a / width_deg) ** 2
+    lb = math.log(1.0 - mass_a) - 0.5 * (ang_b / width_deg) ** 2
+    return DirectionPosterior(d, np.logaddexp(la, lb), om)
+
+
+def test_modes_of_two_bumps_are_the_bumps_with_their_masses():
+    d, om = _grid(4000)
+    a = d[np.argmax(d @ np.array([0.5, 0.8, 0.3]))]
+    b = d[np.argmax(d @ np.array([-0.6, 0.7, 0.1]))]
+    p = _two_bumps(d, om, a, b, 0.7)
+    modes = p.modes(max_modes=4, radius_deg=15.0, mass=0.99)
+    assert len(modes) == 2
+    assert _angle_deg(modes[0].direction, a) < 1.0 and _angle_deg(modes[1].direction, b) < 1.0
+    assert modes[0].mass == pytest.approx(0.7, abs=0.01) and modes[1].mass == pytest.approx(0.3, abs=0.01)
+    # heaviest first, whichever bump is denser
+    q = _two_bumps(d, om, a, b, 0.2)
+    m2 = q.modes(max_modes=4, radius_deg=15.0, mass=0.99)
+    assert _angle_deg(m2[0].direction, b) < 1.0 and m2[0].mass == pytest.approx(0.8, abs=0.01)
+
+
+def test_a_sharp_posterior_is_one_mode_and_a_flat_one_is_many_small_ones():
+    d, om = _grid(2000)
+    c = d[np.argmax(d @ UP)]
+    sharp = _peaked(d, om, c, 2.0).modes(max_modes=4, radius_deg=15.0, mass=0.9)
+    assert len(sharp) == 1 and sharp[0].mass > 0.99 and _angle_deg(sharp[0].direction, c) < 0.5
+    flat = DirectionPosterior(d, np.zeros(len(d)), om).modes(max_modes=4, radius_deg=15.0, mass=0.9)
+    assert len(flat) == 4
+    cap = 2 * math.pi * (1 - math.cos(math.radians(15.0))) / (2 * math.pi)  # a cap's share of the hemisphere
+    for m in flat:
+        assert m.mass <= cap * 1.3
+    # each mode's direction lies on the hemisphere and the modes do not overlap
+    for i, m in enumerate(flat):
+        assert m.direction @ UP > 0
+        for o in flat[i + 1:]:
+            assert _angle_deg(m.peak, o.peak) >= 15.0
+
+
+def test_modes_stop_when_they_hold_the_mass_asked():
+    d, om = _grid(4000)
+    a = d[np.argmax(d @ np.array([0.5, 0.8, 0.3]))]
+    b = d[np.argmax(d @ np.array([-0.6, 0.7, 0.1]))]
+    p = _two_bumps(d, om, a, b, 0.95)
+    assert len(p.modes(max_modes=4, radius_deg=15.0, mass=0.9)) == 1
+    assert len(p.modes(max_modes=4, radius_deg=15.0, mass=0.99)) == 2
+    assert len(p.modes(max_modes=1, radius_deg=15.0, mass=0.99)) == 1
+
+
+@pytest.mark.parametrize("kw", [dict(max_modes=0, radius_deg=15.0, mass=0.9),
+                                dict(max_modes=2, radius_deg=0.0, mass=0.9),
+                                dict(max_modes=2, radius_deg=float("nan"), mass=0.9)])
+def test_modes_reject_bad_arguments(kw):
+    d, om = _grid(200)
+    with pytest.raises(ValueError, match="modes"):
+        DirectionPosterior(d, np.zeros(len(d)), om).modes(**kw)

@@ -144,6 +144,8 @@ def test_light_summary():
     assert text.endswith("±12°, direction a guess (the photograph does not fix it), contact shadow only, "
                          "simplified (hover for why)")
     assert note == "the photograph does not fix the light"
+    light["fit"]["modes"] = [{"kind": "sun", "toward": d, "share": 0.3}, {"kind": "sun", "toward": d, "share": 0.2}]
+    assert "direction a guess (the photograph does not fix it): drawn as its 2 likeliest lights" in light_summary(rep)[0]
     assert light_summary({"renderer": {"info": {}}}) == (None, None, None)  # naive, zerocomp
     assert light_summary({"light": {"lights": [{"kind": "sky"}], "source": "manifest"}})[0] == \
         "sky only, given in the manifest"

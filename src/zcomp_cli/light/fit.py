@@ -14,7 +14,7 @@ the evidence read. Every node of the tree is a **term** (``ProbeTerm``, ``SunTer
    cast shadows and the shading; the light found may be a lamp), a free angular radius
    chosen (``search.choose_size``: from its shadow's soft edge, never from the
    direction's doubt), a searched light drawn as its posterior's modes (each a sun or a
-   lamp of the mass it holds, all at the one size chosen);
+   lamp sharing the light as their masses do, all at the one size chosen);
 3. ``Term.columns``: what each term adds to the known shading at unit strength
    (``Column``), with how its strength is had -- **absolute** (a probe, an
    ``irradiance``, a ``power``, a frozen sky: physical units that hold relative to each
@@ -223,8 +223,7 @@ class SunTerm(_DirectTerm):
         self.color = np.asarray(node.color, np.float64)
         self.share = node.share if not node.irradiance.frozen else None
         self.searched = not node.direction_given
-        self.modes: list = []  # a searched light's drawn modes: (FitLight, mass) each
-        self.rest_sh = None  # and the rest of its posterior as sky (SH per unit strength)
+        self.modes: list = []  # a searched light's drawn modes: (FitLight, share) each
 
     def resolve(self, ctx):
         cfg, fp = ctx.cfg, ctx.pp.fp
@@ -266,16 +265,11 @@ class SunTerm(_DirectTerm):
         return _times(p.value, SUN_SHADING_PER_IRRADIANCE) * self.color
 
     def columns(self, ctx):
-        """A searched light's column is its modes' (``search.Search.modes``), each at the
-        posterior's mass it holds, and the rest of that mass as sky (``rest_sh``): one
-        atom, so the drawn light keeps the posterior's proportions."""
+        """A searched light's column is its modes' (``search.Search.modes``), each at its
+        share: one atom, so the drawn light keeps the posterior's proportions."""
         if not self.modes:
             return super().columns(ctx)
         col = sum(w * fl.column for fl, w in self.modes)
-        rest = ctx.search.rest_sh
-        if rest is not None and np.any(rest != 0.0) and len(ctx.pp.fp):
-            col = col + at.sky_atom_values(ctx.pp.fp, rest, ctx.pp.sky_vis)
-            self.rest_sh = np.asarray(rest, np.float64)
         self.cols = [Column(np.asarray(col, np.float64), self.absolute(), direct=True)]
         return self.cols
 
@@ -289,8 +283,7 @@ class SunTerm(_DirectTerm):
             nodes.append(node)
             suns += s_
             lamps += l_
-        rest = None if self.rest_sh is None else np.outer(self.rest_sh, np.broadcast_to(np.asarray(e, np.float64), 3))
-        return nodes, suns, lamps, rest
+        return nodes, suns, lamps, None
 
     def _filled_one(self, fl: sr.FitLight, e: np.ndarray, exposure: float):
         """(its node, model suns, model lamps, None) of one drawn light ``fl`` of strength ``e``."""
@@ -635,7 +628,7 @@ def _sizes(ctx: Context, terms: list[Term]) -> None:
             if ctx.cfg.shadow_softness is not None:
                 r, origin = float(ctx.cfg.shadow_softness), Origin.MANIFEST
             else:
-                r, origin = sr.chosen_radius(ctx.scorer(), sr.light_direction(fl0, s.anchor), ctx.cfg, ctx.seed)
+                r, origin = sr.chosen_radius(ctx.scorer(), fl0, s.anchor, ctx.cfg, ctx.seed)
             t.modes = [(sr.sized(ctx.pp, fl, r, origin, ctx.cfg, ctx.seed, s.anchor), w) for fl, w in t.modes]
             ctx.search = dataclasses.replace(s, light=t.modes[0][0], modes=tuple(t.modes))
             t.light = t.modes[0][0]
@@ -726,8 +719,9 @@ def _model(ctx: Context, params: LightParams, suns, lamps, sky: Sky, probe_ref, 
         size = f"{fl.radius:.3g} {'deg' if fl.kind == 'sun' else 'm'}"
         ctx.notes.append(
             f"the photograph fixes the light's direction to within {spread:.0f} deg (RMS): drawn as the posterior's "
-            f"{len(modes)} likeliest lights ({', '.join(f'{w:.0%}' for _, w in modes)} of it), each at the light's "
-            f"size ({size}, {fl.radius_from}), the rest as sky")
+            f"{len(modes)} likeliest lights, sharing the light as their masses do "
+            f"({', '.join(f'{w:.0%}' for _, w in modes)}; they hold {ctx.search.mode_mass:.0%} of it), each at the "
+            f"light's size ({size}, {fl.radius_from})")
     note = "; ".join(ctx.notes)
     mode_info = tuple({"kind": fl.kind, "toward": [round(float(v), 6) for v in sr.light_direction(fl, ctx.search.anchor)],
                        "share": round(float(w), 4)} for fl, w in modes)

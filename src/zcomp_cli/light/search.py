@@ -31,12 +31,12 @@ light whose direction is free; each returns a dataclass; every constant is
    Nielsen), shrunk toward the prior split by the tied shadow that measurement stands
    on; one robust NNLS then fits the exposure and the sky's shape (``fit``);
 6. the lights drawn: the posterior's modes (``DirectionPosterior.modes``), each a sun or
-   a lamp of the mass it holds, all at the size step 4 chose, and the mass outside them
-   as sky (its radiance where that mass lies): the expected shadow over the posterior.
-   A confident posterior is one crisp light; a spread one its likely lights, each as
-   faint as its mass, over a soft shade from the rest -- never one light at a mean
-   direction where the posterior may have no mass, nor one widened to stand for the
-   doubt.
+   a lamp, all at the size step 4 chose, sharing the light in proportion to the mass
+   each holds: a confident posterior is one crisp light; a spread one its likely lights,
+   each as faint as its share -- never one light at a mean direction where the
+   posterior may have no mass, nor one widened to stand for the doubt. The doubt
+   changes neither the light's size nor its split with the sky: the rest of the
+   posterior's mass is shared among the modes, not drawn as sky.
 
 The stated uncertainty (``fit.direction_uncertainty_deg``) is the posterior's RMS angle
 about its mean direction; the fit returns the posterior (``posterior.DirectionPosterior``)
@@ -57,7 +57,6 @@ from zcomp_cli.light.posterior import DirectionPosterior
 from zcomp_cli.light.prepare import Prepared
 from zcomp_cli.light.shadowcast import shadow_fit, sun_visibility
 from zcomp_cli.light.solver import base_sigma, score_candidates
-from zcomp_cli.scene import sh
 from zcomp_cli.scene.lightparams import LAMP_RADIUS_M, SUN_RADIUS_DEG, Origin
 from zcomp_cli.scene.sampling import fine_spiral, hemisphere, spacing_deg
 
@@ -99,10 +98,9 @@ class Search:
     """Step 3: the posterior over directions (``DirectionPosterior``), and per grid
     direction its shadow log-likelihood, photometric log-likelihood, the shadowed/lit
     ratio its shadow fits and the shadow it casts on the receivers (blocks); the lights
-    drawn (``modes``: (``FitLight``, the posterior's mass it holds) per mode, heaviest
-    first; ``light`` the heaviest; ``mode_mass`` the modes' mass; ``rest_sh`` (9,) the
-    rest of the posterior as a sky's radiance SH per unit of the light's strength,
-    camera frame), the most probable light (``map_light``: what the split is read
+    drawn (``modes``: (``FitLight``, its share of the light) per mode, heaviest first,
+    the shares the modes' masses over ``mode_mass``, their sum; ``light`` the heaviest),
+    the most probable light (``map_light``: what the split is read
     across) and the caster's base the lamps' directions are measured from
     (``anchor``)."""
 
@@ -118,7 +116,6 @@ class Search:
     anchor: np.ndarray | None = None
     modes: tuple = ()
     mode_mass: float = 1.0
-    rest_sh: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -197,6 +194,19 @@ class _Scorer:
         C = at.lamp_columns(self.fp, Q, steps=self.settings.estimate_march_steps)
         lh = self.photo_losses(C)
         return self._scored(shadow_fit(self.rec, V, self.settings.search)), lh, C
+
+    def lamp_sized(self, position, radius_m: float, facing=None):
+        """(scored shadow fit, photometric held-out losses (1,)) of one lamp of radius
+        ``radius_m`` at ``position`` (a panel facing ``facing``): its shadow averaged over
+        ``cone_samples`` points of its sphere, its column ``lamp_column``'s."""
+        from zcomp_cli.light.shadowcast import lamp_visibility
+        from zcomp_cli.scene.sampling import fibonacci_sphere
+
+        q = np.asarray(position, np.float64)
+        pts = q[None] + float(radius_m) * fibonacci_sphere(max(1, self.settings.cone_samples))
+        V = lamp_visibility(self.pp.grid.caster, self.rec, pts).mean(1, keepdims=True)
+        C = lamp_column(self.fp, q, float(radius_m), facing, self.settings, 0)[:, None]
+        return self._scored(shadow_fit(self.rec, V, self.settings.search)), self.photo_losses(C)
 
     def _scored(self, fit_) -> "_Shadow":
         if self.sigma is None:
@@ -381,14 +391,6 @@ def search(pp: Prepared, settings: LightConfig, seed: int = 0) -> tuple[Search, 
         drawn.append(FitLight("sun", m.direction, None, np.zeros(0)) if k < 0 else
                      FitLight("lamp", anchor + dists[k] * m.direction, None, np.zeros(0)))
     total = sum(m.mass for m in modes)
-    # the posterior's mass outside the modes, drawn as sky: a sun of unit strength is the
-    # radiance pi delta(w - d) in shading units (``fit``), so its mass p_i at d_i adds
-    # pi p_i Y(d_i) to the sky's radiance SH (camera frame)
-    rest = np.ones(len(post.dirs), bool)
-    for m in modes:
-        rest &= post.dirs @ m.peak < math.cos(math.radians(cfg.mode_radius_deg))
-    p = post.probabilities
-    rest_sh = math.pi * sh.project(post.dirs[rest], p[rest] / post.solid_angle[rest], post.solid_angle[rest])[:, 0]
     i_map = int(np.argmax(post.log_post))
     k = int(opts[i_map])
     best_light = FitLight("sun" if k < 0 else "lamp", post.dirs[i_map] if k < 0 else anchor + dists[k] * post.dirs[i_map],
@@ -397,7 +399,7 @@ def search(pp: Prepared, settings: LightConfig, seed: int = 0) -> tuple[Search, 
                   ll_photo=np.concatenate([llp[~inside], llp_f]), ratio=np.concatenate([ratio_c[~inside], r_f]),
                   shadow_blocks=np.concatenate([area_c[~inside], a_f]), light=drawn[0], evidence=ev,
                   receivers=sc.rec, map_light=best_light, anchor=anchor,
-                  modes=tuple(zip(drawn, [m.mass for m in modes])), mode_mass=float(total), rest_sh=rest_sh), sc
+                  modes=tuple(zip(drawn, [m.mass / total for m in modes])), mode_mass=float(total)), sc
 
 
 def choose_size(pp: Prepared, sc: _Scorer, light: FitLight, settings: LightConfig, seed: int,
@@ -416,7 +418,7 @@ def choose_size(pp: Prepared, sc: _Scorer, light: FitLight, settings: LightConfi
         r = float(settings.shadow_softness)
         return dataclasses.replace(light, radius=r, radius_from=Origin.MANIFEST, column=at.sun_column(
             pp.fp, light.param, r, steps=settings.estimate_march_steps, cone_samples=settings.cone_samples, seed=seed))
-    r, origin = chosen_radius(sc, light_direction(light, pp.anchor if anchor is None else anchor), settings, seed)
+    r, origin = chosen_radius(sc, light, pp.anchor if anchor is None else anchor, settings, seed)
     return sized(pp, light, r, origin, settings, seed, anchor)
 
 
@@ -428,14 +430,22 @@ def light_direction(light: FitLight, anchor) -> np.ndarray:
     return v / max(float(np.linalg.norm(v)), 1e-12)
 
 
-def chosen_radius(sc: _Scorer, direction, settings: LightConfig, seed: int) -> tuple[float, Origin]:
-    """(angular radius in degrees, its origin): ``choose_size``'s rule at ``direction``
-    (``Origin.DEFAULT`` where the shadows cannot tell the radii apart, ``Origin.SHADOWS``
-    where they chose it)."""
+def chosen_radius(sc: _Scorer, light: FitLight, anchor, settings: LightConfig, seed: int) -> tuple[float, Origin]:
+    """(angular radius in degrees seen from ``anchor``, its origin): ``choose_size``'s rule
+    for ``light`` (``Origin.DEFAULT`` where the likelihoods cannot tell the radii apart,
+    ``Origin.SHADOWS`` where they chose it). A sun's candidates are suns of each radius; a
+    lamp's, lamps at its place whose radius covers each angle at its distance, scored on
+    their own shadows and columns (a big lamp's pool of light is not a bulb's)."""
     radii = (SUN_RADIUS_DEG,) + tuple(r for r in settings.search.radii_deg if r != SUN_RADIUS_DEG)
+    d = light_direction(light, anchor)
+    dist = float(np.linalg.norm(np.asarray(light.param, np.float64) - np.asarray(anchor, np.float64)))
     scored = []
     for r in radii:
-        sf, lh, _ = sc.suns(np.asarray(direction, np.float64)[None], r, seed=seed)
+        if light.kind == "sun":
+            sf, lh, _ = sc.suns(d[None], r, seed=seed)
+        else:
+            rm = LAMP_RADIUS_M if r == SUN_RADIUS_DEG else dist * math.tan(math.radians(r))
+            sf, lh = sc.lamp_sized(light.param, rm, light.facing)
         ll, _ = sc.loglik(sf, lh, 0.0)
         scored.append((float(ll[0]) / settings.search.temperature, r))
     best = max(scored, key=lambda x: x[0])

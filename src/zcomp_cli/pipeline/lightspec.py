@@ -5,7 +5,7 @@
         image: kitchen.png
         pitch_deg: -30        # optional: the camera's pitch (negative = looking down) and
         roll_deg: 0           # roll; else world up is read off the scene's support plane
-        light:                # one light, or a list: up to 3 suns and lamps, and one probe
+        light:                # one light, or a list: up to 8 suns and lamps, and one probe
           - type: probe                  # an equirectangular HDR probe (EXR/HDR), up = gravity
             hdr: set_probe.exr
             rotation_deg: 90             # its yaw about up (see convention)
@@ -79,7 +79,11 @@ BALL_EXTS = {".exr", ".hdr", ".png", ".jpg", ".jpeg", ".tif", ".tiff"}
 # a ball's horizontal and vertical radii may differ by this share (a hand-placed ellipse
 # on a photograph): more means the photograph is not head-on or its pixels not square
 BALL_ROUND_TOL = 0.05
-MAX_LIGHTS = 3
+# The most suns and lamps a scene's light holds: a light the fit wrote (OUT/lights/) must
+# read back, and a searched light is drawn as up to ``search.max_modes`` (4) of its
+# posterior's modes beside the lights the manifest gives; each costs the renderers a
+# light's shadow rays.
+MAX_LIGHTS = 8
 
 
 def _num(v):

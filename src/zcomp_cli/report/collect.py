@@ -345,7 +345,9 @@ def light_summary(report: dict) -> tuple[str | None, str | None, float | None]:
     if unc is not None:
         parts.append(f"±{unc:.0f}°")
     if fit.get("unfixed") is True:
-        parts.append("direction a guess (the photograph does not fix it)")
+        modes = fit.get("modes") if isinstance(fit.get("modes"), list) else []
+        parts.append("direction a guess (the photograph does not fix it)" if len(modes) < 2 else
+                     f"direction a guess (the photograph does not fix it): drawn as its {len(modes)} likeliest lights")
     shadow = light.get("shadow")
     if isinstance(shadow, str) and shadow and shadow != "cast shadow":
         parts.append(shadow)

@@ -33,20 +33,25 @@ def _light(rng: random.Random, k: int) -> dict:
     d = direction_from_angles(rng.uniform(0, 360), rng.uniform(10, 80), up).tolist()
     unfixed = k % 7 == 0
     unc = rng.uniform(40, 70) if unfixed else rng.uniform(2, 25)
-    note = (f"the photograph fixes the light's direction to within {unc:.0f} deg (RMS): its shadow is drawn as "
-            f"soft as that (45 deg radius)") if unfixed else ""
+    note = (f"the photograph fixes the light's direction to within {unc:.0f} deg (RMS): drawn as the posterior's "
+            "3 likeliest lights, sharing the light as their masses do (43%, 32%, 25%; they hold 28% of it), each at "
+            "the light's size (0.265 deg, not measured: the documented default)") if unfixed else ""
     sh = [[rng.uniform(-1, 2) for _ in range(3)] for _ in range(9)]
     return {"source": "manifest" if k % 5 == 0 else "estimated", "shadow": "cast shadow", "up_camera": up,
             "up_from": "read off the support plane",
             "lights": [{"kind": "sun", "direction_camera": d, "direction_from": "read off the photograph's shadows",
-                        "angular_radius_deg": 45.0 if unfixed else 1.5, "angular_radius_from": "the prior",
+                        "angular_radius_deg": 0.265 if unfixed else 1.5,
+                        "angular_radius_from": "not measured: the documented default" if unfixed else
+                        "read off the photograph's cast shadows",
                         "irradiance_rgb": [rng.random() for _ in range(3)], "strength_from": "fitted"},
                        {"kind": "sky", "radiance_sh_rgb": sh, "shading_up_rgb": [0.9, 0.85, 0.96],
                         "ground_radiance_rgb": [0.59, 0.41, 0.31], "strength_from": "fitted"}],
             "direction": d, "ambient_share": rng.random(), "specular_roughness": 0.5,
             "fallback": note or None,
             "fit": {"shadow_blocks": rng.random(), "direction_uncertainty_deg": unc, "residual": rng.random() / 10,
-                    "fit_pixels": 2000, "exposure": None, "note": note, "unfixed": unfixed},
+                    "fit_pixels": 2000, "exposure": None, "note": note, "unfixed": unfixed,
+                    "modes": [{"kind": "sun", "toward": d, "share": s_} for s_ in ((0.43, 0.32, 0.25) if unfixed
+                                                                                   else (0.97,))]},
             "probe": None, "walls": []}
 
 
