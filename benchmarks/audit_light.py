@@ -26,11 +26,16 @@ manifest's working size, every valid pixel known), and the audit prints:
   than the chosen direction (the search did not find it) and *objective* when it scores
   worse (the posterior prefers a wrong light: the formulation is at fault);
 * ``spread``: the stated uncertainty (the posterior's RMS angle), and how the light is
-  drawn (a cast shadow of radius r, or contact only).
+  drawn (a cast shadow from how many of the posterior's modes, the heaviest's share, and
+  the light's radius with where it came from: ``sh`` read off the shadows, ``def`` the
+  default, ``man`` forced);
+* ``in50/68/90``: whether the truth lies inside the stated 50, 68 and 90 % cones (the
+  smallest cones about the posterior's mean direction holding that much of its mass).
 
 At the end: the median error and the share of cases under 10 and 20 deg (all cases with
-a true light reaching the object, and those showing cast shadows), the miss classes, the
-mean log score of the truth (the proper scoring rule the temperature is fitted with,
+a true light reaching the object, and those showing cast shadows), the miss classes, per
+stratum (shadows shown / bare floor / lamp) the coverage of the stated 50, 68 and 90 %
+cones beside the mean log score, the mean log score of the truth (the proper scoring rule the temperature is fitted with,
 ``fit_light_constants.py``), and Spearman's rank correlation between the stated
 uncertainty and the error.
 """
@@ -93,6 +98,26 @@ def spearman(x, y) -> float:
     return float(spearmanr(x, y).statistic)
 
 
+def cone_deg(post, mass: float) -> float:
+    """The half-angle (degrees) of the smallest cone about ``post``'s mean direction that
+    holds ``mass`` of it (the stated cone)."""
+    ang = np.degrees(np.arccos(np.clip(post.dirs @ post.mean_direction, -1.0, 1.0)))
+    order = np.argsort(ang)
+    cum = np.cumsum(post.probabilities[order])
+    return float(ang[order][min(int(np.searchsorted(cum, mass)), len(ang) - 1)])
+
+
+CONES = (0.5, 0.68, 0.9)
+
+
+def stratum(row: dict) -> str:
+    """The audit's strata: the background shows cast shadows; a lamp lights the object;
+    else a bare floor."""
+    if row.get("shown"):
+        return "shadows shown"
+    return "lamp" if str(row.get("truth", "")).upper() in ("AREA", "POINT", "SPOT", "LAMP") else "bare floor"
+
+
 def audit_case(bench: Path, case: dict, truth: dict, settings=None) -> dict:
     from zcomp_cli.scene.frame import scene_up
     from zcomp_cli.testing import estimate_light
@@ -112,6 +137,11 @@ def audit_case(bench: Path, case: dict, truth: dict, settings=None) -> dict:
     row["truth"] = lights[0]["kind"] if lights else "-"
     row["shown"] = bool(shown)
     row["radius_deg"] = float(max([s.radius_deg for s in model.suns], default=float("nan")))
+    direct = [*model.suns, *model.lamps]
+    row["radius_from"] = direct[0].radius_from.code if direct else "-"
+    modes = list(getattr(model.fit, "modes", ()) or ())
+    row["modes"] = len(modes)
+    row["share0"] = float(modes[0]["share"]) if modes else float("nan")
     est = model.key_direction
     if est is None and post is not None:
         est = post.mean_direction
@@ -127,6 +157,9 @@ def audit_case(bench: Path, case: dict, truth: dict, settings=None) -> dict:
         row["logp_est"] = float(post.log_density(np.asarray(est))) if est is not None else float("nan")
         row["rank"] = int(post.rank(true_dir))
         row["mass15"] = float(post.mass_within(true_dir, MISS_DEG))
+        to_mean = angle_deg(post.mean_direction, true_dir)
+        for q in CONES:
+            row[f"in{round(100 * q)}"] = bool(to_mean <= cone_deg(post, q))
         if row["err_deg"] > MISS_DEG:
             row["miss"] = "search" if row["logp_true"] > row["logp_est"] else "objective"
     return row
@@ -147,6 +180,14 @@ def summarise(rows: list[dict]) -> str:
     misses = [r.get("miss") for r in rows if r.get("miss")]
     lines.append(f"misses (> {MISS_DEG:g} deg): {len(misses)}: search {misses.count('search')}, "
                  f"objective {misses.count('objective')}")
+    for name in ("shadows shown", "bare floor", "lamp"):
+        sel = [r for r in rows if stratum(r) == name and "in68" in r]
+        if sel:
+            cov = ", ".join(f"{round(100 * q)} %: {100 * np.mean([r[f'in{round(100 * q)}'] for r in sel]):.0f} %"
+                            for q in CONES)
+            lps = [r["logp_true"] for r in sel if math.isfinite(r.get("logp_true", math.nan))]
+            lines.append(f"{name}: n={len(sel)}, the truth inside the stated cones {cov}; mean log score "
+                         f"{statistics.mean(lps):.3f}" if lps else f"{name}: n={len(sel)}, {cov}")
     lp = [r["logp_true"] for r in rows if math.isfinite(r.get("logp_true", math.nan))]
     if lp:
         lines.append(f"mean log score of the truth: {statistics.mean(lp):.3f} (log density per sr; uniform "
@@ -171,7 +212,7 @@ def main(argv=None) -> int:
     sel = parse_cases(args.cases)
     rows = []
     hdr = (f"{'case':<18} {'truth':<8} {'shown':<5} {'err':>6} {'logp@true':>9} {'logp@est':>9} {'rank':>5} "
-           f"{'mass15':>6} {'miss':<9} {'spread':>6} {'drawn':<24}")
+           f"{'mass15':>6} {'miss':<9} {'spread':>6} {'drawn, in50/68/90':<24}")
     for bench in args.benches:
         bench_json = json.loads((bench / "benchmark.json").read_text())
         truths = case_truths(bench)
@@ -182,7 +223,9 @@ def main(argv=None) -> int:
             r = audit_case(bench, case, truths[case["id"]])
             r["bench"] = str(bench)
             rows.append(r)
-            drawn = (f"cast, r={r['radius_deg']:.1f}" if r["shadow"] == "cast shadow" else "contact")
+            drawn = (f"cast x{r['modes']} ({r['share0']:.0%}), r={r['radius_deg']:.2g} {r['radius_from'][:3]}"
+                     if r["shadow"] == "cast shadow" else "contact")
+            drawn += " " + "".join("y" if r.get(f"in{round(100 * q)}") else "n" for q in CONES)
             f = lambda k, fmt: format(r[k], fmt) if isinstance(r.get(k), (int, float)) else "-"
             print(f"{r['case']:<18} {r['truth']:<8} {str(r['shown']):<5} {f('err_deg', '6.1f'):>6} "
                   f"{f('logp_true', '9.2f'):>9} {f('logp_est', '9.2f'):>9} {f('rank', 'd'):>5} "

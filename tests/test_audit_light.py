@@ -1,0 +1,42 @@
+"""benchmarks/audit_light.py's pieces (issue 47): the stated cones and the strata."""
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+from audit_light import cone_deg, stratum  # noqa: E402
+
+from zcomp_cli.light.posterior import DirectionPosterior, hemisphere_solid_angles  # noqa: E402
+from zcomp_cli.scene.sampling import hemisphere  # noqa: E402
+
+
+def test_the_stated_cones_of_a_uniform_posterior_hold_their_share_of_the_hemisphere():
+    up = np.array([0.0, 1.0, 0.0])
+    d = hemisphere(6000, up)
+    post = DirectionPosterior(d, np.zeros(len(d)), np.full(len(d), hemisphere_solid_angles(len(d))))
+    # about the zenith (the mean of a uniform hemisphere): a cap of half-angle a holds 1 - cos a
+    for q in (0.5, 0.68, 0.9):
+        assert cone_deg(post, q) == pytest.approx(math.degrees(math.acos(1.0 - q)), abs=1.5)
+    # nested, and a cone holding everything reaches the horizon
+    assert cone_deg(post, 0.5) < cone_deg(post, 0.68) < cone_deg(post, 0.9) <= cone_deg(post, 1.0) <= 90.0
+
+
+def test_a_sharp_posteriors_cones_are_narrow():
+    up = np.array([0.0, 1.0, 0.0])
+    d = hemisphere(6000, up)
+    ang = np.degrees(np.arccos(np.clip(d @ up, -1, 1)))
+    post = DirectionPosterior(d, -0.5 * (ang / 3.0) ** 2, np.full(len(d), hemisphere_solid_angles(len(d))))
+    assert cone_deg(post, 0.9) < 10.0
+
+
+@pytest.mark.parametrize("row,want", [({"shown": True, "truth": "AREA"}, "shadows shown"),
+                                      ({"shown": False, "truth": "AREA"}, "lamp"),
+                                      ({"shown": False, "truth": "SUN"}, "bare floor"),
+                                      ({"shown": False, "truth": "HDR-sun"}, "bare floor")])
+def test_strata(row, want):
+    assert stratum(row) == want
