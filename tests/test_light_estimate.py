@@ -58,9 +58,9 @@ def test_exposure_invariance():
 def test_a_bare_floor_draws_the_posteriors_modes_at_the_lights_size():
     """Nothing on a bare floor fixes the light's direction: the posterior is vague, and
     the light is drawn as what the posterior says -- its likeliest directions, each a
-    light as faint as its share of the mass -- each at the light's own size (the
-    default: no shadow shows its penumbra), never widened to stand for the doubt; the
-    report says why and lists the modes."""
+    light as faint as its mass, the rest of the mass as sky -- each at the light's own
+    size (the default: no shadow shows its penumbra), never widened to stand for the
+    doubt; the report says why and lists the modes."""
     from zcomp_cli.light.config import DEFAULT_LIGHT
     from zcomp_cli.scene.lightmodel import Origin
     from zcomp_cli.scene.lightparams import SUN_RADIUS_DEG
@@ -74,11 +74,11 @@ def test_a_bare_floor_draws_the_posteriors_modes_at_the_lights_size():
     modes = m.fit.modes
     assert len(modes) == len(m.suns) + len(m.lamps)
     shares = [x["share"] for x in modes]
-    assert shares == sorted(shares, reverse=True) and sum(shares) == pytest.approx(1.0, abs=1e-3)
-    assert m.fit.uncertainty_deg > 30.0 and "within" in m.fit.note and "likeliest lights" in m.fit.note
-    # the light is shared as the modes' masses are (the doubt does not move light to the sky)
+    assert shares == sorted(shares, reverse=True) and 0.0 < sum(shares) < 0.9
+    assert m.fit.uncertainty_deg > 30.0 and "within" in m.fit.note and "the rest of the posterior as sky" in m.fit.note
+    # each sun as strong as its mass (the rest of the light is in the sky)
     e = np.array([float(x.irradiance.mean()) for x in m.suns])
-    np.testing.assert_allclose(e / e.sum(), np.array(shares[:len(e)]) / sum(shares[:len(e)]), atol=2e-3)
+    np.testing.assert_allclose(e / e.sum(), np.array(shares) / sum(shares), atol=2e-3)
     # the support's level is still explained
     lit = float(s.shading[s.depth > 0].mean())
     on_up = float(m.sky.shading(m.up[None])[0].mean()) + sum(

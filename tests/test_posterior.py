@@ -245,3 +245,33 @@ def test_modes_reject_bad_arguments(kw):
     d, om = _grid(200)
     with pytest.raises(ValueError, match="modes"):
         DirectionPosterior(d, np.zeros(len(d)), om).modes(**kw)
+
+
+def test_the_rest_drawn_as_sky_shades_as_its_suns_would_on_average():
+    """``sun_sky_sh``: the radiance SH of a unit sun spread over the posterior's mass.
+    Known values: a uniform posterior over the hemisphere shades an upward surface with
+    E[cos] = 1/2 and a downward one with nothing; a sharp posterior toward ``d`` shades
+    as that sun does (max(0, n . d)), up to the order-2 SH's smoothing of the cosine;
+    masks select the mass, and a mask of the wrong length is an error."""
+    from zcomp_cli.scene import sh
+
+    up = np.array([0.0, 1.0, 0.0])
+    d, om = _grid(6000, up)
+    flat = DirectionPosterior(d, np.zeros(len(d)), om)
+
+    def shade(c, n):
+        return float(sh.evaluate(sh.shading_coeffs(np.asarray(c)[:, None]), np.asarray(n, float)[None])[0, 0])
+
+    c = flat.sun_sky_sh()
+    assert shade(c, up) == pytest.approx(0.5, abs=0.02)
+    assert abs(shade(c, -up)) < 0.05
+    half = flat.sun_sky_sh(d[:, 0] > 0)  # half the mass: half the shading from above
+    assert shade(half, up) == pytest.approx(0.25, abs=0.02)
+    assert np.allclose(flat.sun_sky_sh(np.zeros(len(d), bool)), 0.0)
+    c0 = d[np.argmax(d @ np.array([0.5, 0.8, 0.3]))]
+    sharp = _peaked(d, om, c0, 1.0).sun_sky_sh()
+    for n in (c0, up, np.array([1.0, 0.0, 0.0])):
+        n = n / np.linalg.norm(n)
+        assert shade(sharp, n) == pytest.approx(max(0.0, float(n @ c0)), abs=0.12)
+    with pytest.raises(ValueError, match="mask"):
+        flat.sun_sky_sh(np.ones(3, bool))

@@ -84,14 +84,14 @@ class SearchConfig:
                                             "marginalised over a hard and a soft one): about the grid's spacing", hi=90.0)
     refine_directions: int = knob(40, "sampling", "directions of the refinement around the best coarse one")
     max_modes: int = knob(4, "sampling", "the most lights the posterior over directions is drawn as (its modes, "
-                                         "each a light sharing the light as its mass does: the expected shadow "
-                                         "as far as they tell it); each costs the renderer a light", lo=1, hi=8)
+                                         "each a light of the mass it holds, the rest as sky: the expected "
+                                         "shadow as far as they tell it); each costs the renderer a light",
+                          lo=1, hi=8)
     mode_radius_deg: float = knob(15.0, "sampling", "a mode holds the mass within this angle of its peak: about the "
                                                     "search grid's spacing (12.7 deg at 256 directions), below which "
                                                     "the grid does not tell two shadows apart", hi=90.0)
     modes_mass: float = knob(0.9, "statistical", "modes are drawn until they hold this share of the posterior (the "
-                                                 "rest, scattered, is shared among them: the doubt changes neither "
-                                                 "the light's size nor its split with the sky)", hi=1.0)
+                                                 "rest, scattered, is drawn as sky)", hi=1.0)
     few_pixels: int = knob(50, "statistical", "fewer fit pixels than this fit nothing: the prior's light")
     bias_rel: float = knob(0.01, "sampling", "a shadow ray starts this share of its depth off the surface (the mesh "
                                             "is float32 in Embree, the depth map steps about a percent)", hi=1.0)

@@ -14,7 +14,8 @@ the evidence read. Every node of the tree is a **term** (``ProbeTerm``, ``SunTer
    cast shadows and the shading; the light found may be a lamp), a free angular radius
    chosen (``search.choose_size``: from its shadow's soft edge, never from the
    direction's doubt), a searched light drawn as its posterior's modes (each a sun or a
-   lamp sharing the light as their masses do, all at the one size chosen);
+   lamp of the mass it holds, all at the one size chosen) and the rest of its mass as
+   sky;
 3. ``Term.columns``: what each term adds to the known shading at unit strength
    (``Column``), with how its strength is had -- **absolute** (a probe, an
    ``irradiance``, a ``power``, a frozen sky: physical units that hold relative to each
@@ -224,6 +225,7 @@ class SunTerm(_DirectTerm):
         self.share = node.share if not node.irradiance.frozen else None
         self.searched = not node.direction_given
         self.modes: list = []  # a searched light's drawn modes: (FitLight, share) each
+        self.rest_sh = None  # and the rest of its posterior as sky (SH per unit strength)
 
     def resolve(self, ctx):
         cfg, fp = ctx.cfg, ctx.pp.fp
@@ -266,10 +268,16 @@ class SunTerm(_DirectTerm):
 
     def columns(self, ctx):
         """A searched light's column is its modes' (``search.Search.modes``), each at its
-        share: one atom, so the drawn light keeps the posterior's proportions."""
+        share, and the rest of the posterior's mass as sky (``rest_sh``): one atom, so
+        the drawn light keeps the posterior's proportions and the split the shadows
+        show."""
         if not self.modes:
             return super().columns(ctx)
         col = sum(w * fl.column for fl, w in self.modes)
+        rest = ctx.search.rest_sh
+        if rest is not None and len(ctx.pp.fp):
+            col = col + at.sky_atom_values(ctx.pp.fp, rest, ctx.pp.sky_vis)
+            self.rest_sh = np.asarray(rest, np.float64)
         self.cols = [Column(np.asarray(col, np.float64), self.absolute(), direct=True)]
         return self.cols
 
@@ -283,7 +291,8 @@ class SunTerm(_DirectTerm):
             nodes.append(node)
             suns += s_
             lamps += l_
-        return nodes, suns, lamps, None
+        rest = None if self.rest_sh is None else np.outer(self.rest_sh, np.broadcast_to(np.asarray(e, np.float64), 3))
+        return nodes, suns, lamps, rest
 
     def _filled_one(self, fl: sr.FitLight, e: np.ndarray, exposure: float):
         """(its node, model suns, model lamps, None) of one drawn light ``fl`` of strength ``e``."""
@@ -719,9 +728,9 @@ def _model(ctx: Context, params: LightParams, suns, lamps, sky: Sky, probe_ref, 
         size = f"{fl.radius:.3g} {'deg' if fl.kind == 'sun' else 'm'}"
         ctx.notes.append(
             f"the photograph fixes the light's direction to within {spread:.0f} deg (RMS): drawn as the posterior's "
-            f"{len(modes)} likeliest lights, sharing the light as their masses do "
-            f"({', '.join(f'{w:.0%}' for _, w in modes)}; they hold {ctx.search.mode_mass:.0%} of it), each at the "
-            f"light's size ({size}, {fl.radius_from})")
+            f"{len(modes)} likeliest lights ({', '.join(f'{w:.0%}' for _, w in modes)} of the light), each at the "
+            f"light's size ({size}, {fl.radius_from})"
+            + (", the rest of the posterior as sky" if ctx.search.rest_sh is not None else ""))
     note = "; ".join(ctx.notes)
     mode_info = tuple({"kind": fl.kind, "toward": [round(float(v), 6) for v in sr.light_direction(fl, ctx.search.anchor)],
                        "share": round(float(w), 4)} for fl, w in modes)

@@ -174,6 +174,23 @@ class DirectionPosterior:
             left &= ~inside
         return sorted(out, key=lambda m: -m.mass)
 
+    def sun_sky_sh(self, where=None) -> np.ndarray:
+        """(9,) the radiance SH (this posterior's frame) of a sun of unit strength spread
+        over the posterior's mass at the directions ``where`` (a (K,) mask; None: all),
+        in shading units: a sun of unit strength toward ``d`` shades a surface of normal
+        ``n`` with ``max(0, n . d)``, which is the radiance ``pi delta(w - d)``, so a mass
+        ``p_i`` at ``d_i`` adds ``pi p_i Y(d_i)``. Its shading is the expected shading
+        of that mass's sun (up to the order-2 SH's smoothing)."""
+        from zcomp_cli.scene import sh
+
+        keep = np.ones(len(self.dirs), bool) if where is None else np.asarray(where, bool).reshape(-1)
+        if len(keep) != len(self.dirs):
+            raise ValueError(f"DirectionPosterior.sun_sky_sh: a mask of {len(self.dirs)} directions, got {len(keep)}")
+        if not keep.any():
+            return np.zeros(9)
+        om = self.solid_angle[keep]
+        return math.pi * sh.project(self.dirs[keep], self.probabilities[keep] / om, om)[:, 0]
+
     def to_info(self) -> dict:
         return {"map_direction": self.map_direction.tolist(), "mean_direction": self.mean_direction.tolist(),
                 "mean_resultant_length": float(np.linalg.norm(self.mean_resultant)),

@@ -31,12 +31,13 @@ light whose direction is free; each returns a dataclass; every constant is
    Nielsen), shrunk toward the prior split by the tied shadow that measurement stands
    on; one robust NNLS then fits the exposure and the sky's shape (``fit``);
 6. the lights drawn: the posterior's modes (``DirectionPosterior.modes``), each a sun or
-   a lamp, all at the size step 4 chose, sharing the light in proportion to the mass
-   each holds: a confident posterior is one crisp light; a spread one its likely lights,
-   each as faint as its share -- never one light at a mean direction where the
-   posterior may have no mass, nor one widened to stand for the doubt. The doubt
-   changes neither the light's size nor its split with the sky: the rest of the
-   posterior's mass is shared among the modes, not drawn as sky.
+   a lamp of the mass it holds, all at the size step 4 chose, and the rest of the mass
+   as sky, its radiance where that mass lies (a lamp's rest is shared among the lamps:
+   a sky cannot stand for a near light) -- the expected shadow over the posterior, as
+   far as its modes tell it. A confident posterior is one crisp light; a spread one its
+   likely lights, each as faint as its mass, over the soft shade of the rest; never one
+   light at a mean direction where the posterior may have no mass, nor one widened to
+   stand for the doubt.
 
 The stated uncertainty (``fit.direction_uncertainty_deg``) is the posterior's RMS angle
 about its mean direction; the fit returns the posterior (``posterior.DirectionPosterior``)
@@ -98,8 +99,10 @@ class Search:
     """Step 3: the posterior over directions (``DirectionPosterior``), and per grid
     direction its shadow log-likelihood, photometric log-likelihood, the shadowed/lit
     ratio its shadow fits and the shadow it casts on the receivers (blocks); the lights
-    drawn (``modes``: (``FitLight``, its share of the light) per mode, heaviest first,
-    the shares the modes' masses over ``mode_mass``, their sum; ``light`` the heaviest),
+    drawn (``modes``: (``FitLight``, its share of the light) per mode, heaviest first:
+    a sun's share its mass, a lamp's its mass over ``mode_mass``, the modes' sum;
+    ``light`` the heaviest; ``rest_sh`` (9,) the rest of the mass the suns stand for,
+    as a sky's radiance SH per unit of the light's strength, camera frame, or None),
     the most probable light (``map_light``: what the split is read
     across) and the caster's base the lamps' directions are measured from
     (``anchor``)."""
@@ -116,6 +119,7 @@ class Search:
     anchor: np.ndarray | None = None
     modes: tuple = ()
     mode_mass: float = 1.0
+    rest_sh: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -391,6 +395,16 @@ def search(pp: Prepared, settings: LightConfig, seed: int = 0) -> tuple[Search, 
         drawn.append(FitLight("sun", m.direction, None, np.zeros(0)) if k < 0 else
                      FitLight("lamp", anchor + dists[k] * m.direction, None, np.zeros(0)))
     total = sum(m.mass for m in modes)
+    # the rest of the posterior's mass: where the modes are suns, drawn as sky (the
+    # radiance where it lies: ``sun_sky_sh``); where they are lamps, shared among them (a
+    # sky is at infinity and cannot stand for a near light)
+    is_lamp = np.array([fl.kind == "lamp" for fl in drawn])
+    sun_part = float(sum(m.mass for m, lamp in zip(modes, is_lamp) if not lamp)) / total
+    rest = np.ones(len(post.dirs), bool)
+    for m in modes:
+        rest &= post.dirs @ m.peak < math.cos(math.radians(cfg.mode_radius_deg))
+    rest_sh = sun_part * post.sun_sky_sh(rest)
+    shares = [m.mass / total if lamp else m.mass for m, lamp in zip(modes, is_lamp)]
     i_map = int(np.argmax(post.log_post))
     k = int(opts[i_map])
     best_light = FitLight("sun" if k < 0 else "lamp", post.dirs[i_map] if k < 0 else anchor + dists[k] * post.dirs[i_map],
@@ -399,7 +413,8 @@ def search(pp: Prepared, settings: LightConfig, seed: int = 0) -> tuple[Search, 
                   ll_photo=np.concatenate([llp[~inside], llp_f]), ratio=np.concatenate([ratio_c[~inside], r_f]),
                   shadow_blocks=np.concatenate([area_c[~inside], a_f]), light=drawn[0], evidence=ev,
                   receivers=sc.rec, map_light=best_light, anchor=anchor,
-                  modes=tuple(zip(drawn, [m.mass / total for m in modes])), mode_mass=float(total)), sc
+                  modes=tuple(zip(drawn, shares)), mode_mass=float(total),
+                  rest_sh=rest_sh if np.any(rest_sh != 0.0) else None), sc
 
 
 def choose_size(pp: Prepared, sc: _Scorer, light: FitLight, settings: LightConfig, seed: int,
