@@ -46,7 +46,7 @@ from zcomp_cli.scene import sh
 from zcomp_cli.scene.config import FrameConfig, MarchConfig
 from zcomp_cli.scene.lightmodel import ground_view
 from zcomp_cli.scene.march import march_visibility
-from zcomp_cli.scene.sampling import fibonacci_sphere, orthonormal
+from zcomp_cli.scene.sampling import fibonacci_sphere, orthonormal_rows
 from zcomp_cli.scene.skyvis import sky_samples, weighted_visibility
 
 
@@ -312,7 +312,7 @@ def lamp_columns(fp: FitPixels, positions: np.ndarray, *, steps: int | None = No
         sin_a = np.clip(radius_m / r[live], 0.0, 0.99)
         cos_max = np.sqrt(1 - sin_a ** 2)
         acc = np.zeros(live.sum())
-        u = np.stack([orthonormal(x)[0] for x in l[live]]) if cone_samples > 1 and radius_m > 0 else None
+        u = orthonormal_rows(l[live])[0] if cone_samples > 1 and radius_m > 0 else None
         for s in range(max(1, cone_samples) if u is not None else 1):
             if u is None:
                 d = l[live]
