@@ -732,8 +732,9 @@ def _model(ctx: Context, params: LightParams, suns, lamps, sky: Sky, probe_ref, 
             f"light's size ({size}, {fl.radius_from})"
             + (", the rest of the posterior as sky" if ctx.search.rest_sh is not None else ""))
     note = "; ".join(ctx.notes)
-    mode_info = tuple({"kind": fl.kind, "toward": [round(float(v), 6) for v in sr.light_direction(fl, ctx.search.anchor)],
-                       "share": round(float(w), 4)} for fl, w in modes)
+    mode_info = tuple({"kind": fl.kind, "share": round(float(w), 4),
+                       "toward": [round(float(v), 6) for v in sr.light_direction(fl, ctx.search.anchor)]}
+                      for fl, w in modes)
     summary = FitSummary(shadow_blocks=float(n_eff), uncertainty_deg=float(spread), residual=residual,
                          pixels=len(pp.fp), exposure=exposure, note=note, unfixed=unfixed, modes=mode_info)
     direct = [*suns, *lamps]

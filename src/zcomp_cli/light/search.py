@@ -103,9 +103,8 @@ class Search:
     a sun's share its mass, a lamp's its mass over ``mode_mass``, the modes' sum;
     ``light`` the heaviest; ``rest_sh`` (9,) the rest of the mass the suns stand for,
     as a sky's radiance SH per unit of the light's strength, camera frame, or None),
-    the most probable light (``map_light``: what the split is read
-    across) and the caster's base the lamps' directions are measured from
-    (``anchor``)."""
+    the most probable light (``map_light``: what the split is read across) and the
+    caster's base the lamps' directions are measured from (``anchor``)."""
 
     posterior: DirectionPosterior
     ll_shadow: np.ndarray
@@ -407,8 +406,8 @@ def search(pp: Prepared, settings: LightConfig, seed: int = 0) -> tuple[Search, 
     shares = [m.mass / total if lamp else m.mass for m, lamp in zip(modes, is_lamp)]
     i_map = int(np.argmax(post.log_post))
     k = int(opts[i_map])
-    best_light = FitLight("sun" if k < 0 else "lamp", post.dirs[i_map] if k < 0 else anchor + dists[k] * post.dirs[i_map],
-                          None, np.zeros(0))
+    best_light = (FitLight("sun", post.dirs[i_map], None, np.zeros(0)) if k < 0 else
+                  FitLight("lamp", anchor + dists[k] * post.dirs[i_map], None, np.zeros(0)))
     return Search(posterior=post, ll_shadow=np.concatenate([llsh_c[~inside], sh_f]),
                   ll_photo=np.concatenate([llp[~inside], llp_f]), ratio=np.concatenate([ratio_c[~inside], r_f]),
                   shadow_blocks=np.concatenate([area_c[~inside], a_f]), light=drawn[0], evidence=ev,
