@@ -293,6 +293,32 @@ def caster_anchor(pp: Prepared, evidence, cfg) -> np.ndarray:
     return np.median(mesh.points[mesh.base & (mesh.labels == best)], 0)
 
 
+def _drawn(post: DirectionPosterior, opts: np.ndarray, anchor, dists, cfg) -> tuple[tuple, float, np.ndarray | None]:
+    """Step 6: the lights drawn -- (((``FitLight``, share) per mode of ``post``,
+    heaviest first), the modes' mass, the rest's sky SH or None). Each mode is a sun or a
+    lamp as the best option at its peak says (``opts``: -1 a sun, else the index of its
+    distance in ``dists`` from ``anchor``), of the mass it holds; the rest of the mass,
+    where the modes are suns, is drawn as sky (the radiance where it lies:
+    ``DirectionPosterior.sun_sky_sh``), and where they are lamps shared among them (a sky
+    is at infinity and cannot stand for a near light). The lights' columns are made at
+    their size (step 4)."""
+    modes = post.modes(cfg.max_modes, cfg.mode_radius_deg, cfg.modes_mass)
+    drawn = []
+    for m in modes:
+        k = int(opts[int(np.argmax(post.dirs @ m.peak))])
+        drawn.append(FitLight("sun", m.direction, None, np.zeros(0)) if k < 0 else
+                     FitLight("lamp", anchor + dists[k] * m.direction, None, np.zeros(0)))
+    total = sum(m.mass for m in modes)
+    is_lamp = [fl.kind == "lamp" for fl in drawn]
+    sun_part = sum(m.mass for m, lamp in zip(modes, is_lamp) if not lamp) / total
+    rest = np.ones(len(post.dirs), bool)
+    for m in modes:
+        rest &= post.dirs @ m.peak < math.cos(math.radians(cfg.mode_radius_deg))
+    rest_sh = sun_part * post.sun_sky_sh(rest)
+    shares = [m.mass / total if lamp else m.mass for m, lamp in zip(modes, is_lamp)]
+    return tuple(zip(drawn, shares)), float(total), (rest_sh if np.any(rest_sh != 0.0) else None)
+
+
 def search(pp: Prepared, settings: LightConfig, seed: int = 0) -> tuple[Search, "_Scorer"]:
     """Step 3 (module docstring): the posterior over the light's direction, each
     direction's likelihood marginalised over its distance (a sun, or a lamp at one of
@@ -384,26 +410,7 @@ def search(pp: Prepared, settings: LightConfig, seed: int = 0) -> tuple[Search, 
     post = DirectionPosterior.from_parts(dirs, np.concatenate([marg[~inside], m_f]),
                                          log_elevation_prior(dirs, up, cfg.elevation_prior_power), om, T)
     opts = np.concatenate([option[~inside], opt_f])
-    # the lights drawn: the posterior's modes, each a sun or a lamp as its peak's best
-    # option says, of the mass it holds (step 6)
-    modes = post.modes(cfg.max_modes, cfg.mode_radius_deg, cfg.modes_mass)
-    drawn = []
-    for m in modes:
-        k = int(opts[int(np.argmax(post.dirs @ m.peak))])
-        # (their columns are made at their size, step 4)
-        drawn.append(FitLight("sun", m.direction, None, np.zeros(0)) if k < 0 else
-                     FitLight("lamp", anchor + dists[k] * m.direction, None, np.zeros(0)))
-    total = sum(m.mass for m in modes)
-    # the rest of the posterior's mass: where the modes are suns, drawn as sky (the
-    # radiance where it lies: ``sun_sky_sh``); where they are lamps, shared among them (a
-    # sky is at infinity and cannot stand for a near light)
-    is_lamp = np.array([fl.kind == "lamp" for fl in drawn])
-    sun_part = float(sum(m.mass for m, lamp in zip(modes, is_lamp) if not lamp)) / total
-    rest = np.ones(len(post.dirs), bool)
-    for m in modes:
-        rest &= post.dirs @ m.peak < math.cos(math.radians(cfg.mode_radius_deg))
-    rest_sh = sun_part * post.sun_sky_sh(rest)
-    shares = [m.mass / total if lamp else m.mass for m, lamp in zip(modes, is_lamp)]
+    drawn, mode_mass, rest_sh = _drawn(post, opts, anchor, dists, cfg)
     i_map = int(np.argmax(post.log_post))
     k = int(opts[i_map])
     best_light = (FitLight("sun", post.dirs[i_map], None, np.zeros(0)) if k < 0 else
@@ -412,8 +419,7 @@ def search(pp: Prepared, settings: LightConfig, seed: int = 0) -> tuple[Search, 
                   ll_photo=np.concatenate([llp[~inside], llp_f]), ratio=np.concatenate([ratio_c[~inside], r_f]),
                   shadow_blocks=np.concatenate([area_c[~inside], a_f]), light=drawn[0], evidence=ev,
                   receivers=sc.rec, map_light=best_light, anchor=anchor,
-                  modes=tuple(zip(drawn, shares)), mode_mass=float(total),
-                  rest_sh=rest_sh if np.any(rest_sh != 0.0) else None), sc
+                  modes=drawn, mode_mass=mode_mass, rest_sh=rest_sh), sc
 
 
 def choose_size(pp: Prepared, sc: _Scorer, light: FitLight, settings: LightConfig, seed: int,
