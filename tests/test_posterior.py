@@ -221,6 +221,11 @@ def test_a_sharp_posterior_is_one_mode_and_a_flat_one_is_many_small_ones():
     cap = 2 * math.pi * (1 - math.cos(math.radians(15.0))) / (2 * math.pi)  # a cap's share of the hemisphere
     for m in flat:
         assert m.mass <= cap * 1.3
+    # each mode holds its members' mass, and no direction belongs to two modes
+    p_ = DirectionPosterior(d, np.zeros(len(d)), om).probabilities
+    for m in flat:
+        assert m.mass == pytest.approx(float(p_[m.members].sum()), rel=1e-12)
+    assert np.sum([m.members for m in flat], axis=0).max() == 1
     # each mode's direction lies on the hemisphere and the modes do not overlap
     for i, m in enumerate(flat):
         assert m.direction @ UP > 0

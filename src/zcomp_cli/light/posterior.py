@@ -28,15 +28,13 @@ def _unit(v) -> np.ndarray:
 @dataclass(frozen=True)
 class Mode:
     """One mode of a posterior (``DirectionPosterior.modes``): its mean ``direction``
-    (3,), its densest grid direction ``peak`` (3,), and the share of the posterior's mass
-    it holds."""
+    (3,), its densest grid direction ``peak`` (3,), the share of the posterior's mass it
+    holds, and which of the posterior's directions it holds (``members``, (K,) bool)."""
 
     direction: np.ndarray
     peak: np.ndarray
     mass: float
-
-    def to_info(self) -> dict:
-        return {"direction": [round(float(v), 6) for v in self.direction], "mass": round(float(self.mass), 4)}
+    members: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -170,7 +168,8 @@ class DirectionPosterior:
             w = float(p[inside].sum())
             if not w > 0.0:
                 break
-            out.append(Mode(direction=_unit(p[inside] @ self.dirs[inside]), peak=self.dirs[i].copy(), mass=w))
+            out.append(Mode(direction=_unit(p[inside] @ self.dirs[inside]), peak=self.dirs[i].copy(), mass=w,
+                            members=inside))
             left &= ~inside
         return sorted(out, key=lambda m: -m.mass)
 

@@ -311,10 +311,7 @@ def _drawn(post: DirectionPosterior, opts: np.ndarray, anchor, dists, cfg) -> tu
     total = sum(m.mass for m in modes)
     is_lamp = [fl.kind == "lamp" for fl in drawn]
     sun_part = sum(m.mass for m, lamp in zip(modes, is_lamp) if not lamp) / total
-    rest = np.ones(len(post.dirs), bool)
-    for m in modes:
-        rest &= post.dirs @ m.peak < math.cos(math.radians(cfg.mode_radius_deg))
-    rest_sh = sun_part * post.sun_sky_sh(rest)
+    rest_sh = sun_part * post.sun_sky_sh(~np.any([m.members for m in modes], axis=0))
     shares = [m.mass / total if lamp else m.mass for m, lamp in zip(modes, is_lamp)]
     return tuple(zip(drawn, shares)), float(total), (rest_sh if np.any(rest_sh != 0.0) else None)
 

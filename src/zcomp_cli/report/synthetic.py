@@ -34,8 +34,8 @@ def _light(rng: random.Random, k: int) -> dict:
     unfixed = k % 7 == 0
     unc = rng.uniform(40, 70) if unfixed else rng.uniform(2, 25)
     note = (f"the photograph fixes the light's direction to within {unc:.0f} deg (RMS): drawn as the posterior's "
-            "3 likeliest lights, sharing the light as their masses do (43%, 32%, 25%; they hold 28% of it), each at "
-            "the light's size (0.265 deg, not measured: the documented default)") if unfixed else ""
+            "3 likeliest lights (12%, 9%, 7% of the light), each at the light's size (0.265 deg, not measured: the "
+            "documented default), the rest of the posterior as sky") if unfixed else ""
     sh = [[rng.uniform(-1, 2) for _ in range(3)] for _ in range(9)]
     return {"source": "manifest" if k % 5 == 0 else "estimated", "shadow": "cast shadow", "up_camera": up,
             "up_from": "read off the support plane",
@@ -50,7 +50,7 @@ def _light(rng: random.Random, k: int) -> dict:
             "fallback": note or None,
             "fit": {"shadow_blocks": rng.random(), "direction_uncertainty_deg": unc, "residual": rng.random() / 10,
                     "fit_pixels": 2000, "exposure": None, "note": note, "unfixed": unfixed,
-                    "modes": [{"kind": "sun", "toward": d, "share": s_} for s_ in ((0.43, 0.32, 0.25) if unfixed
+                    "modes": [{"kind": "sun", "toward": d, "share": s_} for s_ in ((0.12, 0.09, 0.07) if unfixed
                                                                                    else (0.97,))]},
             "probe": None, "walls": []}
 
