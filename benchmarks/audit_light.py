@@ -29,6 +29,12 @@ manifest's working size, every valid pixel known), and the audit prints:
   drawn (a cast shadow from how many of the posterior's modes, the heaviest's share, and
   the light's radius with where it came from: ``sh`` read off the shadows, ``def`` the
   default, ``man`` forced);
+* ``k_sh`` / ``k_ph``: each cue's weight in the search (the shadow's and the
+  photometric likelihood's power, read off the case's own blocks: ``light/cueweight.py``);
+* ``split/true``: the sun/sky split (the sky's share of the support's light) the fit
+  tied its key light to (``*``: read off the shadows' shadowed/lit ratio, else the
+  prior's) and the truth's at the object's base (the generator's HDR sky against its
+  sun and lamps);
 * ``in50/68/90``: whether the truth lies inside the stated 50, 68 and 90 % cones (the
   smallest cones about the posterior's mean direction holding that much of its mass).
 
@@ -142,6 +148,16 @@ def audit_case(bench: Path, case: dict, truth: dict, settings=None) -> dict:
     modes = list(getattr(model.fit, "modes", ()) or ())
     row["modes"] = len(modes)
     row["share0"] = float(modes[0]["share"]) if modes else float("nan")
+    cues = getattr(model.fit, "cue_weights", {}) or {}
+    row["k_shadow"] = float(cues.get("shadow", {}).get("k", float("nan")))
+    row["k_photo"] = float(cues.get("photometric", {}).get("k", float("nan")))
+    # the sun/sky split: the estimate's (read off the shadows where it stood on some, else
+    # the prior's) beside the truth's at the object's base (the generator's own lights)
+    from fit_light_constants import true_sky_share
+
+    row["split_est"] = float(getattr(model.fit, "sky_share", float("nan")))
+    row["split_true"] = float(true_sky_share(case))
+    row["split_read"] = bool(float(getattr(model.fit, "shadow_blocks", 0.0)) > 0)
     est = model.key_direction
     if est is None and post is not None:
         est = post.mean_direction
@@ -151,6 +167,9 @@ def audit_case(bench: Path, case: dict, truth: dict, settings=None) -> dict:
     ref = min(shown, key=lambda t: angle_deg(est, t["direction"])) if (shown and est is not None) else lights[0]
     true_dir = np.asarray(ref["direction"], np.float64)
     row["true_dir"] = true_dir.tolist()
+    from run_benchmark import _true_radius_deg
+
+    row["radius_true"] = float(_true_radius_deg(ref, case))
     row["err_deg"] = angle_deg(est, true_dir) if est is not None else float("nan")
     if post is not None:
         row["logp_true"] = float(post.log_density(true_dir))
@@ -177,6 +196,16 @@ def summarise(rows: list[dict]) -> str:
 
     block("all cases with a light reaching the object", [r for r in rows if r["truth"] != "-"])
     block("cases whose background shows cast shadows", [r for r in rows if r["shown"]])
+    # the drawn radius where the direction is found (within 10 deg) on the shown shadows:
+    # within a factor 2 of the truth's, or under 2 deg where the truth is under 1 deg
+    sized = [r for r in rows if r["shown"] and r.get("err_deg", math.inf) <= 10 and
+             math.isfinite(r.get("radius_true", math.nan)) and math.isfinite(r.get("radius_deg", math.nan))]
+    if sized:
+        ok = [(r["radius_deg"] < 2.0) if r["radius_true"] < 1.0 else (0.5 <= r["radius_deg"] / r["radius_true"] <= 2.0)
+              for r in sized]
+        lines.append(f"the drawn radius where the shown shadows' direction is within 10 deg: n={len(sized)}, right "
+                     f"(within x2, or < 2 deg for a truth < 1 deg) {100 * np.mean(ok):.0f} %: "
+                     + ", ".join(f"{r['radius_deg']:.2g}/{r['radius_true']:.2g}" for r in sized))
     misses = [r.get("miss") for r in rows if r.get("miss")]
     lines.append(f"misses (> {MISS_DEG:g} deg): {len(misses)}: search {misses.count('search')}, "
                  f"objective {misses.count('objective')}")
@@ -188,6 +217,12 @@ def summarise(rows: list[dict]) -> str:
             lps = [r["logp_true"] for r in sel if math.isfinite(r.get("logp_true", math.nan))]
             lines.append(f"{name}: n={len(sel)}, the truth inside the stated cones {cov}; mean log score "
                          f"{statistics.mean(lps):.3f}" if lps else f"{name}: n={len(sel)}, {cov}")
+    for name, sel in (("read off the shadows", [r for r in rows if r.get("split_read")]),
+                      ("the prior's (no tied shadow under the light)", [r for r in rows if not r.get("split_read")])):
+        d = [abs(r["split_est"] - r["split_true"]) for r in sel if math.isfinite(r.get("split_est", math.nan))]
+        if d:
+            lines.append(f"the sun/sky split {name}: n={len(d)}, median |estimate - truth| {statistics.median(d):.3f}, "
+                         f"within 0.1: {100 * np.mean(np.array(d) <= 0.1):.0f} %")
     lp = [r["logp_true"] for r in rows if math.isfinite(r.get("logp_true", math.nan))]
     if lp:
         lines.append(f"mean log score of the truth: {statistics.mean(lp):.3f} (log density per sr; uniform "
@@ -212,7 +247,8 @@ def main(argv=None) -> int:
     sel = parse_cases(args.cases)
     rows = []
     hdr = (f"{'case':<18} {'truth':<8} {'shown':<5} {'err':>6} {'logp@true':>9} {'logp@est':>9} {'rank':>5} "
-           f"{'mass15':>6} {'miss':<9} {'spread':>6} {'drawn, in50/68/90':<24}")
+           f"{'mass15':>6} {'miss':<9} {'spread':>6} {'k_sh':>6} {'k_ph':>6} {'split/true':>10} "
+           f"{'drawn, in50/68/90':<24}")
     for bench in args.benches:
         bench_json = json.loads((bench / "benchmark.json").read_text())
         truths = case_truths(bench)
@@ -229,7 +265,9 @@ def main(argv=None) -> int:
             f = lambda k, fmt: format(r[k], fmt) if isinstance(r.get(k), (int, float)) else "-"
             print(f"{r['case']:<18} {r['truth']:<8} {str(r['shown']):<5} {f('err_deg', '6.1f'):>6} "
                   f"{f('logp_true', '9.2f'):>9} {f('logp_est', '9.2f'):>9} {f('rank', 'd'):>5} "
-                  f"{f('mass15', '6.2f'):>6} {r.get('miss', ''):<9} {r['spread_deg']:6.1f} {drawn:<24}", flush=True)
+                  f"{f('mass15', '6.2f'):>6} {r.get('miss', ''):<9} {r['spread_deg']:6.1f} {f('k_shadow', '6.3f'):>6} "
+                  f"{f('k_photo', '6.3f'):>6} {r['split_est']:4.2f}{'*' if r['split_read'] else ' '}/"
+                  f"{r['split_true']:4.2f} {drawn:<24}", flush=True)
     print("\n" + summarise(rows))
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))

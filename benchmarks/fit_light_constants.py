@@ -1,44 +1,43 @@
-"""Fit the light estimate's calibrated constants on the development seeds
-(``seeds.DEVELOPMENT``), and print how each was chosen:
+"""Fit the light estimate's calibrated constants on generated development cases, and
+check them on whole generator families held out of the fit:
 
 * ``search.prior_sky_share``: the sky's share of the support's light where the
-  photograph does not tell it: the median, over the development cases, of the true share
-  of the floor's irradiance at the object's base that the HDR map's sky brings (its sun
-  and the lamps being the lights), from the generator's own description of each case;
+  photograph does not tell it: the median, over the fit cases, of the true share of the
+  floor's irradiance at the object's base that the HDR map's sky brings (its sun and the
+  lamps being the lights), from the generator's own description of each case;
 * ``search.prior_sky_share_spread``: that share's spread over the same cases (the
   median absolute deviation x 1.4826): the prior's weight against the shadows'
   measurement of the split;
-* ``search.temperature``: the posterior's one temperature. Every development case's background
-  goes through the estimate's search once (``estimate.search``: the untempered
-  log-likelihood of every direction it scores); for each value of ``--grid`` the
-  posterior is tempered with it and scored by the **log score** of the true direction
-  (the log posterior density at the dominant true light reaching the object's base,
-  or at the nearest light whose cast shadows the background shows; an area lamp's
-  direction as the search states it, from the point it hangs its lamps from) -- a proper scoring
-  rule: it is best in expectation for the posterior that states the true uncertainty.
-  The value with the best mean log score over the cases with a true light is chosen;
-* ``search.photo_weight``: the photometric likelihood's independent observations per
-  held-out block, with the temperature: the search runs once per value of
-  ``--photo-grid`` (it decides which lamps are scored), and the pair with the best mean
-  log score is chosen;
-* ``search.elevation_prior_power``: the prior's density over directions, ``cos(elevation)
-  ** -power`` per steradian, each power of ``--prior-grid`` scored with every weight and
-  temperature.
+* ``search.cue_weights``, ``search.temperature``, ``search.gate`` and
+  ``search.elevation_prior_power``: whether each cue is weighed by the power its own
+  blocks bear out (``light/cueweight.py``), and what the data fit around that. Every
+  case's background goes through the search once (``search.search`` at the defaults:
+  its unweighted scores ``Search.scored`` and the cues' measured weights); each choice
+  of the grids (weights on or off, temperature, gate, power) turns them into a
+  posterior (``search.weighted_marginal``) scored by the **log score** of the true
+  direction (the log posterior density at the nearest light whose cast shadows the
+  background shows, else the dominant true light reaching the object's base; an area
+  lamp's direction as the search states it, from the point it hangs its lamps from) --
+  a proper scoring rule: best in expectation for the posterior that states the true
+  uncertainty. The choice with the best mean log score over the fit cases is chosen.
+  (The grids are scored on the directions each case's search chose at the defaults:
+  its lamp screening and refinement followed them.)
 
-The temperatures and powers of the grids are scored on the directions of each weight's
-search, which ran at the default temperature and power (its lamp screening and its
-refinement follow them): an approximation, off by up to 0.1 in the mean log score away
-from the defaults. ``--exact W,T,P ...`` scores given triples exactly (the search run at
-each; a minute or two apiece), and the best of those is chosen.
+The check: the cases of the held-out families (``--hold-out``: HDR maps, lamp kinds,
+object shapes; a case is held out when any of its families is) are never fitted on;
+the script prints their mean log score at the chosen constants beside the fit cases',
+and per stratum (shadows shown / bare floor / lamp) the coverage of the stated 50, 68
+and 90 % cones (the share of cases whose true direction falls inside) on both.
 
-    python benchmarks/fit_light_constants.py BENCH_1618 BENCH_7777 [...] \
-        [--grid 1,2,5,10,20,50,100] [--photo-grid 1,2,4,8] [--prior-grid 0,0.5,1] \
-        [--exact 0.3,20,1 1,30,0]
+    python benchmarks/fit_light_constants.py CALIB/1618 CALIB/7777 [...] \
+        [--grid 5,8,12,16,20,25,30,40] [--gate-grid 0,0.01,0.1] [--prior-grid 0,0.5,1] \
+        [--hold-out hdr=city,studio lamp=SPOT,POINT shape=chair,vase] [--cache DIR]
 
-Each BENCH is a ``make-benchmark`` folder. The constants are built into a search
-configuration (``settings.SearchConfig``, the others at their defaults: no source file is
-edited) and printed; the defaults in ``settings.py`` are set from it by hand, with this
-script's output kept in ``docs/fit_light_constants.txt``.
+Each CALIB is a ``make-benchmark`` folder (``gen_calibration.py`` makes them). A case's
+search is kept in ``--cache`` (keyed by the benchmark, the search's configuration and
+the light stage's code), so that a re-run -- more seeds, other grids -- scores only what is new.
+The constants are printed; the defaults in ``light/config.py`` are set from them by
+hand, with this script's output kept in ``docs/fit_light_constants.txt``.
 """
 
 from __future__ import annotations
@@ -83,22 +82,61 @@ def true_direction(light: dict, anchor):
     return d / max(float(np.linalg.norm(d)), 1e-12)
 
 
-def case_posteriors(bench: Path, settings=None):
-    """[(case id, the search's posterior (untempered parts kept), the true direction or
-    None, whether the background shows cast shadows, the elevation prior's log density
-    at power 1 on the posterior's directions)] of a benchmark's cases; the true
-    direction is the nearest light whose shadows the background shows, else the dominant
-    light reaching the object's base."""
+STRATA = ("shadows shown", "bare floor", "lamp")
+
+
+def families(case: dict) -> dict:
+    """A case's generator families: its HDR map, its lamps' kinds, its object's shape."""
+    sc = case.get("scene", {})
+    return {"hdr": {str(sc.get("hdr"))}, "lamp": {str(lp.get("kind")) for lp in sc.get("lamps", [])} or {"none"},
+            "shape": {str(case.get("object", {}).get("recipe", {}).get("shape"))}}
+
+
+def held_out(case: dict, hold: dict) -> bool:
+    fam = families(case)
+    return any(fam[k] & v for k, v in hold.items())
+
+
+def _code() -> str:
+    """The light stage's code as its syntax trees, docstrings and comments left out:
+    what a cached search depends on."""
+    import ast
+
+    import zcomp_cli.light as light_pkg
+
+    out = []
+    for f in sorted(Path(light_pkg.__file__).parent.glob("*.py")):
+        tree = ast.parse(f.read_text())
+        for node in ast.walk(tree):
+            body = getattr(node, "body", None)
+            if (isinstance(body, list) and body and isinstance(body[0], ast.Expr)
+                    and isinstance(getattr(body[0], "value", None), ast.Constant)
+                    and isinstance(body[0].value.value, str)):
+                node.body = body[1:] or [ast.Pass()]
+        out.append(ast.dump(tree))
+    return "".join(out)
+
+
+def case_searches(bench: Path, settings, cache: Path | None):
+    """Per case of ``bench`` with a true light: a dict of the search's unweighted scores
+    and weights (``Search.scored``, ``weights``, ``log_opt_prior``), its directions and
+    their solid angles, the elevation prior's log density at power 1 on them, the true
+    direction, the stratum and the families. Cached in ``cache`` when given."""
+    import hashlib
+    import pickle
+
     import numpy as np
 
     from audit_light import load_case_inputs
     from run_benchmark import case_truths
     from zcomp_cli.light import search as estimate
-    from zcomp_cli.light.config import DEFAULT_LIGHT as DEFAULTS
     from zcomp_cli.light.prepare import prepare
     from zcomp_cli.scene.frame import scene_up
 
-    settings = DEFAULTS if settings is None else settings
+    key = hashlib.sha256(repr((str(bench.resolve()), settings, _code())).encode()).hexdigest()[:16]
+    path = None if cache is None else cache / f"{bench.name}-{key}.pkl"
+    if path is not None and path.is_file():
+        return pickle.loads(path.read_bytes())
     truths = case_truths(bench)
     out = []
     for case in json.loads((bench / "benchmark.json").read_text())["cases"]:
@@ -109,95 +147,138 @@ def case_posteriors(bench: Path, settings=None):
         if len(pp.fp) < settings.search.few_pixels:
             continue
         s, _ = estimate.search(pp, settings)
-        anchor = estimate.caster_anchor(pp, s.evidence, settings.evidence)
         t = truths[case["id"]]
         lights = [x for x in t["lights"] if x["visible"]]
-        ref = None
         if t["shown"]:
             ref = max(t["shown"], key=lambda x: float(np.asarray(x["direction"]) @ s.posterior.map_direction))
         elif lights:
             ref = lights[0]
-        # (the prior's log density at power 1, to score other powers on the same grid)
-        base_prior = estimate.log_elevation_prior(s.posterior.dirs, up, 1.0)
-        out.append((case["id"], s.posterior, None if ref is None else true_direction(ref, anchor), bool(t["shown"]),
-                    base_prior))
-        print(f"  {bench.name}/{case['id']}", flush=True)
+        else:
+            continue
+        kind = str(ref.get("kind", "")).upper()
+        stratum = "shadows shown" if t["shown"] else ("lamp" if kind in ("AREA", "POINT", "SPOT") else "bare floor")
+        out.append({"case": f"{bench.name}/{case['id']}", "scored": s.scored, "weights": s.weights,
+                    "log_opt_prior": s.log_opt_prior, "dirs": s.posterior.dirs, "omega": s.posterior.solid_angle,
+                    "base_prior": estimate.log_elevation_prior(s.posterior.dirs, up, 1.0),
+                    "truth": true_direction(ref, s.anchor), "stratum": stratum, "case_desc": case})
+        print(f"  {bench.name}/{case['id']}: weights {s.weights[0].k:.3g} (shadow), {s.weights[1].k:.3g} "
+              f"(photometric)", flush=True)
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp")
+        tmp.write_bytes(pickle.dumps(out))
+        tmp.replace(path)
     return out
+
+
+def posterior_of(rec: dict, T: float, gate: float, power: float, weighed: bool = True):
+    """A case's posterior at temperature ``T``, gate ``gate`` and prior power ``power``,
+    its cues at their measured weights (``weighed``) or at 1 each."""
+    import dataclasses
+
+    from zcomp_cli.light.posterior import DirectionPosterior
+    from zcomp_cli.light.search import weighted_marginal
+
+    w = rec["weights"] if weighed else tuple(dataclasses.replace(x, k=1.0) for x in rec["weights"])
+    marg, _ = weighted_marginal(rec["scored"], w, gate, T, rec["log_opt_prior"], rec["omega"])
+    return DirectionPosterior.from_parts(rec["dirs"], marg, power * rec["base_prior"], rec["omega"], T)
+
+
+def coverage_lines(recs: list, T: float, gate: float, power: float, weighed: bool) -> list[str]:
+    """Per stratum: n, the coverage of the stated 50/68/90 % cones, the mean log score."""
+    import numpy as np
+
+    from audit_light import CONES, cone_deg
+
+    lines = []
+    for st in STRATA:
+        sel = [r for r in recs if r["stratum"] == st]
+        if not sel:
+            continue
+        inside = {q: 0 for q in CONES}
+        ls = []
+        for r in sel:
+            post = posterior_of(r, T, gate, power, weighed)
+            ls.append(post.log_density(r["truth"]))
+            to_mean = float(np.degrees(np.arccos(np.clip(post.mean_direction @ r["truth"], -1.0, 1.0))))
+            for q in CONES:
+                inside[q] += to_mean <= cone_deg(post, q)
+        cov = ", ".join(f"{round(100 * q)} %: {100 * inside[q] / len(sel):.0f} %" for q in CONES)
+        lines.append(f"    {st}: n={len(sel)}, the truth inside the stated cones {cov}; mean log score "
+                     f"{statistics.mean(ls):.3f}")
+    return lines
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("benches", nargs="+", type=Path)
-    ap.add_argument("--grid", default="1,2,3,5,7,10,15,20,30,50,100", help="temperatures to score")
-    ap.add_argument("--photo-grid", default="1,2,4,8", help="photometric weights to search with")
-    ap.add_argument("--prior-grid", default="0,0.5,1", help="elevation prior powers to score (on each search's grid)")
-    ap.add_argument("--exact", nargs="*", default=[], metavar="W,T,P",
-                    help="photo weight, temperature, prior power triples scored exactly (the search run at each)")
+    ap.add_argument("--grid", default="5,8,12,16,20,25,30,40", help="temperatures to score")
+    ap.add_argument("--gate-grid", default="0,0.01,0.1", help="gates to score")
+    ap.add_argument("--prior-grid", default="0,0.5,1", help="elevation prior powers to score")
+    ap.add_argument("--hold-out", nargs="*", default=["hdr=city,studio", "lamp=POINT,SPOT", "shape=chair,vase"],
+                    metavar="FAMILY=A,B", help="generator families held out of the fit (hdr, lamp, shape)")
+    ap.add_argument("--cache", type=Path, default=None, help="keep each benchmark's searches here")
     args = ap.parse_args(argv)
     import dataclasses
 
-    from zcomp_cli.light.posterior import DirectionPosterior
     from zcomp_cli.light.config import DEFAULT_LIGHT as DEFAULTS, SearchConfig
 
     grid = [float(x) for x in args.grid.split(",") if x.strip()]
-    photo_grid = [float(x) for x in args.photo_grid.split(",") if x.strip()]
+    gate_grid = [float(x) for x in args.gate_grid.split(",") if x.strip()]
     prior_grid = [float(x) for x in args.prior_grid.split(",") if x.strip()]
-    shares = []
+    hold = {}
+    for spec in args.hold_out:
+        fam, _, vals = spec.partition("=")
+        if fam not in ("hdr", "lamp", "shape") or not vals:
+            ap.error(f"--hold-out {spec!r}: expected hdr=..., lamp=... or shape=... with comma-separated values")
+        hold[fam] = {v.strip() for v in vals.split(",") if v.strip()}
+    shares, recs = [], []
     for b in args.benches:
         cases = json.loads((b / "benchmark.json").read_text())["cases"]
-        s = [true_sky_share(c) for c in cases]
+        s = [true_sky_share(c) for c in cases if not held_out(c, hold)]
         shares += s
-        print(f"{b}: {len(cases)} cases, true sky share median {statistics.median(s):.3f}", flush=True)
+        print(f"{b}: {len(cases)} cases ({len(s)} fitted on), true sky share median "
+              f"{statistics.median(s) if s else float('nan'):.3f}", flush=True)
+        recs += case_searches(b, DEFAULTS, args.cache)
     share = statistics.median(shares)
     spread = 1.4826 * statistics.median([abs(x - share) for x in shares])
-    print(f"prior_sky_share = {share:.2f}  (median of {len(shares)} cases)")
+    print(f"prior_sky_share = {share:.2f}  (median of {len(shares)} fit cases)")
     print(f"prior_sky_share_spread = {spread:.2f}  (1.4826 x their median absolute deviation)")
+    fit = [r for r in recs if not held_out(r["case_desc"], hold)]
+    check = [r for r in recs if held_out(r["case_desc"], hold)]
+    print(f"cases with a true light: {len(fit)} fitted on, {len(check)} held out ({' '.join(args.hold_out)})")
+    ks = sorted(r["weights"][0].k for r in recs), sorted(r["weights"][1].k for r in recs)
+    for name, k in zip(("shadow", "photometric"), ks):
+        print(f"  the {name} cue's weight over the cases: median {statistics.median(k):.3g}, "
+              f"quartiles {k[len(k) // 4]:.3g} .. {k[3 * len(k) // 4]:.3g}, at the floor {sum(x <= 1e-3 for x in k)}")
     uniform = -math.log(2 * math.pi)
-
-    def posteriors(settings):
-        posts = []
-        for b in args.benches:
-            posts += [p for p in case_posteriors(b, settings) if p[2] is not None]
-        return posts
-
     scores = []
-    for w in photo_grid:
-        settings = dataclasses.replace(DEFAULTS, search=dataclasses.replace(DEFAULTS.search, photo_weight=w))
-        posts = posteriors(settings)
-        for k in prior_grid:
-            for T in grid:
-                # (another power than the default's is scored on this search's grid, whose
-                # lamp screening and refinement followed the default's prior)
-                ls = [DirectionPosterior.from_parts(p.dirs, p.loglik, k * bp, p.solid_angle, T).log_density(t)
-                      for _, p, t, _, bp in posts]
-                scores.append((statistics.mean(ls), w, T, k))
-                # (not fitted on: where the score comes from, the cases whose background
-                # shows cast shadows and the others)
-                parts = [[x for x, q in zip(ls, posts) if q[3] is shown] for shown in (True, False)]
-                part = ", ".join(f"{name} {statistics.mean(x):.3f} ({len(x)})"
-                                 for name, x in zip(("shown", "not shown"), parts) if x)
-                print(f"  PHOTO_WEIGHT {w:g} TEMPERATURE {T:g} PRIOR_POWER {k:g}: mean log score "
-                      f"{statistics.mean(ls):.3f} over {len(ls)} cases (a uniform hemisphere: {uniform:.3f}; {part})",
-                      flush=True)
-    best = max(scores)
-    if args.exact:
-        exact = []
-        for triple in args.exact:
-            w, T, k = (float(x) for x in triple.split(","))
-            search = dataclasses.replace(DEFAULTS.search, photo_weight=w, temperature=T, elevation_prior_power=k)
-            posts = posteriors(dataclasses.replace(DEFAULTS, search=search))
-            ls = [p.log_density(t) for _, p, t, _, _ in posts]
-            exact.append((statistics.mean(ls), w, T, k))
-            print(f"  EXACT PHOTO_WEIGHT {w:g} TEMPERATURE {T:g} PRIOR_POWER {k:g}: mean log score "
-                  f"{statistics.mean(ls):.3f} over {len(ls)} cases", flush=True)
-        best = max(exact)
-    print(f"photo_weight = {best[1]:g}, temperature = {best[2]:g}, elevation_prior_power = {best[3]:g}")
+    for weighed in (True, False):
+        for power in prior_grid:
+            for gate in gate_grid:
+                for T in grid:
+                    ls = [posterior_of(r, T, gate, power, weighed).log_density(r["truth"]) for r in fit]
+                    scores.append((statistics.mean(ls), T, gate, power, weighed))
+                    print(f"  CUE_WEIGHTS {'on' if weighed else 'off'} TEMPERATURE {T:g} GATE {gate:g} PRIOR_POWER "
+                          f"{power:g}: mean log score {statistics.mean(ls):.3f} over {len(ls)} fit cases (a uniform "
+                          f"hemisphere: {uniform:.3f})", flush=True)
+    for weighed in (True, False):
+        b = max(x for x in scores if x[4] is weighed)
+        print(f"  the best with the cue weights {'on' if weighed else 'off'}: {b[0]:.3f} (temperature {b[1]:g}, "
+              f"gate {b[2]:g}, prior power {b[3]:g})")
+    _, T, gate, power, weighed = max(scores)
+    print(f"cue_weights = {weighed}, temperature = {T:g}, gate = {gate:g}, elevation_prior_power = {power:g}")
+    for name, sel in (("fit cases", fit), ("held-out families", check)):
+        if sel:
+            ls = [posterior_of(r, T, gate, power, weighed).log_density(r["truth"]) for r in sel]
+            print(f"  {name}: n={len(sel)}, mean log score {statistics.mean(ls):.3f}")
+            print("\n".join(coverage_lines(sel, T, gate, power, weighed)))
     fitted = dataclasses.replace(SearchConfig(), prior_sky_share=round(share, 2),
-                                 prior_sky_share_spread=round(spread, 2), photo_weight=best[1], temperature=best[2],
-                                 elevation_prior_power=best[3])
+                                 prior_sky_share_spread=round(spread, 2), temperature=T, gate=gate,
+                                 elevation_prior_power=power, cue_weights=weighed)
     print(f"SearchConfig(prior_sky_share={fitted.prior_sky_share}, prior_sky_share_spread="
-          f"{fitted.prior_sky_share_spread}, photo_weight={fitted.photo_weight:g}, "
-          f"temperature={fitted.temperature:g}, elevation_prior_power={fitted.elevation_prior_power:g})")
+          f"{fitted.prior_sky_share_spread}, temperature={fitted.temperature:g}, cue_weights={fitted.cue_weights}, "
+          f"gate={fitted.gate:g}, elevation_prior_power={fitted.elevation_prior_power:g})")
     return 0
 
 

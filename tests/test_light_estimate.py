@@ -10,7 +10,10 @@ from zcomp_cli.testing import estimate_light, floor_scene
 
 
 def _angle(a, b):
-    return float(np.degrees(np.arccos(np.clip(a @ b / np.linalg.norm(a) / np.linalg.norm(b), -1, 1))))
+    """Degrees between ``a`` and ``b``; atan2 of the cross and dot products, exact near 0
+    (an arccos of a dot product near 1 reads float noise as a micro-degree)."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    return float(np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b)), a @ b)))
 
 
 def _estimate(s, shading=None, **kw):

@@ -53,10 +53,16 @@ class SearchConfig:
     """The direction search, its posterior and how it is drawn, the light's size and
     strength (``search``, ``shadowcast``)."""
 
-    temperature: float = knob(30.0, "fitted", "the posterior's one temperature: the best mean log score of the "
-                                              "true direction (benchmarks/fit_light_constants.py, "
-                                              "docs/fit_light_constants.txt)")
-    elevation_prior_power: float = knob(0.0, "fitted", "the prior over directions has the density "
+    temperature: float = knob(20.0, "fitted", "the posterior's one temperature over the cues' likelihoods: the best "
+                                              "mean log score of the true direction over the calibration cases "
+                                              "(benchmarks/fit_light_constants.py, docs/fit_light_constants.txt)")
+    cue_weights: bool = knob(False, "fitted", "weigh each cue by the power its own blocks bear out (cueweight) "
+                                              "before the temperature: off, as the calibration's log score chose "
+                                              "(the weights are measured and reported either way)")
+    gate: float = knob(0.0, "fitted", "each cue, as a density over the hemisphere, is mixed with the uniform by this "
+                                     "much: the chance that it is misled (cueweight.gated; the best mean log score, "
+                                     "fit_light_constants.py --gate-grid)", lo=0.0, lo_open=False, hi=0.5)
+    elevation_prior_power: float = knob(0.5, "fitted", "the prior over directions has the density "
                                                        "cos(elevation) ** -power per steradian (1: uniform in the "
                                                        "elevation angle; 0: uniform over the hemisphere): the best "
                                                        "mean log score with the temperature and the photometric "

@@ -697,7 +697,7 @@ def _filled(ctx: Context, params: LightParams, terms: list[Term], exposure: floa
                                  sky=filled_sky,
                                  exposure=params.exposure if params.exposure.frozen or not math.isfinite(exposure)
                                  else params.exposure.filled(exposure, Origin.FIT))
-    model = _model(ctx, params, suns, lamps, sky, probe_ref, exposure, n_eff, residual)
+    model = _model(ctx, params, suns, lamps, sky, probe_ref, exposure, n_eff, residual, share)
     return LightFit(model=model, params=filled, posterior=ctx.search.posterior if ctx.search is not None else None,
                     diagnostics=ctx.diagnostics)
 
@@ -716,7 +716,7 @@ def _filled_sky(node: SkyParams, sky_sh: np.ndarray, ground: np.ndarray, ctx: Co
 
 
 def _model(ctx: Context, params: LightParams, suns, lamps, sky: Sky, probe_ref, exposure: float, n_eff: float,
-           residual: float) -> LightModel:
+           residual: float, share: float = float("nan")) -> LightModel:
     """The ``LightModel`` of the filled terms: its lights, sky, what the fit says of
     itself (the searched light's doubt, and how its modes were drawn)."""
     pp = ctx.pp
@@ -735,8 +735,12 @@ def _model(ctx: Context, params: LightParams, suns, lamps, sky: Sky, probe_ref, 
     mode_info = tuple({"kind": fl.kind, "share": round(float(w), 4),
                        "toward": [round(float(v), 6) for v in sr.light_direction(fl, ctx.search.anchor)]}
                       for fl, w in modes)
+    weights = ctx.search.weights if ctx.search is not None else ()
+    cue_weights = {name: dict(w.to_info(), applied=bool(ctx.cfg.search.cue_weights))
+                   for name, w in zip(("shadow", "photometric"), weights)}
     summary = FitSummary(shadow_blocks=float(n_eff), uncertainty_deg=float(spread), residual=residual,
-                         pixels=len(pp.fp), exposure=exposure, note=note, unfixed=unfixed, modes=mode_info)
+                         pixels=len(pp.fp), exposure=exposure, note=note, unfixed=unfixed, modes=mode_info,
+                         cue_weights=cue_weights, sky_share=float(share))
     direct = [*suns, *lamps]
     estimated = any((s.direction_from if isinstance(s, Sun) else s.position_from) in ESTIMATED for s in direct)
     source = "manifest" if (params.given and not estimated) else "estimated"

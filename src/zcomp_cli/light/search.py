@@ -17,15 +17,19 @@ light whose direction is free; each returns a dataclass; every constant is
    scored by **two likelihoods** that multiply -- the support's shading under the
    shadow that direction casts (``shadowcast``: rays from the support's pixels) and the
    photometric fit of the whole frame (the sky lobes plus a sun of that direction,
-   robust NNLS scored on held-out blocks) -- with a **prior uniform in the elevation
-   angle**, into one **posterior** tempered by one constant (``search.temperature``,
-   fitted by ``benchmarks/fit_light_constants.py`` with the log score of the true
-   direction). A lamp is a sun with a distance: each direction's likelihood is
-   marginalised over a sun and lamps along it from the caster's base;
+   robust NNLS scored on held-out blocks) -- with a prior over the elevation
+   (``search.elevation_prior_power``), into one **posterior** tempered by one constant
+   (``search.temperature``). Each cue's weight is read off the case's own blocks
+   (``cueweight``: the block bootstrap) and reported; whether the search weighs the
+   cues by them (``search.cue_weights``), how much each cue, as a density, is mixed
+   with the uniform (``search.gate``), the temperature and the prior's power are fitted
+   by ``benchmarks/fit_light_constants.py`` with the log score of the true direction
+   on hundreds of generated cases. A lamp is a sun with a distance: each direction's
+   likelihood is marginalised over a sun and lamps along it from the caster's base;
 4. ``choose_size``: a light's size, one rule for every sun and lamp: the likelihoods of
-   its cone-averaged shadow among ``search.radii_deg`` and the Sun's own, the Sun's (a
-   bulb's) where they cannot tell -- the penumbra's width says it, never the
-   direction's doubt;
+   its cone-averaged shadow among ``search.radii_deg`` and the Sun's own, a priori the
+   Sun's (a bulb's) and another alike, the Sun's where they cannot tell -- the
+   penumbra's width says it, never the direction's doubt;
 5. ``split_from_shadows``: the sun/sky split from the shadows themselves (the
    shadowed/lit ratio across the edges of the most probable light's shadow, Madsen and
    Nielsen), shrunk toward the prior split by the tied shadow that measurement stands
@@ -54,10 +58,11 @@ import numpy as np
 
 from zcomp_cli.light import atoms as at
 from zcomp_cli.light.config import LightConfig
+from zcomp_cli.light.cueweight import RESAMPLED_BLOCKS, CueWeight, block_ids, block_sums, cue_weight, gated, log_norm
 from zcomp_cli.light.posterior import DirectionPosterior
 from zcomp_cli.light.prepare import Prepared
 from zcomp_cli.light.shadowcast import shadow_fit, sun_visibility
-from zcomp_cli.light.solver import base_sigma, score_candidates
+from zcomp_cli.light.solver import base_sigma, candidate_losses
 from zcomp_cli.scene.lightparams import LAMP_RADIUS_M, SUN_RADIUS_DEG, Origin
 from zcomp_cli.scene.sampling import fine_spiral, hemisphere, spacing_deg
 
@@ -119,14 +124,19 @@ class Search:
     modes: tuple = ()
     mode_mass: float = 1.0
     rest_sh: np.ndarray | None = None
+    weights: tuple = ()
+    scored: "Scored | None" = None
+    log_opt_prior: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
 class _Shadow:
-    """A scored shadow fit: (K,) log-likelihoods and shadowed/lit ratios."""
+    """A scored shadow fit: (K,) log-likelihoods and shadowed/lit ratios; ``blocks``
+    (n, K) the log-likelihoods' share of each block where asked (``suns_any_size``)."""
 
     loglik: np.ndarray
     ratio: np.ndarray
+    blocks: np.ndarray | None = None
 
 
 class _Scorer:
@@ -147,6 +157,16 @@ class _Scorer:
         self.blocks = held_out_blocks(fp)
         self.sigma = None  # the shadow fit's noise scale, set by the first (coarse) scoring
         self.photo_s2 = None  # the photometric fit's noise (over the data scale squared), likewise
+        self.lh_ref = 0.0  # the held-out loss the photometric log-likelihoods are relative to, likewise
+        # the blocks each receiver and each held-out pixel lie in (the units the cues'
+        # weights resample: cueweight)
+        self.rec_blocks = block_ids(self.rec.ys, self.rec.xs, pp.grid.mesh.shape, RESAMPLED_BLOCKS)
+        held = ~fp.train if (~fp.train).any() else fp.train
+        self.held = held
+        self.held_blocks = block_ids(fp.ys[held], fp.xs[held], fp.depth.shape, RESAMPLED_BLOCKS)
+        self.weights = None  # (shadow, photometric) CueWeight the cues are weighed by, set by set_weights
+        self.measured = None  # and the ones their blocks bear out (the same where search.cue_weights is on)
+        self.norms = (0.0, 0.0)  # each weighted cue's log normaliser over the grid (cueweight.gated)
 
     def suns(self, dirs, radius_deg: float = 0.0, seed: int = 0):
         """(shadow ShadowFit, photometric held-out losses (K,)) of suns toward ``dirs``."""
@@ -175,7 +195,7 @@ class _Scorer:
         visibility (R, K))."""
         D = np.asarray(dirs, np.float64).reshape(-1, 3)
         C = at.sun_columns(self.fp, D, steps=self.settings.estimate_march_steps)
-        lh = self.photo_losses(C)
+        lh, lh_blocks = self.photo_losses(C, by_block=True)
         V = sun_visibility(self.pp.grid.caster, self.rec, D)
         near = (D @ D.T >= math.cos(math.radians(self.settings.search.soft_deg))).astype(np.float64)
         hard = shadow_fit(self.rec, V, self.settings.search)
@@ -184,8 +204,13 @@ class _Scorer:
             self.sigma = min(hard.best_sigma, soft.best_sigma)
         lhard, lsoft = hard.loglik(self.sigma), soft.loglik(self.sigma)
         ll = np.logaddexp(lhard, lsoft) - math.log(2.0)
-        ratio = np.where(lsoft > lhard, soft.ratio, hard.ratio)
-        return _Shadow(ll, ratio), lh, C, V
+        is_soft = lsoft > lhard
+        ratio = np.where(is_soft, soft.ratio, hard.ratio)
+        # per block: the likelier of the two, the mixture's remainder shared evenly
+        ids, n = self.rec_blocks
+        blk = np.where(is_soft[None], soft.block_loglik(self.sigma, ids, n), hard.block_loglik(self.sigma, ids, n))
+        blk += ((ll - np.maximum(lhard, lsoft)) / max(n, 1))[None]
+        return _Shadow(ll, ratio, blk), (lh, lh_blocks), C, V
 
     def lamps(self, positions):
         """(scored shadow fit, photometric held-out losses, columns) of point lamps at
@@ -216,13 +241,53 @@ class _Scorer:
             self.sigma = fit_.best_sigma
         return _Shadow(fit_.loglik(self.sigma), fit_.ratio)
 
-    def photo_losses(self, C, iters: int | None = None) -> np.ndarray:
+    def photo_losses(self, C, iters: int | None = None, by_block: bool = False):
         """(K,) the photometric held-out losses of candidate columns ``C`` (N, K): the
         base dictionary plus each, scored alike at the base's noise scale
-        (``solver.score_candidates``)."""
-        lh, _ = score_candidates(self.B, C, self.y, self.fp.train, sigma=self.sig, iters=iters,
-                                 cfg=self.settings.solver)
-        return lh
+        (``solver.candidate_losses``), the mean over the held-out pixels; ``by_block``:
+        also (n, K) each held-out block's share of that mean."""
+        loss = candidate_losses(self.B, C, self.y, self.fp.train, sigma=self.sig, iters=iters,
+                                cfg=self.settings.solver)[self.held]
+        lh = loss.mean(0)
+        if not by_block:
+            return lh
+        ids, n = self.held_blocks
+        return lh, block_sums(loss / max(len(loss), 1), ids, n)
+
+    def set_weights(self, dirs, solid_angle, shadow_blocks, photo_blocks, seed: int = 0, measure: bool = True) -> None:
+        """Each cue's weight (``cueweight.cue_weight``) over the directions ``dirs`` (K, 3),
+        each standing for ``solid_angle`` (K,), from their per-block shadow
+        log-likelihoods ``shadow_blocks`` (n, K) and held-out losses ``photo_blocks``
+        (m, K) (``suns_any_size``'s) -- ``measured``; the ones the search weighs the cues
+        by (``weights``): those, or 1 each where ``search.cue_weights`` is off (each block
+        one observation, the one temperature for the rest); and each weighted cue's log
+        normaliser over the directions (the gate's). ``measure`` False: 1 each, not
+        measured (a grid whose weights nothing would use)."""
+        lh = photo_blocks.sum(0)
+        if self.photo_s2 is None:
+            self.set_photo_noise(float(lh.min()))
+        lp = log_elevation_prior(dirs, self.fp.up, self.settings.search.elevation_prior_power)
+        ph_blocks = -self.blocks * self.settings.search.photo_weight * photo_blocks / (2.0 * self.photo_s2)
+        if measure:
+            ws = cue_weight(shadow_blocks, lp, solid_angle, dirs, seed=seed)
+            wp = cue_weight(ph_blocks, lp, solid_angle, dirs, seed=seed)
+        else:
+            ws, wp = (CueWeight(1.0, float("nan"), len(b)) for b in (shadow_blocks, ph_blocks))
+        self.measured = (ws, wp)
+        if not self.settings.search.cue_weights:
+            ws, wp = (dataclasses.replace(w, k=1.0) for w in (ws, wp))
+        self.weights = (ws, wp)
+        self.norms = (log_norm(ws.k * shadow_blocks.sum(0), solid_angle),
+                      log_norm(wp.k * self.loglik_photo(lh), solid_angle))
+
+    def ensure_weights(self, seed: int = 0) -> None:
+        """The cues' weights, where no search set them (a light whose direction is given):
+        from the search's coarse grid."""
+        if self.weights is None:
+            cfg = self.settings
+            coarse = hemisphere(cfg.n_light_candidates, self.fp.up, cfg.search.min_elevation_deg)
+            sf, (_, lh_blocks), _, _ = self.suns_any_size(coarse)
+            self.set_weights(coarse, np.full(len(coarse), 2 * math.pi / len(coarse)), sf.blocks, lh_blocks, seed)
 
     def set_photo_noise(self, lh_best: float) -> None:
         """The photometric fit's noise: the one the best candidate's held-out loss
@@ -230,23 +295,34 @@ class _Scorer:
         does), over every kind of light scored, so that a lamp whose pool of light the
         support shows is not judged at the noise of the suns that cannot explain it."""
         self.photo_s2 = max(2.0 * float(lh_best), (self.settings.solver.sigma_floor) ** 2)
+        self.lh_ref = float(lh_best)
 
-    def loglik_photo(self, lh, lh_ref: float) -> np.ndarray:
+    def loglik_photo(self, lh) -> np.ndarray:
         """(K,) the photometric log-likelihoods of held-out losses ``lh`` (per pixel, over
         the data scale squared: half a squared residual where it is small) relative to
-        ``lh_ref``, each held-out block ``search.photo_weight`` observations, at the noise
-        of ``set_photo_noise`` (not set: the best of ``lh``'s)."""
+        the best candidate's (``set_photo_noise``: a common reference, so that separate
+        calls compare), each held-out block ``search.photo_weight`` observations, at the
+        noise of ``set_photo_noise`` (not set: the best of ``lh``'s)."""
         lh = np.asarray(lh, np.float64)
         if self.photo_s2 is None:
             self.set_photo_noise(float(lh.min()))
         n = self.blocks * self.settings.search.photo_weight
-        return -n * (lh - lh_ref) / (2.0 * self.photo_s2)
+        return -n * (lh - self.lh_ref) / (2.0 * self.photo_s2)
 
-    def loglik(self, sfit, lh, lh_ref: float):
-        """((K,) the summed log-likelihood, (K,) its photometric part): the photometric
-        one relative to ``lh_ref`` (a common reference, so that separate calls compare)."""
-        ll_photo = self.loglik_photo(lh, lh_ref)
-        return sfit.loglik + ll_photo, ll_photo
+    def loglik(self, sfit, lh):
+        """((K,) the cues' weighted log-likelihoods summed, (K,) the photometric part
+        unweighted)."""
+        ll_photo = self.loglik_photo(lh)
+        return self.weighted(sfit.loglik, ll_photo), ll_photo
+
+    def weighted(self, ll_shadow, ll_photo) -> np.ndarray:
+        """The two cues' log-likelihoods, each at its weight and gated
+        (``cueweight.gated``, ``search.gate``), summed (the weights set first:
+        ``ensure_weights``)."""
+        self.ensure_weights()
+        g = self.settings.search.gate
+        (ws, wp), (zs, zp) = self.weights, self.norms
+        return gated(ws.k * np.asarray(ll_shadow), g, zs) + gated(wp.k * np.asarray(ll_photo), g, zp)
 
 
 def _shadow_area_blocks(rec, V) -> np.ndarray:
@@ -293,6 +369,50 @@ def caster_anchor(pp: Prepared, evidence, cfg) -> np.ndarray:
     return np.median(mesh.points[mesh.base & (mesh.labels == best)], 0)
 
 
+@dataclass(frozen=True)
+class Scored:
+    """The search's unweighted scores over its posterior's directions (K): the sun's
+    shadow and photometric log-likelihoods (``sun_shadow``, ``sun_photo`` (K,)), and per
+    direction the lamps scored along it (``lamps``: K lists of (distance index, shadow,
+    photometric)). What the cues' weights, the gate and the temperature turn into a
+    posterior (``weighted_marginal``), so that another gate or temperature can be tried
+    without scoring again (``benchmarks/fit_light_constants.py``)."""
+
+    sun_shadow: np.ndarray
+    sun_photo: np.ndarray
+    lamps: tuple
+
+    def norms(self, weights, solid_angle) -> tuple[float, float]:
+        """Each weighted cue's log normaliser over the directions (the sun's, each
+        standing for ``solid_angle``): what makes it a density (``cueweight.gated``)."""
+        ws, wp = weights
+        return log_norm(ws.k * self.sun_shadow, solid_angle), log_norm(wp.k * self.sun_photo, solid_angle)
+
+
+def weighted_marginal(scored: Scored, weights, gate: float, T: float, log_opt_prior,
+                      solid_angle) -> tuple[np.ndarray, np.ndarray]:
+    """Per direction: the likelihood marginalised over the options scored (the sun, and
+    each lamp of ``scored.lamps``), each cue at its weight (``weights``: shadow,
+    photometric ``CueWeight``) and gated (``cueweight.gated``: each a density over the
+    sun's directions, each standing for ``solid_angle``); and the best option (-1 the
+    sun, else the lamp's distance index). The options' prior (``log_opt_prior``: the
+    sun's, then each distance's) enters at the posterior's temperature ``T`` (log p
+    times T here)."""
+    (ws, wp), (zs, zp) = weights, scored.norms(weights, solid_angle)
+    ll_sun = gated(ws.k * scored.sun_shadow, gate, zs) + gated(wp.k * scored.sun_photo, gate, zp)
+    marg = np.empty(len(ll_sun))
+    best = np.full(len(ll_sun), -1)
+    for i, ls in enumerate(ll_sun):
+        terms = [(-1, ls + T * log_opt_prior[0])]
+        for j, a, b in scored.lamps[i]:
+            v = gated(ws.k * a, gate, zs) + gated(wp.k * b, gate, zp)
+            terms.append((j, float(v) + T * log_opt_prior[1 + j]))
+        vals = np.array([t for _, t in terms])
+        marg[i] = T * np.logaddexp.reduce(vals / T)
+        best[i] = terms[int(np.argmax(vals))][0]
+    return marg, best
+
+
 def _drawn(post: DirectionPosterior, opts: np.ndarray, anchor, dists, cfg) -> tuple[tuple, float, np.ndarray | None]:
     """Step 6: the lights drawn -- (((``FitLight``, share) per mode of ``post``,
     heaviest first), the modes' mass, the rest's sky SH or None). Each mode is a sun or a
@@ -322,7 +442,9 @@ def search(pp: Prepared, settings: LightConfig, seed: int = 0) -> tuple[Search, 
     ``lamp_distances_rel`` along it from the caster's base: a priori a sun and a lamp
     alike; the lamps scored are those an unshadowed photometric screen of every
     direction and distance ranks among the ``lamp_top`` best, and those along the
-    ``lamp_top`` best suns; a lamp not scored counts as unlikely)."""
+    ``lamp_top`` best suns; a lamp not scored counts as unlikely). Each cue at its own
+    weight (``cueweight``): read off the coarse grid to steer the lamps and the
+    refinement, then off the posterior's own grid for the posterior."""
     fp = pp.fp
     cfg = settings.search
     T = cfg.temperature
@@ -336,87 +458,76 @@ def search(pp: Prepared, settings: LightConfig, seed: int = 0) -> tuple[Search, 
     dists = float(np.median(np.linalg.norm(pts, axis=1))) * np.asarray(cfg.lamp_distances_rel, np.float64)
     anchor = caster_anchor(pp, ev, settings.evidence)
 
-    def suns(dirs, scored=None):
-        """Per direction: the sun's log-likelihood, its photometric part, the ratio, the
-        shadow's blocks, the shadow part (``scored``: ``sc.suns_any_size(dirs)`` when
-        already run)."""
-        sf, lh, _, V = sc.suns_any_size(dirs) if scored is None else scored
-        ll_sun, ll_ph = sc.loglik(sf, lh, lh_ref)
-        return ll_sun, ll_ph, sf.ratio, _shadow_area_blocks(sc.rec, V), sf.loglik
-
     def lamps(positions):
+        """(shadow, photometric) log-likelihoods of lamps at ``positions``, unweighted."""
         sl, lhl, _ = sc.lamps(np.asarray(positions, np.float64).reshape(-1, 3))
-        return sc.loglik(sl, lhl, lh_ref)[0]
-
-    def marginal(ll_sun, lamp_ll):
-        """Per direction: the likelihood marginalised over the options scored (the sun,
-        and each (distance index, log-likelihood) of ``lamp_ll``: a list per direction),
-        and the best option (-1 the sun). The options' prior enters at the posterior's
-        temperature (log p times T here)."""
-        marg = np.empty(len(ll_sun))
-        best = np.full(len(ll_sun), -1)
-        for i, ls in enumerate(ll_sun):
-            terms = [(-1, ls + T * log_opt_prior[0])]
-            terms += [(j, v + T * log_opt_prior[1 + j]) for j, v in lamp_ll[i]]
-            vals = np.array([t for _, t in terms])
-            marg[i] = T * np.logaddexp.reduce(vals / T)
-            best[i] = terms[int(np.argmax(vals))][0]
-        return marg, best
+        return sl.loglik, sc.loglik_photo(lhl)
 
     coarse = hemisphere(settings.n_light_candidates, up, cfg.min_elevation_deg)
-    scored_c = sc.suns_any_size(coarse)
+    omega = np.full(len(coarse), 2 * math.pi / len(coarse))
+    sf_c, (lh_c, lhb_c), _, V_c = sc.suns_any_size(coarse)
     # the lamps worth scoring: every (direction, distance) screened by its unshadowed
     # photometric fit plus the sun's shadow along that direction; the LAMP_TOP best, and
     # the lamps along the LAMP_TOP best suns
     K, nd = len(coarse), len(dists)
     Q = anchor[None, None] + dists[None, :, None] * coarse[:, None, :]
-    C0 = at.lamp_columns(fp, Q.reshape(-1, 3))
-    lh0 = sc.photo_losses(C0, iters=cfg.screen_iters)
+    lh0 = sc.photo_losses(at.lamp_columns(fp, Q.reshape(-1, 3)), iters=cfg.screen_iters)
     # the photometric noise and reference: the best candidate's, sun or lamp
-    lh_ref = float(min(scored_c[1].min(), lh0.min()))
-    sc.set_photo_noise(lh_ref)
-    ll_sun_c, llp, ratio_c, area_c, llsh_c = suns(coarse, scored_c)
+    sc.set_photo_noise(float(min(lh_c.min(), lh0.min())))
+    # each cue's weight off the coarse grid (where they are used: the lamps screened and
+    # the refinement steered by them)
+    sc.set_weights(coarse, omega, sf_c.blocks, lhb_c, seed, measure=cfg.cue_weights)
+    ph_c = sc.loglik_photo(lh_c)
     prior_c = log_elevation_prior(coarse, up, cfg.elevation_prior_power)
-    screen = (llsh_c[:, None] + sc.loglik_photo(lh0, lh_ref).reshape(K, nd)) / T + prior_c[:, None]
+    screen = sc.weighted(sf_c.loglik[:, None], sc.loglik_photo(lh0).reshape(K, nd)) / T + prior_c[:, None]
     pairs = {tuple(int(v) for v in np.unravel_index(i, (K, nd))) for i in np.argsort(-screen.ravel())[:cfg.lamp_top]}
-    for i in np.argsort(-(ll_sun_c / T + prior_c))[:cfg.lamp_top]:
+    for i in np.argsort(-(sc.weighted(sf_c.loglik, ph_c) / T + prior_c))[:cfg.lamp_top]:
         pairs |= {(int(i), j) for j in range(nd)}
     pairs = sorted(pairs)
-    ll_pairs = lamps(np.array([Q[i, j] for i, j in pairs])) if pairs else np.zeros(0)
-    lamp_ll = [[] for _ in range(K)]
-    for (i, j), v in zip(pairs, ll_pairs):
-        lamp_ll[i].append((j, float(v)))
-    marg, option = marginal(ll_sun_c, lamp_ll)
-    omega = np.full(len(coarse), 2 * math.pi / len(coarse))
+    sh_l, ph_l = lamps(np.array([Q[i, j] for i, j in pairs])) if pairs else (np.zeros(0), np.zeros(0))
+    lamp_c = [[] for _ in range(K)]
+    for (i, j), a, b in zip(pairs, sh_l, ph_l):
+        lamp_c[i].append((j, float(a), float(b)))
+    marg, option = weighted_marginal(Scored(sf_c.loglik, ph_c, tuple(lamp_c)), sc.weights, cfg.gate, T, log_opt_prior,
+                                     omega)
     # the refinement: a finer spiral around the best, standing for its cap's share
     ib = int(np.argmax(marg / T + prior_c))
     best = coarse[ib]
     cap = 1.5 * spacing_deg(2 * settings.n_light_candidates)
     fine = fine_spiral(best, cap, cfg.refine_directions, up=up)
     fine = fine[fine @ up > math.sin(math.radians(cfg.min_elevation_deg))]
-    ll_sun_f, llp_f, r_f, a_f, sh_f = suns(fine)
+    sf_f, (lh_f, lhb_f), _, V_f = sc.suns_any_size(fine)
+    ph_f = sc.loglik_photo(lh_f)
     if option[ib] >= 0:  # the best option a lamp: its distance along the fine directions
-        ll_lf = lamps(anchor[None] + dists[option[ib]] * fine)
-        m_f, opt_f = marginal(ll_sun_f, [[(int(option[ib]), float(v))] for v in ll_lf])
+        sh_lf, ph_lf = lamps(anchor[None] + dists[option[ib]] * fine)
+        lamp_f = [[(int(option[ib]), float(a), float(b))] for a, b in zip(sh_lf, ph_lf)]
     else:
-        m_f, opt_f = marginal(ll_sun_f, [[] for _ in fine])
+        lamp_f = [[] for _ in fine]
     inside = coarse @ best >= math.cos(math.radians(cap))
     cap_area = float(omega[inside].sum())
     dirs = np.concatenate([coarse[~inside], fine])
     om = np.concatenate([omega[~inside], np.full(len(fine), cap_area / len(fine))])
-    post = DirectionPosterior.from_parts(dirs, np.concatenate([marg[~inside], m_f]),
-                                         log_elevation_prior(dirs, up, cfg.elevation_prior_power), om, T)
-    opts = np.concatenate([option[~inside], opt_f])
+    # the cues' weights again, off the posterior's own grid (the refinement tells what the
+    # coarse grid could not: whether the best direction holds within its cell)
+    sc.set_weights(dirs, om, np.concatenate([sf_c.blocks[:, ~inside], sf_f.blocks], 1),
+                   np.concatenate([lhb_c[:, ~inside], lhb_f], 1), seed)
+    scored = Scored(np.concatenate([sf_c.loglik[~inside], sf_f.loglik]), np.concatenate([ph_c[~inside], ph_f]),
+                    tuple(x for x, out in zip(lamp_c, inside) if not out) + tuple(lamp_f))
+    sc.norms = scored.norms(sc.weights, om)
+    marg, opts = weighted_marginal(scored, sc.weights, cfg.gate, T, log_opt_prior, om)
+    post = DirectionPosterior.from_parts(dirs, marg, log_elevation_prior(dirs, up, cfg.elevation_prior_power), om, T)
     drawn, mode_mass, rest_sh = _drawn(post, opts, anchor, dists, cfg)
     i_map = int(np.argmax(post.log_post))
     k = int(opts[i_map])
     best_light = (FitLight("sun", post.dirs[i_map], None, np.zeros(0)) if k < 0 else
                   FitLight("lamp", anchor + dists[k] * post.dirs[i_map], None, np.zeros(0)))
-    return Search(posterior=post, ll_shadow=np.concatenate([llsh_c[~inside], sh_f]),
-                  ll_photo=np.concatenate([llp[~inside], llp_f]), ratio=np.concatenate([ratio_c[~inside], r_f]),
-                  shadow_blocks=np.concatenate([area_c[~inside], a_f]), light=drawn[0], evidence=ev,
-                  receivers=sc.rec, map_light=best_light, anchor=anchor,
-                  modes=drawn, mode_mass=mode_mass, rest_sh=rest_sh), sc
+    return Search(posterior=post, ll_shadow=scored.sun_shadow, ll_photo=scored.sun_photo,
+                  ratio=np.concatenate([sf_c.ratio[~inside], sf_f.ratio]),
+                  shadow_blocks=np.concatenate([_shadow_area_blocks(sc.rec, V_c)[~inside],
+                                                _shadow_area_blocks(sc.rec, V_f)]),
+                  light=drawn[0], evidence=ev, receivers=sc.rec, map_light=best_light, anchor=anchor,
+                  modes=drawn, mode_mass=mode_mass, rest_sh=rest_sh, weights=sc.measured, scored=scored,
+                  log_opt_prior=log_opt_prior), sc
 
 
 def choose_size(pp: Prepared, sc: _Scorer, light: FitLight, settings: LightConfig, seed: int,
@@ -424,9 +535,9 @@ def choose_size(pp: Prepared, sc: _Scorer, light: FitLight, settings: LightConfi
     """Step 4: a light's size, one rule for every sun and lamp whose size is not given:
     its angular radius seen from the caster's base (``anchor``; a sun's is the same from
     everywhere) among the Sun's own (``SUN_RADIUS_DEG``, the default) and
-    ``search.radii_deg``, the one whose cone-averaged shadow has the largest summed
-    log-likelihood -- unless the default is within one unit of tempered log-likelihood of
-    it (the pixels cannot tell: the default stays, a bulb's ``LAMP_RADIUS_M`` for a
+    ``search.radii_deg``, the most probable by its cone-averaged shadow's tempered
+    log-likelihood, a priori the default and another size alike (``chosen_radius``:
+    where the pixels cannot tell, the default stays, a bulb's ``LAMP_RADIUS_M`` for a
     lamp). The width of a shadow's soft edge against its caster's distance is what tells
     the radii apart (a light's size is the penumbra's, never the direction's doubt). A
     lamp's radius in metres covers that angle at its distance from ``anchor``. The
@@ -452,7 +563,11 @@ def chosen_radius(sc: _Scorer, light: FitLight, anchor, settings: LightConfig, s
     for ``light`` (``Origin.DEFAULT`` where the likelihoods cannot tell the radii apart,
     ``Origin.SHADOWS`` where they chose it). A sun's candidates are suns of each radius; a
     lamp's, lamps at its place whose radius covers each angle at its distance, scored on
-    their own shadows and columns (a big lamp's pool of light is not a bulb's)."""
+    their own shadows and columns (a big lamp's pool of light is not a bulb's). The most
+    probable radius at the posterior's temperature, a priori the default (the Sun's, a
+    bulb's) and another size alike, the others alike among themselves -- as a sun and a
+    lamp are in the search: another size must explain the shadows better than the
+    default by the log of their number."""
     radii = (SUN_RADIUS_DEG,) + tuple(r for r in settings.search.radii_deg if r != SUN_RADIUS_DEG)
     d = light_direction(light, anchor)
     dist = float(np.linalg.norm(np.asarray(light.param, np.float64) - np.asarray(anchor, np.float64)))
@@ -463,12 +578,13 @@ def chosen_radius(sc: _Scorer, light: FitLight, anchor, settings: LightConfig, s
         else:
             rm = LAMP_RADIUS_M if r == SUN_RADIUS_DEG else dist * math.tan(math.radians(r))
             sf, lh = sc.lamp_sized(light.param, rm, light.facing)
-        ll, _ = sc.loglik(sf, lh, 0.0)
-        scored.append((float(ll[0]) / settings.search.temperature, r))
-    best = max(scored, key=lambda x: x[0])
-    if best[0] - scored[0][0] < 1.0:
+        ll, _ = sc.loglik(sf, lh)
+        scored.append(float(ll[0]) / settings.search.temperature)
+    log_prior = np.log(np.array([0.5] + [0.5 / max(len(radii) - 1, 1)] * (len(radii) - 1)))
+    i = int(np.argmax(np.asarray(scored) + log_prior))
+    if i == 0:
         return SUN_RADIUS_DEG, Origin.DEFAULT
-    return float(best[1]), Origin.SHADOWS
+    return float(radii[i]), Origin.SHADOWS
 
 
 def sized(pp: Prepared, light: FitLight, radius_deg: float, origin: Origin, settings: LightConfig, seed: int,
@@ -544,5 +660,5 @@ def split_from_shadows(sc: "_Scorer", light: FitLight) -> tuple[float, float]:
     return _shrunk_share(rho, n_eff, sigma, cfg), n_eff
 
 
-__all__ = ["FitLight", "Search", "search", "search_scorer", "choose_size", "chosen_radius", "sized", "split_from_shadows",
-           "sun_column", "lamp_column", "log_elevation_prior"]
+__all__ = ["FitLight", "Search", "Scored", "search", "search_scorer", "choose_size", "chosen_radius", "sized",
+           "split_from_shadows", "sun_column", "lamp_column", "log_elevation_prior", "weighted_marginal"]

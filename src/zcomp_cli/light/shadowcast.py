@@ -157,6 +157,15 @@ class ShadowFit:
         mean = (self.weight[:, None] * self.resid ** 2).sum(0) / max(float(self.weight.sum()), 1e-12)
         return -0.5 * self.blocks * mean / sig ** 2
 
+    def block_loglik(self, sigma: float, ids: np.ndarray, n: int) -> np.ndarray:
+        """(n, K) ``loglik``'s share of each block: the receivers' terms summed by their
+        block ``ids`` (R,) in 0..n-1 (``cueweight.block_ids``); the rows sum to ``loglik``."""
+        from zcomp_cli.light.cueweight import block_sums
+
+        sig = max(float(sigma), self.sigma_min)
+        terms = self.weight[:, None] * self.resid ** 2 / max(float(self.weight.sum()), 1e-12)
+        return block_sums(-0.5 * self.blocks * terms / sig ** 2, ids, n)
+
 
 def shadow_fit(rec: Receivers, V: np.ndarray, cfg: SearchConfig) -> ShadowFit:
     """Fit ``log s ~ X beta + c (1 - V)`` for every candidate column of ``V`` (R, K)

@@ -263,7 +263,22 @@ def score_candidates(base: np.ndarray, cands: np.ndarray, y: np.ndarray, train: 
                      sigma: float | None = None, iters: int | None = None,
                      cfg: SolverConfig | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Held-out and training loss of ``y`` (N,) fitted on ``base`` (N, B) plus each
-    candidate column of ``cands`` (N, K), for K candidates at once.
+    candidate column of ``cands`` (N, K), for K candidates at once: the means of
+    ``candidate_losses`` over the held-out pixels (none held out: the training ones) and
+    over the training pixels."""
+    loss = candidate_losses(base, cands, y, train, sigma=sigma, iters=iters, cfg=cfg)
+    tr = np.asarray(train, bool)
+    held = ~tr
+    lh = loss[held].mean(0) if held.any() else loss[tr].mean(0)
+    return lh, loss[tr].mean(0)
+
+
+def candidate_losses(base: np.ndarray, cands: np.ndarray, y: np.ndarray, train: np.ndarray, *,
+                     sigma: float | None = None, iters: int | None = None,
+                     cfg: SolverConfig | None = None) -> np.ndarray:
+    """(N, K) each pixel's loss of ``y`` (N,) fitted on ``base`` (N, B) plus each
+    candidate column of ``cands`` (N, K), for K candidates at once, over the data scale
+    squared.
 
     The same Huber IRLS as ``fit`` on the training pixels, by batched normal equations,
     every candidate at the one scale ``sigma`` (None: the base's robust fit's), so that
@@ -273,8 +288,7 @@ def score_candidates(base: np.ndarray, cands: np.ndarray, y: np.ndarray, train: 
     the development seeds, the search lost 0.06-0.35 dB: docs/physical.md). A negative
     candidate weight is clamped to 0 (no negative light); a negative base weight is
     left (the base's non-negativity is ``fit``'s business: here only the ranking of
-    candidates matters). Returns (held-out loss (K,), training loss (K,)), over the data
-    scale squared.
+    candidates matters).
     """
     cfg = SolverConfig() if cfg is None else cfg
     B = np.asarray(base, np.float64)
@@ -318,10 +332,7 @@ def score_candidates(base: np.ndarray, cands: np.ndarray, y: np.ndarray, train: 
         r = yt[:, None] - Bt @ coef[:, :nb].T - Dt * coef[:, nb][None]
         w = _huber_w(np.abs(r), cfg.huber_c * sigma)
     r = y[:, None] - B @ coef[:, :nb].T - D * coef[:, nb][None]
-    loss = huber_weights(r, sigma, cfg.huber_c)[1] / scale ** 2
-    held = ~tr
-    lh = loss[held].mean(0) if held.any() else loss[tr].mean(0)
-    return lh, loss[tr].mean(0)
+    return huber_weights(r, sigma, cfg.huber_c)[1] / scale ** 2
 
 
 def base_sigma(B: np.ndarray, y: np.ndarray, ridge: np.ndarray | None = None,
@@ -344,4 +355,5 @@ def base_sigma(B: np.ndarray, y: np.ndarray, ridge: np.ndarray | None = None,
     return s
 
 
-__all__ = ["Atom", "base_sigma", "FitResult", "fit", "score_candidates", "solve_spd", "huber_weights", "robust_scale"]
+__all__ = ["Atom", "base_sigma", "FitResult", "fit", "score_candidates", "candidate_losses", "solve_spd", "huber_weights",
+           "robust_scale"]

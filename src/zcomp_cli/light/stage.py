@@ -42,8 +42,9 @@ from zcomp_cli.scene.lightparams import LightParams
 # sky visibility weighed by its map, not its order-2 SH: issue 48. 4: the scene's specular
 # layer by its roughness, the offset growing toward grazing views, not one albedo offset:
 # issue 48. 5: a searched light drawn as its posterior's modes at its own size, never
-# widened to its doubt: issue 47.)
-FORMAT = 5
+# widened to its doubt: issue 47. 6: each cue at the weight its own blocks bear out, and
+# gated: issue 47.)
+FORMAT = 6
 # Fits kept in memory (per process): a batch visits its scenes in order, so a few are
 # enough; each holds the posterior and the evidence's small maps.
 KEEP_IN_MEMORY = 8

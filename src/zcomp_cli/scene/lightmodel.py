@@ -302,7 +302,13 @@ class FitSummary:
     light's direction (its light drawn as more than one of its posterior's modes);
     ``modes``: the searched light's modes as drawn, heaviest first (``kind`` sun or
     lamp, ``toward`` its direction from the support's caster, ``share`` of the drawn
-    light)."""
+    light); ``cue_weights``: each cue's weight in the search, read off the case's own
+    blocks (``shadow``, ``photometric``: ``k`` the likelihood's power, ``coverage``,
+    ``blocks``, whether it was ``applied``: ``search.cue_weights``; ``light/cueweight.py``),
+    empty where no direction was searched;
+    ``sky_share``: the sun/sky split the fit tied the key light to (the sky's share of
+    the support's light: read off the shadows where ``shadow_blocks`` > 0, else the
+    prior's; nan where no split was tied)."""
 
     shadow_blocks: float = float("nan")
     uncertainty_deg: float = float("nan")
@@ -312,17 +318,22 @@ class FitSummary:
     note: str = ""
     unfixed: bool = False
     modes: tuple = ()
+    cue_weights: dict = field(default_factory=dict)
+    sky_share: float = float("nan")
 
     def to_info(self) -> dict:
         return {"shadow_blocks": self.shadow_blocks, "direction_uncertainty_deg": self.uncertainty_deg,
                 "residual": self.residual, "fit_pixels": self.pixels, "exposure": self.exposure, "note": self.note,
-                "unfixed": self.unfixed, "modes": [dict(m) for m in self.modes]}
+                "unfixed": self.unfixed, "modes": [dict(m) for m in self.modes],
+                "cue_weights": {k: dict(v) for k, v in self.cue_weights.items()}, "sky_share": self.sky_share}
 
     @classmethod
     def from_info(cls, d: dict) -> "FitSummary":
         return cls(shadow_blocks=d["shadow_blocks"], uncertainty_deg=d["direction_uncertainty_deg"],
                    residual=d["residual"], pixels=d["fit_pixels"], exposure=d["exposure"], note=d["note"],
-                   unfixed=d["unfixed"], modes=tuple(dict(m) for m in d.get("modes", ())))
+                   unfixed=d["unfixed"], modes=tuple(dict(m) for m in d.get("modes", ())),
+                   cue_weights={k: dict(v) for k, v in d.get("cue_weights", {}).items()},
+                   sky_share=float(d.get("sky_share", float("nan"))))
 
 
 @dataclass(frozen=True, kw_only=True)
