@@ -9,7 +9,12 @@ import numpy as np
 import pytest
 
 from zcomp_cli.light import cueweight as cw
+from zcomp_cli.light.config import SearchConfig
 from zcomp_cli.scene.sampling import hemisphere
+
+
+CFG = SearchConfig()
+K_LO, K_HI = CFG.weight_range
 
 
 def _grid(n=256):
@@ -49,8 +54,8 @@ def test_blocks_that_agree_keep_the_cues_weight():
     dirs, lp, om = _grid()
     one = _peaked(dirs, (0.5, 1.0, 0.2), 3.0)
     LL = np.stack([one * (1.0 + 0.05 * i) for i in range(20)])
-    w = cw.cue_weight(LL, lp, om, dirs)
-    assert w.k == pytest.approx(cw.K_HI) and w.coverage >= cw.LEVEL and w.blocks == 20
+    w = cw.cue_weight(LL, lp, om, dirs, CFG)
+    assert w.k == pytest.approx(K_HI) and w.coverage >= CFG.weight_level and w.blocks == 20
 
 
 def test_blocks_that_disagree_take_the_weight_away():
@@ -59,10 +64,10 @@ def test_blocks_that_disagree_take_the_weight_away():
     dirs, lp, om = _grid()
     rng = np.random.default_rng(3)
     LL = np.stack([_peaked(dirs, dirs[rng.integers(len(dirs))], 20.0) for _ in range(24)])
-    w = cw.cue_weight(LL, lp, om, dirs)
-    assert w.k < 0.1 and w.coverage >= cw.LEVEL
+    w = cw.cue_weight(LL, lp, om, dirs, CFG)
+    assert w.k < 0.1 and w.coverage >= CFG.weight_level
     # the same blocks agreeing get more weight than disagreeing: the weight orders them
-    agree = cw.cue_weight(np.stack([LL.sum(0) / 24] * 24), lp, om, dirs)
+    agree = cw.cue_weight(np.stack([LL.sum(0) / 24] * 24), lp, om, dirs, CFG)
     assert agree.k > 10 * w.k
 
 
@@ -70,17 +75,17 @@ def test_the_weight_is_deterministic_and_checks_its_input():
     dirs, lp, om = _grid(64)
     rng = np.random.default_rng(0)
     LL = rng.normal(size=(10, len(dirs)))
-    assert cw.cue_weight(LL, lp, om, dirs, seed=4) == cw.cue_weight(LL, lp, om, dirs, seed=4)
+    assert cw.cue_weight(LL, lp, om, dirs, CFG, seed=4) == cw.cue_weight(LL, lp, om, dirs, CFG, seed=4)
     # one block: nothing to resample -- the floor
-    assert cw.cue_weight(LL[:1], lp, om, dirs).k == cw.K_LO
+    assert cw.cue_weight(LL[:1], lp, om, dirs, CFG).k == K_LO
     # NaN in a block's terms: the floor, not a NaN weight
     bad = LL.copy()
     bad[2, 5] = np.nan
-    assert cw.cue_weight(bad, lp, om, dirs).k == cw.K_LO
+    assert cw.cue_weight(bad, lp, om, dirs, CFG).k == K_LO
     with pytest.raises(ValueError, match="agree"):
-        cw.cue_weight(LL[:, :-1], lp, om, dirs)
+        cw.cue_weight(LL[:, :-1], lp, om, dirs, CFG)
     with pytest.raises(ValueError, match="positive"):
-        cw.cue_weight(LL, lp, np.zeros_like(om), dirs)
+        cw.cue_weight(LL, lp, np.zeros_like(om), dirs, CFG)
 
 
 def test_the_gate_mixes_a_cues_density_with_the_uniform():

@@ -58,7 +58,22 @@ class SearchConfig:
                                               "(benchmarks/fit_light_constants.py, docs/fit_light_constants.txt)")
     cue_weights: bool = knob(False, "fitted", "weigh each cue by the power its own blocks bear out (cueweight) "
                                               "before the temperature: off, as the calibration's log score chose "
-                                              "(the weights are measured and reported either way)")
+                                              "(fit_light_constants.py; the weights are measured and reported "
+                                              "either way)")
+    weight_level: float = knob(0.68, "statistical", "a cue's weight holds its own best direction in its highest-"
+                                                   "density set of this mass in as many of the resamples: the "
+                                                   "audit's 68 % cone, one sigma (cueweight)", hi=1.0)
+    weight_resamples: int = knob(128, "sampling", "block-bootstrap resamples per cue: the coverage's standard error "
+                                                 "at 68 % is 4 %, under the weights' step (cueweight)", hi=10000)
+    weight_blocks: int = knob(4, "sampling", "the units a cue's weight resamples: the frame in this many blocks of "
+                                            "its long side, longer than a shadow edge's or a fall-off's "
+                                            "correlation, which run across several of the fit's own 12 (cueweight)",
+                              hi=64)
+    weight_range: tuple = knob((1e-3, 1.0), "physical", "the weights tried (log-spaced): at most 1, each block one "
+                                                       "independent observation (the most a block's correlated pixels "
+                                                       "are worth); at least 1e-3, flat on any grid the search uses",
+                               hi=1.0)
+    weight_steps: int = knob(31, "sampling", "the weights tried between the two of weight_range", hi=1000)
     gate: float = knob(0.0, "fitted", "each cue, as a density over the hemisphere, is mixed with the uniform by this "
                                      "much: the chance that it is misled (cueweight.gated; the best mean log score, "
                                      "fit_light_constants.py --gate-grid)", lo=0.0, lo_open=False, hi=0.5)

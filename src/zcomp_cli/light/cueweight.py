@@ -8,12 +8,13 @@ wrong where casters stand in the frame, and the only witness on a bare floor. On
 temperature for every case cannot be right for both.
 
 The blocks are the independent units, so the case's own data say how far a cue can be
-trusted: resampled block by block (the block bootstrap), a cue whose blocks agree keeps
-its best direction, and one whose blocks disagree moves it. A cue's weight ``k`` is the
-largest for which the posterior it states -- ``prior x likelihood ** k`` over the
-direction grid -- holds its own best direction (the full data's) within its 68 %
-highest-density set in at least 68 % of the resamples: general posterior calibration (Syring and Martin
-2019, "Calibrating general posterior credible regions", Biometrika), whose local,
+trusted: resampled block by block (the block bootstrap; ``search.weight_blocks``), a
+cue whose blocks agree keeps its best direction, and one whose blocks disagree moves
+it. A cue's weight ``k`` is the largest for which the posterior it states -- ``prior x
+likelihood ** k`` over the direction grid -- holds its own best direction (the full
+data's) within its 68 % highest-density set in at least 68 % of the resamples
+(``search.weight_level``): general posterior calibration (Syring and Martin 2019,
+"Calibrating general posterior credible regions", Biometrika), whose local,
 Gaussian form is the composite likelihood's magnitude adjustment ``k = p / tr(H^-1 J)``
 (Ribatet, Cooley and Davison 2012). Unlike that local form it needs no derivative of a
 likelihood that is flat in one place and multimodal in another: on a bare floor the
@@ -39,24 +40,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-
-# The units resampled: the frame cut into this many blocks of its long side (16 blocks
-# over a 4:3 frame's 12). A block bootstrap's blocks must be longer than the residuals'
-# correlation: a shadow's edge, an albedo error, a floor's fall-off run across several of
-# the fit's own hold-out blocks (12 per side), so those agree with each other by what
-# they share.
-RESAMPLED_BLOCKS = 4
-# The stated cone the weight is calibrated on: the audit's 68 % cone (one sigma), the one
-# the issue's coverage target names.
-LEVEL = 0.68
-# Block-bootstrap resamples per cue: the coverage's standard error at 68 % is
-# sqrt(0.68 * 0.32 / 128) = 4 %, under the grid of weights' step.
-RESAMPLES = 128
-# The weights tried, log-spaced: from 1 (each block one independent observation -- the
-# most a block's correlated pixels can be worth) down to 1e-3 (a hundred blocks' cue
-# worth a tenth of one: flat on any grid the search uses).
-K_HI, K_LO, K_STEPS = 1.0, 1e-3, 31
-
 
 @dataclass(frozen=True)
 class CueWeight:
@@ -95,20 +78,20 @@ def block_sums(values: np.ndarray, ids: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
-def _coverage(LLb: np.ndarray, base: np.ndarray, log_om: np.ndarray, best: int, k: float) -> float:
+def _coverage(LLb: np.ndarray, base: np.ndarray, log_om: np.ndarray, best: int, k: float, level: float) -> float:
     """The share of resamples (rows of ``LLb`` (B, K)) whose posterior at weight ``k``
     (``base`` (K,) its log prior density plus ``log_om``, the log solid angles) holds the
-    direction ``best`` (an index) in its 68 % highest-density set: the mass of the
-    directions denser than it is under 68 %."""
+    direction ``best`` (an index) in its ``level`` highest-density set: the mass of the
+    directions denser than it is under ``level``."""
     a = k * LLb + base[None]
     p = np.exp(a - a.max(1, keepdims=True))
     p /= p.sum(1, keepdims=True)
     dens = a - log_om[None]
     above = (p * (dens > dens[:, best:best + 1] + 1e-12)).sum(1)
-    return float(np.mean(above < LEVEL))
+    return float(np.mean(above < level))
 
 
-def cue_weight(block_ll, log_prior, solid_angle, dirs, *, seed: int = 0) -> CueWeight:
+def cue_weight(block_ll, log_prior, solid_angle, dirs, cfg, *, seed: int = 0) -> CueWeight:
     """A cue's weight (module docstring).
 
     Args:
@@ -117,11 +100,14 @@ def cue_weight(block_ll, log_prior, solid_angle, dirs, *, seed: int = 0) -> CueW
         log_prior: (K,) the prior's log density (per steradian) at each direction.
         solid_angle: (K,) the solid angle (sr, > 0) each direction stands for.
         dirs: (K, 3) unit directions.
+        cfg: the search's config (``SearchConfig``: ``weight_level``,
+            ``weight_resamples``, ``weight_range``, ``weight_steps``).
         seed: the resampling's seed.
 
-    Returns the largest weight of the grid (``K_HI`` .. ``K_LO``) whose 68 %
-    highest-density set holds the full data's best direction in at least 68 % of the resamples (``K_LO``
-    where none does, or where there are fewer than two blocks to resample).
+    Returns the largest weight of the grid (``weight_range``'s top down to its bottom)
+    whose ``weight_level`` highest-density set holds the full data's best direction in
+    at least that share of the resamples (the bottom where none does, or where there
+    are fewer than two blocks to resample or a term is not finite).
     """
     LL = np.asarray(block_ll, np.float64)
     lp = np.asarray(log_prior, np.float64).reshape(-1)
@@ -133,19 +119,20 @@ def cue_weight(block_ll, log_prior, solid_angle, dirs, *, seed: int = 0) -> CueW
     if not np.all(om > 0):
         raise ValueError("cue_weight: solid angles must be positive")
     n = LL.shape[0]
+    k_lo, k_hi = (float(x) for x in cfg.weight_range)
     if n < 2 or not np.all(np.isfinite(LL)):
-        return CueWeight(K_LO, float("nan"), n)
+        return CueWeight(k_lo, float("nan"), n)
     base = lp + np.log(om)
     best = int(np.argmax(LL.sum(0)))
     rng = np.random.default_rng(seed)
-    W = rng.multinomial(n, np.full(n, 1.0 / n), size=RESAMPLES).astype(np.float64)
+    W = rng.multinomial(n, np.full(n, 1.0 / n), size=cfg.weight_resamples).astype(np.float64)
     LLb = W @ LL
     LLb -= LLb.max(1, keepdims=True)
-    for k in np.geomspace(K_HI, K_LO, K_STEPS):
-        cov = _coverage(LLb, base, np.log(om), best, float(k))
-        if cov >= LEVEL:
+    for k in np.geomspace(k_hi, k_lo, cfg.weight_steps):
+        cov = _coverage(LLb, base, np.log(om), best, float(k), cfg.weight_level)
+        if cov >= cfg.weight_level:
             return CueWeight(float(k), cov, n)
-    return CueWeight(K_LO, cov, n)
+    return CueWeight(k_lo, cov, n)
 
 
 def log_norm(ll, solid_angle) -> float:
@@ -176,5 +163,4 @@ def gated(ll, gate: float, log_z: float) -> np.ndarray:
     return np.logaddexp(math.log1p(-gate) + x, math.log(gate / (2.0 * math.pi)))
 
 
-__all__ = ["RESAMPLED_BLOCKS", "CueWeight", "block_ids", "block_sums", "cue_weight", "gated", "log_norm", "LEVEL",
-           "RESAMPLES"]
+__all__ = ["CueWeight", "block_ids", "block_sums", "cue_weight", "gated", "log_norm"]

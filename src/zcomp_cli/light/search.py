@@ -58,7 +58,7 @@ import numpy as np
 
 from zcomp_cli.light import atoms as at
 from zcomp_cli.light.config import LightConfig
-from zcomp_cli.light.cueweight import RESAMPLED_BLOCKS, CueWeight, block_ids, block_sums, cue_weight, gated, log_norm
+from zcomp_cli.light.cueweight import CueWeight, block_ids, block_sums, cue_weight, gated, log_norm
 from zcomp_cli.light.posterior import DirectionPosterior
 from zcomp_cli.light.prepare import Prepared
 from zcomp_cli.light.shadowcast import shadow_fit, sun_visibility
@@ -160,10 +160,10 @@ class _Scorer:
         self.lh_ref = 0.0  # the held-out loss the photometric log-likelihoods are relative to, likewise
         # the blocks each receiver and each held-out pixel lie in (the units the cues'
         # weights resample: cueweight)
-        self.rec_blocks = block_ids(self.rec.ys, self.rec.xs, pp.grid.mesh.shape, RESAMPLED_BLOCKS)
+        self.rec_blocks = block_ids(self.rec.ys, self.rec.xs, pp.grid.mesh.shape, settings.search.weight_blocks)
         held = ~fp.train if (~fp.train).any() else fp.train
         self.held = held
-        self.held_blocks = block_ids(fp.ys[held], fp.xs[held], fp.depth.shape, RESAMPLED_BLOCKS)
+        self.held_blocks = block_ids(fp.ys[held], fp.xs[held], fp.depth.shape, settings.search.weight_blocks)
         self.weights = None  # (shadow, photometric) CueWeight the cues are weighed by, set by set_weights
         self.measured = None  # and the ones their blocks bear out (the same where search.cue_weights is on)
         self.norms = (0.0, 0.0)  # each weighted cue's log normaliser over the grid (cueweight.gated)
@@ -269,8 +269,8 @@ class _Scorer:
         lp = log_elevation_prior(dirs, self.fp.up, self.settings.search.elevation_prior_power)
         ph_blocks = -self.blocks * self.settings.search.photo_weight * photo_blocks / (2.0 * self.photo_s2)
         if measure:
-            ws = cue_weight(shadow_blocks, lp, solid_angle, dirs, seed=seed)
-            wp = cue_weight(ph_blocks, lp, solid_angle, dirs, seed=seed)
+            ws = cue_weight(shadow_blocks, lp, solid_angle, dirs, self.settings.search, seed=seed)
+            wp = cue_weight(ph_blocks, lp, solid_angle, dirs, self.settings.search, seed=seed)
         else:
             ws, wp = (CueWeight(1.0, float("nan"), len(b)) for b in (shadow_blocks, ph_blocks))
         self.measured = (ws, wp)
