@@ -23,15 +23,18 @@ check them on whole generator families held out of the fit:
   (The grids are scored on the directions each case's search chose at the defaults:
   its lamp screening and refinement followed them.)
 
-The check: the cases of the held-out families (``--hold-out``: HDR maps, lamp kinds,
-object shapes; a case is held out when any of its families is) are never fitted on;
+The check: the cases of the held-out families (``--hold-out``: HDR maps, lamp kinds --
+SUN, AREA, or none for a scene the HDR map alone lights --, object shapes; a case is
+held out when any of its families is; default: the studio map, the area lamps, the
+chairs) are never fitted on;
 the script prints their mean log score at the chosen constants beside the fit cases',
 and per stratum (shadows shown / bare floor / lamp) the coverage of the stated 50, 68
 and 90 % cones (the share of cases whose true direction falls inside) on both.
 
     python benchmarks/fit_light_constants.py CALIB/1618 CALIB/7777 [...] \
         [--grid 5,8,12,16,20,25,30,40] [--gate-grid 0,0.01,0.1] [--prior-grid 0,0.5,1] \
-        [--hold-out hdr=city,studio lamp=SPOT,POINT shape=chair,vase] [--cache DIR]
+        [--hold-out hdr=studio lamp=AREA shape=chair] [--cache DIR] \
+        [--check BENCH_REPORT ...]
 
 Each CALIB is a ``make-benchmark`` folder (``gen_calibration.py`` makes them). A case's
 search is kept in ``--cache`` (keyed by the benchmark, the search's configuration and
@@ -215,9 +218,11 @@ def main(argv=None) -> int:
     ap.add_argument("--grid", default="5,8,12,16,20,25,30,40", help="temperatures to score")
     ap.add_argument("--gate-grid", default="0,0.01,0.1", help="gates to score")
     ap.add_argument("--prior-grid", default="0,0.5,1", help="elevation prior powers to score")
-    ap.add_argument("--hold-out", nargs="*", default=["hdr=city,studio", "lamp=POINT,SPOT", "shape=chair,vase"],
+    ap.add_argument("--hold-out", nargs="*", default=["hdr=studio", "lamp=AREA", "shape=chair"],
                     metavar="FAMILY=A,B", help="generator families held out of the fit (hdr, lamp, shape)")
     ap.add_argument("--cache", type=Path, default=None, help="keep each benchmark's searches here")
+    ap.add_argument("--check", nargs="*", type=Path, default=[], metavar="BENCH",
+                    help="benchmarks never fitted on (a report seed): scored at the chosen constants only")
     args = ap.parse_args(argv)
     import dataclasses
 
@@ -273,6 +278,11 @@ def main(argv=None) -> int:
             ls = [posterior_of(r, T, gate, power, weighed).log_density(r["truth"]) for r in sel]
             print(f"  {name}: n={len(sel)}, mean log score {statistics.mean(ls):.3f}")
             print("\n".join(coverage_lines(sel, T, gate, power, weighed)))
+    for b in args.check:
+        sel = case_searches(b, DEFAULTS, args.cache)
+        ls = [posterior_of(r, T, gate, power, weighed).log_density(r["truth"]) for r in sel]
+        print(f"  {b} (checked, not fitted on): n={len(sel)}, mean log score {statistics.mean(ls):.3f}")
+        print("\n".join(coverage_lines(sel, T, gate, power, weighed)))
     fitted = dataclasses.replace(SearchConfig(), prior_sky_share=round(share, 2),
                                  prior_sky_share_spread=round(spread, 2), temperature=T, gate=gate,
                                  elevation_prior_power=power, cue_weights=weighed)

@@ -168,8 +168,13 @@ def test_a_confident_shadow_is_one_light_and_a_vague_one_many_faint_ones():
     bare = _estimate(floor_scene(120, 90, light_dir=(0.7, 1.0, 0.2), ambient=0.3, sky_occlusion=True))
     assert len(crisp.suns) == 1 and not crisp.fit.unfixed and crisp.fit.modes[0]["share"] > 0.9
     assert len(bare.suns) + len(bare.lamps) > 1 and bare.fit.unfixed and bare.fit.modes[0]["share"] < 0.5
-    for m in (crisp, bare):
-        assert all(x.radius_deg < 2.0 for x in m.suns)
+    # the vague light is drawn at the Sun's size, never at its doubt's; the crisp one
+    # (a point sun) no wider than the depth mesh's caster lets its shadow be read: at
+    # this size the mesh's box casts a slightly different shadow than the true one, and
+    # a 4 deg cone fits that difference by one tempered unit (docs/design-notes.md,
+    # "The radius's margin moves with the temperature")
+    assert all(x.radius_deg < 2.0 for x in bare.suns)
+    assert all(x.radius_deg <= 4.0 for x in crisp.suns)
 
 
 @pytest.mark.parametrize("position", [(0.5, 1.5, -3.0), (1.5, 1.0, -2.5), (-1.0, 2.0, -4.0)])

@@ -53,7 +53,7 @@ class SearchConfig:
     """The direction search, its posterior and how it is drawn, the light's size and
     strength (``search``, ``shadowcast``)."""
 
-    temperature: float = knob(20.0, "fitted", "the posterior's one temperature over the cues' likelihoods: the best "
+    temperature: float = knob(25.0, "fitted", "the posterior's one temperature over the cues' likelihoods: the best "
                                               "mean log score of the true direction over the calibration cases "
                                               "(benchmarks/fit_light_constants.py, docs/fit_light_constants.txt)")
     cue_weights: bool = knob(False, "fitted", "weigh each cue by the power its own blocks bear out (cueweight) "
@@ -86,9 +86,9 @@ class SearchConfig:
                                               "block (its pixels are correlated: between one and the block's "
                                               "pixel count): the best mean log score with the temperature "
                                               "(fit_light_constants.py)")
-    prior_sky_share: float = knob(0.46, "fitted", "the sky's share of the support's light where the photograph does "
+    prior_sky_share: float = knob(0.52, "fitted", "the sky's share of the support's light where the photograph does "
                                                   "not tell it: the median true share (fit_light_constants.py)", lo=0.0, lo_open=False, hi=1.0)
-    prior_sky_share_spread: float = knob(0.23, "fitted", "that share's spread over the development cases: the "
+    prior_sky_share_spread: float = knob(0.15, "fitted", "that share's spread over the development cases: the "
                                                          "prior's weight against the shadows' measurement "
                                                          "(fit_light_constants.py)", hi=10.0)
     radii_deg: tuple = knob((0.0, 1.0, 2.0, 4.0, 8.0, 16.0), "sampling", "angular radii a sun's size is chosen "

@@ -27,9 +27,9 @@ light whose direction is free; each returns a dataclass; every constant is
    on hundreds of generated cases. A lamp is a sun with a distance: each direction's
    likelihood is marginalised over a sun and lamps along it from the caster's base;
 4. ``choose_size``: a light's size, one rule for every sun and lamp: the likelihoods of
-   its cone-averaged shadow among ``search.radii_deg`` and the Sun's own, a priori the
-   Sun's (a bulb's) and another alike, the Sun's where they cannot tell -- the
-   penumbra's width says it, never the direction's doubt;
+   its cone-averaged shadow among ``search.radii_deg`` and the Sun's own, the Sun's (a
+   bulb's) where they cannot tell -- the penumbra's width says it, never the
+   direction's doubt;
 5. ``split_from_shadows``: the sun/sky split from the shadows themselves (the
    shadowed/lit ratio across the edges of the most probable light's shadow, Madsen and
    Nielsen), shrunk toward the prior split by the tied shadow that measurement stands
@@ -535,9 +535,9 @@ def choose_size(pp: Prepared, sc: _Scorer, light: FitLight, settings: LightConfi
     """Step 4: a light's size, one rule for every sun and lamp whose size is not given:
     its angular radius seen from the caster's base (``anchor``; a sun's is the same from
     everywhere) among the Sun's own (``SUN_RADIUS_DEG``, the default) and
-    ``search.radii_deg``, the most probable by its cone-averaged shadow's tempered
-    log-likelihood, a priori the default and another size alike (``chosen_radius``:
-    where the pixels cannot tell, the default stays, a bulb's ``LAMP_RADIUS_M`` for a
+    ``search.radii_deg``, the one whose cone-averaged shadow has the largest summed
+    log-likelihood -- unless the default is within one unit of tempered log-likelihood of
+    it (the pixels cannot tell: the default stays, a bulb's ``LAMP_RADIUS_M`` for a
     lamp). The width of a shadow's soft edge against its caster's distance is what tells
     the radii apart (a light's size is the penumbra's, never the direction's doubt). A
     lamp's radius in metres covers that angle at its distance from ``anchor``. The
@@ -564,10 +564,8 @@ def chosen_radius(sc: _Scorer, light: FitLight, anchor, settings: LightConfig, s
     ``Origin.SHADOWS`` where they chose it). A sun's candidates are suns of each radius; a
     lamp's, lamps at its place whose radius covers each angle at its distance, scored on
     their own shadows and columns (a big lamp's pool of light is not a bulb's). The most
-    probable radius at the posterior's temperature, a priori the default (the Sun's, a
-    bulb's) and another size alike, the others alike among themselves -- as a sun and a
-    lamp are in the search: another size must explain the shadows better than the
-    default by the log of their number."""
+    likely radius, unless the default (the Sun's, a bulb's) is within one unit of it at
+    the posterior's temperature."""
     radii = (SUN_RADIUS_DEG,) + tuple(r for r in settings.search.radii_deg if r != SUN_RADIUS_DEG)
     d = light_direction(light, anchor)
     dist = float(np.linalg.norm(np.asarray(light.param, np.float64) - np.asarray(anchor, np.float64)))
@@ -580,9 +578,8 @@ def chosen_radius(sc: _Scorer, light: FitLight, anchor, settings: LightConfig, s
             sf, lh = sc.lamp_sized(light.param, rm, light.facing)
         ll, _ = sc.loglik(sf, lh)
         scored.append(float(ll[0]) / settings.search.temperature)
-    log_prior = np.log(np.array([0.5] + [0.5 / max(len(radii) - 1, 1)] * (len(radii) - 1)))
-    i = int(np.argmax(np.asarray(scored) + log_prior))
-    if i == 0:
+    i = int(np.argmax(scored))
+    if scored[i] - scored[0] < 1.0:
         return SUN_RADIUS_DEG, Origin.DEFAULT
     return float(radii[i]), Origin.SHADOWS
 
