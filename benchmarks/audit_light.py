@@ -16,6 +16,8 @@ manifest's working size, every valid pixel known), and the audit prints:
 * ``truth``: the kind of the dominant true light reaching the object's base (its
   direction: toward it from the base; an area lamp from the base to its centre), and
   whether the background shows its cast shadows (``run_benchmark.cast_shadows_shown``);
+  the posterior is scored at a lamp's direction from the point the search hangs its
+  lamps from (``search.caster_anchor``), as ``fit_light_constants.py`` scores it;
 * ``err``: the angle between the estimate's key direction and the dominant true light
   (for the cases that show cast shadows: the nearest light whose shadows are shown);
 * ``logp@true`` / ``logp@est``: the posterior's log density (per steradian) at the true
@@ -172,6 +174,13 @@ def audit_case(bench: Path, case: dict, truth: dict, settings=None) -> dict:
     row["radius_true"] = float(_true_radius_deg(ref, case))
     row["err_deg"] = angle_deg(est, true_dir) if est is not None else float("nan")
     if post is not None:
+        # (the posterior's directions are from the point the search hangs its lamps from:
+        # a lamp's true direction from there, as fit_light_constants.py scores it)
+        from fit_light_constants import true_direction
+
+        anchor = (getattr(res, "diagnostics", None) or {}).get("search_anchor")
+        if anchor is not None:
+            true_dir = true_direction(ref, anchor)
         row["logp_true"] = float(post.log_density(true_dir))
         row["logp_est"] = float(post.log_density(np.asarray(est))) if est is not None else float("nan")
         row["rank"] = int(post.rank(true_dir))

@@ -235,6 +235,7 @@ class SunTerm(_DirectTerm):
             ctx.search, sc = sr.search(ctx.pp, cfg, ctx.seed)
             ctx._scorer = sc
             ctx.diagnostics["evidence"] = ctx.search.evidence
+            ctx.diagnostics["search_anchor"] = ctx.search.anchor  # where its lamps' directions are from
             self.light, self.origin = ctx.search.light, Origin.SHADOWS
             self.modes = list(ctx.search.modes)
             return
