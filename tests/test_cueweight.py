@@ -140,3 +140,46 @@ def test_the_per_block_terms_sum_to_the_likelihoods():
     assert loss.shape == (80, 5)
     assert np.allclose(loss[~train].mean(0), lh) and np.allclose(loss[train].mean(0), lt)
     assert int(np.argmin(lh)) == 2
+
+
+def test_the_search_keeps_what_a_refit_needs_and_weighs_its_cues_when_asked():
+    """The search's unweighted scores (``Search.scored``) give back its own posterior
+    through ``weighted_marginal`` -- what ``fit_light_constants.py`` refits offline -- and
+    with the weights applied and a gate (off by default: the calibration's choice) the
+    fit runs through and reports them applied."""
+    import dataclasses
+
+    from zcomp_cli.light import search as sr
+    from zcomp_cli.light.config import DEFAULT_LIGHT
+    from zcomp_cli.light.posterior import DirectionPosterior
+    from zcomp_cli.light.prepare import prepare
+    from zcomp_cli.scene.frame import scene_up
+    from zcomp_cli.testing import estimate_light, floor_scene
+
+    s = floor_scene(120, 90, light_dir=(0.7, 1.0, 0.2), with_box=True, box_center=(-0.4, -3.2), ambient=0.3,
+                    sky_occlusion=True)
+    known = s.depth > 0
+    up, uf = scene_up(None, s.normals, known)
+    cfg = DEFAULT_LIGHT
+    pp = prepare(s.depth, s.normals, s.shading, known, s.albedo, s.camera, up, cfg)
+    res, _ = sr.search(pp, cfg)
+    post = res.posterior
+    marg, _ = sr.weighted_marginal(res.scored, (dataclasses.replace(res.weights[0], k=1.0),
+                                                dataclasses.replace(res.weights[1], k=1.0)),
+                                   cfg.search.gate, cfg.search.temperature, res.log_opt_prior, post.solid_angle)
+    again = DirectionPosterior.from_parts(post.dirs, marg, post.log_prior, post.solid_angle, cfg.search.temperature)
+    assert np.allclose(again.probabilities, post.probabilities, atol=1e-12)
+    assert all(0 < w.k <= 1 for w in res.weights)
+    on = dataclasses.replace(cfg, search=dataclasses.replace(cfg.search, cue_weights=True, gate=0.1))
+    m = estimate_light(s.depth, s.normals, s.shading, known, s.albedo, s.camera, up=up, up_from=uf, cfg=on)
+    assert np.all(np.isfinite(m.key_direction)) and abs(float(np.linalg.norm(m.key_direction)) - 1.0) < 1e-9
+    assert m.fit.cue_weights["shadow"]["applied"] and m.fit.cue_weights["photometric"]["applied"]
+    assert m.fit.modes and not cfg.search.cue_weights
+    # a light whose direction is given (no search): the weights measured off the
+    # search's coarse grid where they are to be applied, not scored where nothing uses them
+    _, sc = sr.search_scorer(pp, on)
+    sc.ensure_weights()
+    assert all(np.isfinite(w.coverage) and w.blocks >= 2 for w in sc.weights)
+    _, sc = sr.search_scorer(pp, cfg)
+    sc.ensure_weights()
+    assert all(w.k == 1.0 and w.blocks == 0 for w in sc.weights)

@@ -285,6 +285,13 @@ class _Scorer:
         from the search's coarse grid."""
         if self.weights is None:
             cfg = self.settings
+            if not cfg.search.cue_weights and cfg.search.gate == 0.0:
+                # nothing would use them: 1 each, and with no gate the normalisers shift
+                # every candidate alike (the same choices, without scoring a grid)
+                one = CueWeight(1.0, float("nan"), 0)
+                self.weights = self.measured = (one, one)
+                self.norms = (0.0, 0.0)
+                return
             coarse = hemisphere(cfg.n_light_candidates, self.fp.up, cfg.search.min_elevation_deg)
             sf, (_, lh_blocks), _, _ = self.suns_any_size(coarse)
             self.set_weights(coarse, np.full(len(coarse), 2 * math.pi / len(coarse)), sf.blocks, lh_blocks, seed)
