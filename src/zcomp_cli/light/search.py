@@ -254,7 +254,8 @@ class _Scorer:
         ids, n = self.held_blocks
         return lh, block_sums(loss / max(len(loss), 1), ids, n)
 
-    def set_weights(self, dirs, solid_angle, shadow_blocks, photo_blocks, seed: int = 0, measure: bool = True) -> None:
+    def set_weights(self, dirs, solid_angle, shadow_blocks, photo_blocks, seed: int = 0,
+                    measure: bool = True) -> None:
         """Each cue's weight (``cueweight.cue_weight``) over the directions ``dirs`` (K, 3),
         each standing for ``solid_angle`` (K,), from their per-block shadow
         log-likelihoods ``shadow_blocks`` (n, K) and held-out losses ``photo_blocks``
@@ -282,7 +283,8 @@ class _Scorer:
 
     def ensure_weights(self, seed: int = 0) -> None:
         """The cues' weights, where no search set them (a light whose direction is given):
-        from the search's coarse grid."""
+        from the search's coarse grid where a weight or the gate would use them, else 1
+        each."""
         if self.weights is None:
             cfg = self.settings
             if not cfg.search.cue_weights and cfg.search.gate == 0.0:
@@ -449,9 +451,10 @@ def search(pp: Prepared, settings: LightConfig, seed: int = 0) -> tuple[Search, 
     ``lamp_distances_rel`` along it from the caster's base: a priori a sun and a lamp
     alike; the lamps scored are those an unshadowed photometric screen of every
     direction and distance ranks among the ``lamp_top`` best, and those along the
-    ``lamp_top`` best suns; a lamp not scored counts as unlikely). Each cue at its own
-    weight (``cueweight``): read off the coarse grid to steer the lamps and the
-    refinement, then off the posterior's own grid for the posterior."""
+    ``lamp_top`` best suns; a lamp not scored counts as unlikely). Each cue's weight
+    (``cueweight``) is read off the posterior's own grid and reported; where
+    ``search.cue_weights`` applies them, they are read off the coarse grid first too, to
+    steer the lamps and the refinement."""
     fp = pp.fp
     cfg = settings.search
     T = cfg.temperature
