@@ -10,6 +10,7 @@ import pytest
 
 from zcomp_cli.light import cueweight as cw
 from zcomp_cli.light.config import SearchConfig
+from zcomp_cli.light.posterior import log_integral
 from zcomp_cli.scene.sampling import hemisphere
 
 
@@ -91,7 +92,7 @@ def test_the_weight_is_deterministic_and_checks_its_input():
 def test_the_gate_mixes_a_cues_density_with_the_uniform():
     dirs, _, om = _grid()
     ll = _peaked(dirs, (0.5, 1.0, 0.2), 50.0)
-    z = cw.log_norm(ll, om)
+    z = log_integral(ll, om)
     # a density: it integrates to 1 over the hemisphere, gated or not
     for gate in (0.0, 0.1, 0.5):
         g = cw.gated(ll, gate, z)
@@ -104,7 +105,7 @@ def test_the_gate_mixes_a_cues_density_with_the_uniform():
     # two sharp cues that disagree: each peak survives (at the other's gate); ungated,
     # the product is sure of a direction neither cue chose
     other = _peaked(dirs, (-0.6, 0.5, -0.3), 50.0)
-    zo = cw.log_norm(other, om)
+    zo = log_integral(other, om)
     both = cw.gated(ll, 0.1, z) + cw.gated(other, 0.1, zo)
     i_a, i_b = int(np.argmax(ll)), int(np.argmax(other))
     p = np.exp(both - both.max()) * om

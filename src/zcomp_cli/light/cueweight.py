@@ -31,7 +31,7 @@ each cue by a mixture with the uniform; Kee, O'Brien and Farid test the two cues
 consistency).
 
 Pure numpy: ``block_ids`` and ``block_sums`` group per-pixel terms by block,
-``cue_weight`` reads the weight, ``log_norm`` and ``gated`` apply the gate.
+``cue_weight`` reads the weight, ``gated`` applies the gate.
 """
 
 from __future__ import annotations
@@ -73,9 +73,8 @@ def block_sums(values: np.ndarray, ids: np.ndarray, n: int) -> np.ndarray:
     v = np.asarray(values, np.float64)
     if v.ndim != 2 or len(v) != len(ids):
         raise ValueError(f"block_sums: values (N, K) and ids (N,) must agree, got {v.shape} and {np.shape(ids)}")
-    out = np.zeros((n, v.shape[1]))
-    np.add.at(out, np.asarray(ids), v)
-    return out
+    onehot = np.asarray(ids)[None, :] == np.arange(n)[:, None]
+    return onehot.astype(np.float64) @ v
 
 
 def _coverage(LLb: np.ndarray, base: np.ndarray, log_om: np.ndarray, best: int, k: float, level: float) -> float:
@@ -135,21 +134,10 @@ def cue_weight(block_ll, log_prior, solid_angle, dirs, cfg, *, seed: int = 0) ->
     return CueWeight(k_lo, cov, n)
 
 
-def log_norm(ll, solid_angle) -> float:
-    """log of the integral of ``exp(ll)`` over the directions (``ll`` (K,) a weighted
-    cue's log-likelihood, each direction standing for ``solid_angle`` (K,) sr): what
-    makes the cue a density over the hemisphere."""
-    a = np.asarray(ll, np.float64) + np.log(np.asarray(solid_angle, np.float64))
-    a = a[np.isfinite(a)]
-    if not len(a):
-        return 0.0
-    m = float(a.max())
-    return m + math.log(float(np.exp(a - m).sum()))
-
-
 def gated(ll, gate: float, log_z: float) -> np.ndarray:
     """``log((1 - gate) exp(ll - log_z) + gate / 2 pi)``: a weighted cue's log-likelihood
-    ``ll`` as a density over the hemisphere (``log_z``: ``log_norm``'s over the grid),
+    ``ll`` as a density over the hemisphere (``log_z``: its ``posterior.log_integral``
+    over the grid),
     mixed with the uniform density by ``gate`` -- the chance that the cue is misled
     (module docstring). A sharp cue keeps its peak and lends every other direction the
     uniform's ``gate``; where two cues disagree, each peak survives at the other's gate.
@@ -163,4 +151,4 @@ def gated(ll, gate: float, log_z: float) -> np.ndarray:
     return np.logaddexp(math.log1p(-gate) + x, math.log(gate / (2.0 * math.pi)))
 
 
-__all__ = ["CueWeight", "block_ids", "block_sums", "cue_weight", "gated", "log_norm"]
+__all__ = ["CueWeight", "block_ids", "block_sums", "cue_weight", "gated"]

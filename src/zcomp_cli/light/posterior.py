@@ -25,6 +25,18 @@ def _unit(v) -> np.ndarray:
     return v / max(float(np.linalg.norm(v)), 1e-12)
 
 
+def log_integral(log_density, solid_angle) -> float:
+    """log of the integral of ``exp(log_density)`` over directions each standing for
+    ``solid_angle`` (sr): ``log_density`` (K,) may hold -inf (no mass); 0 where none is
+    finite."""
+    a = np.asarray(log_density, np.float64) + np.log(np.asarray(solid_angle, np.float64))
+    a = a[np.isfinite(a)]
+    if not len(a):
+        return 0.0
+    m = float(a.max())
+    return m + math.log(float(np.exp(a - m).sum()))
+
+
 @dataclass(frozen=True)
 class Mode:
     """One mode of a posterior (``DirectionPosterior.modes``): its mean ``direction``
@@ -93,9 +105,7 @@ class DirectionPosterior:
     @property
     def log_normaliser(self) -> float:
         """log of the integral of ``exp(log_post)`` over the hemisphere."""
-        a = self.log_post + np.log(self.solid_angle)
-        m = float(a.max())
-        return m + math.log(float(np.exp(a - m).sum()))
+        return log_integral(self.log_post, self.solid_angle)
 
     @property
     def map_direction(self) -> np.ndarray:

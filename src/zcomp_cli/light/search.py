@@ -58,8 +58,8 @@ import numpy as np
 
 from zcomp_cli.light import atoms as at
 from zcomp_cli.light.config import LightConfig
-from zcomp_cli.light.cueweight import CueWeight, block_ids, block_sums, cue_weight, gated, log_norm
-from zcomp_cli.light.posterior import DirectionPosterior
+from zcomp_cli.light.cueweight import CueWeight, block_ids, block_sums, cue_weight, gated
+from zcomp_cli.light.posterior import DirectionPosterior, log_integral
 from zcomp_cli.light.prepare import Prepared
 from zcomp_cli.light.shadowcast import shadow_fit, sun_visibility
 from zcomp_cli.light.solver import base_sigma, candidate_losses
@@ -101,10 +101,11 @@ def log_elevation_prior(dirs: np.ndarray, up, power: float) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Search:
-    """Step 3: the posterior over directions (``DirectionPosterior``), and per grid
-    direction its shadow log-likelihood, photometric log-likelihood, the shadowed/lit
-    ratio its shadow fits and the shadow it casts on the receivers (blocks); the lights
-    drawn (``modes``: (``FitLight``, its share of the light) per mode, heaviest first:
+    """Step 3: the posterior over directions (``DirectionPosterior``), the unweighted
+    scores it was made of (``scored``: ``Scored``; ``ll_shadow``, ``ll_photo`` the sun's),
+    with the cues' measured ``weights`` and the options' prior (``log_opt_prior``), and
+    per grid direction the shadowed/lit ratio its shadow fits and the shadow it casts
+    on the receivers (blocks); the lights drawn (``modes``: (``FitLight``, its share of the light) per mode, heaviest first:
     a sun's share its mass, a lamp's its mass over ``mode_mass``, the modes' sum;
     ``light`` the heaviest; ``rest_sh`` (9,) the rest of the mass the suns stand for,
     as a sky's radiance SH per unit of the light's strength, camera frame, or None),
@@ -112,8 +113,7 @@ class Search:
     caster's base the lamps' directions are measured from (``anchor``)."""
 
     posterior: DirectionPosterior
-    ll_shadow: np.ndarray
-    ll_photo: np.ndarray
+    scored: "Scored"
     ratio: np.ndarray
     shadow_blocks: np.ndarray
     light: FitLight
@@ -125,8 +125,17 @@ class Search:
     mode_mass: float = 1.0
     rest_sh: np.ndarray | None = None
     weights: tuple = ()
-    scored: "Scored | None" = None
     log_opt_prior: np.ndarray | None = None
+
+    @property
+    def ll_shadow(self) -> np.ndarray:
+        """(K,) the sun's shadow log-likelihood at each grid direction, unweighted."""
+        return self.scored.sun_shadow
+
+    @property
+    def ll_photo(self) -> np.ndarray:
+        """(K,) the sun's photometric log-likelihood at each grid direction, unweighted."""
+        return self.scored.sun_photo
 
 
 @dataclass(frozen=True)
@@ -278,8 +287,8 @@ class _Scorer:
         if not self.settings.search.cue_weights:
             ws, wp = (dataclasses.replace(w, k=1.0) for w in (ws, wp))
         self.weights = (ws, wp)
-        self.norms = (log_norm(ws.k * shadow_blocks.sum(0), solid_angle),
-                      log_norm(wp.k * self.loglik_photo(lh), solid_angle))
+        self.norms = (log_integral(ws.k * shadow_blocks.sum(0), solid_angle),
+                      log_integral(wp.k * self.loglik_photo(lh), solid_angle))
 
     def ensure_weights(self, seed: int = 0) -> None:
         """The cues' weights, where no search set them (a light whose direction is given):
@@ -395,7 +404,7 @@ class Scored:
         """Each weighted cue's log normaliser over the directions (the sun's, each
         standing for ``solid_angle``): what makes it a density (``cueweight.gated``)."""
         ws, wp = weights
-        return log_norm(ws.k * self.sun_shadow, solid_angle), log_norm(wp.k * self.sun_photo, solid_angle)
+        return log_integral(ws.k * self.sun_shadow, solid_angle), log_integral(wp.k * self.sun_photo, solid_angle)
 
 
 def weighted_marginal(scored: Scored, weights, gate: float, T: float, log_opt_prior,
@@ -523,7 +532,6 @@ def search(pp: Prepared, settings: LightConfig, seed: int = 0) -> tuple[Search, 
                    np.concatenate([lhb_c[:, ~inside], lhb_f], 1), seed)
     scored = Scored(np.concatenate([sf_c.loglik[~inside], sf_f.loglik]), np.concatenate([ph_c[~inside], ph_f]),
                     tuple(x for x, out in zip(lamp_c, inside) if not out) + tuple(lamp_f))
-    sc.norms = scored.norms(sc.weights, om)
     marg, opts = weighted_marginal(scored, sc.weights, cfg.gate, T, log_opt_prior, om)
     post = DirectionPosterior.from_parts(dirs, marg, log_elevation_prior(dirs, up, cfg.elevation_prior_power), om, T)
     drawn, mode_mass, rest_sh = _drawn(post, opts, anchor, dists, cfg)
@@ -531,12 +539,12 @@ def search(pp: Prepared, settings: LightConfig, seed: int = 0) -> tuple[Search, 
     k = int(opts[i_map])
     best_light = (FitLight("sun", post.dirs[i_map], None, np.zeros(0)) if k < 0 else
                   FitLight("lamp", anchor + dists[k] * post.dirs[i_map], None, np.zeros(0)))
-    return Search(posterior=post, ll_shadow=scored.sun_shadow, ll_photo=scored.sun_photo,
+    return Search(posterior=post, scored=scored,
                   ratio=np.concatenate([sf_c.ratio[~inside], sf_f.ratio]),
                   shadow_blocks=np.concatenate([_shadow_area_blocks(sc.rec, V_c)[~inside],
                                                 _shadow_area_blocks(sc.rec, V_f)]),
                   light=drawn[0], evidence=ev, receivers=sc.rec, map_light=best_light, anchor=anchor,
-                  modes=drawn, mode_mass=mode_mass, rest_sh=rest_sh, weights=sc.measured, scored=scored,
+                  modes=drawn, mode_mass=mode_mass, rest_sh=rest_sh, weights=sc.measured,
                   log_opt_prior=log_opt_prior), sc
 
 

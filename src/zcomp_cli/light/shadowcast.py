@@ -153,18 +153,20 @@ class ShadowFit:
         observation. (Huber's loss instead, tried on the development seeds, let a
         misread region cost less but also the shadow's own pixels: the direction's
         median error on the shown shadows went from 26 to 32 deg.)"""
-        sig = max(float(sigma), self.sigma_min)
-        mean = (self.weight[:, None] * self.resid ** 2).sum(0) / max(float(self.weight.sum()), 1e-12)
-        return -0.5 * self.blocks * mean / sig ** 2
+        return self._terms(sigma).sum(0)
 
     def block_loglik(self, sigma: float, ids: np.ndarray, n: int) -> np.ndarray:
         """(n, K) ``loglik``'s share of each block: the receivers' terms summed by their
         block ``ids`` (R,) in 0..n-1 (``cueweight.block_ids``); the rows sum to ``loglik``."""
         from zcomp_cli.light.cueweight import block_sums
 
+        return block_sums(self._terms(sigma), ids, n)
+
+    def _terms(self, sigma: float) -> np.ndarray:
+        """(R, K) each receiver's term of the log-likelihood at noise scale ``sigma``."""
         sig = max(float(sigma), self.sigma_min)
-        terms = self.weight[:, None] * self.resid ** 2 / max(float(self.weight.sum()), 1e-12)
-        return block_sums(-0.5 * self.blocks * terms / sig ** 2, ids, n)
+        share = self.weight[:, None] * self.resid ** 2 / max(float(self.weight.sum()), 1e-12)
+        return -0.5 * self.blocks * share / sig ** 2
 
 
 def shadow_fit(rec: Receivers, V: np.ndarray, cfg: SearchConfig) -> ShadowFit:
