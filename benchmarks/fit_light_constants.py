@@ -8,9 +8,13 @@ check them on whole generator families held out of the fit:
 * ``search.prior_sky_share_spread``: that share's spread over the same cases (the
   median absolute deviation x 1.4826): the prior's weight against the shadows'
   measurement of the split;
-* ``search.cue_weights``, ``search.temperature``, ``search.gate`` and
+* ``search.cue_weights``, ``search.temperature``, ``search.misled``, ``search.gate`` and
   ``search.elevation_prior_power``: whether each cue is weighed by the power its own
-  blocks bear out (``light/cueweight.py``), and what the data fit around that. Every
+  blocks bear out (``light/cueweight.py``), and what the data fit around that: the
+  temperature over the cues' correlated pixels, and the chance that they mislead
+  together (the posterior mixed with the prior by that much: ``posterior.with_misled``;
+  a bias every block shares, which a temperature alone can only answer by flattening
+  every case). Every
   case's background goes through the search once (``search.search`` at the defaults:
   its unweighted scores ``Search.scored`` and the cues' measured weights); each choice
   of the grids (weights on or off, temperature, gate, power) turns them into a
@@ -21,7 +25,8 @@ check them on whole generator families held out of the fit:
   a proper scoring rule: best in expectation for the posterior that states the true
   uncertainty. The choice with the best mean log score over the fit cases is chosen.
   (The grids are scored on the directions each case's search chose at the defaults:
-  its lamp screening and refinement followed them.)
+  its lamp screening and refinement followed them.) Each choice is printed beside the
+  best with ``misled`` 0 (the temperature alone).
 
 The check: the cases of the held-out families (``--hold-out``: HDR maps, lamp kinds --
 SUN, AREA, or none for a scene the HDR map alone lights --, object shapes; a case is
@@ -32,7 +37,8 @@ and per stratum (shadows shown / bare floor / lamp) the coverage of the stated 5
 and 90 % cones (the share of cases whose true direction falls inside) on both.
 
     python benchmarks/fit_light_constants.py CALIB/1618 CALIB/7777 [...] \
-        [--grid 5,8,12,16,20,25,30,40] [--gate-grid 0,0.01,0.1] [--prior-grid 0,0.5,1] \
+        [--grid 6,8,10,12,16,20,25,30] [--misled-grid 0,0.1,0.2,0.25,0.3,0.4] \
+        [--gate-grid 0,0.01] [--prior-grid 0,0.5,1] \
         [--hold-out hdr=studio lamp=AREA shape=chair] [--cache DIR] \
         [--check BENCH_REPORT ...]
 
@@ -174,9 +180,10 @@ def case_searches(bench: Path, settings, cache: Path | None):
     return out
 
 
-def posterior_of(rec: dict, T: float, gate: float, power: float, weighed: bool = True):
+def posterior_of(rec: dict, T: float, gate: float, power: float, weighed: bool = True, misled: float = 0.0):
     """A case's posterior at temperature ``T``, gate ``gate`` and prior power ``power``,
-    its cues at their measured weights (``weighed``) or at 1 each."""
+    its cues at their measured weights (``weighed``) or at 1 each, mixed with the prior
+    by ``misled`` (``posterior.with_misled``)."""
     import dataclasses
 
     from zcomp_cli.light.posterior import DirectionPosterior
@@ -184,10 +191,10 @@ def posterior_of(rec: dict, T: float, gate: float, power: float, weighed: bool =
 
     w = rec["weights"] if weighed else tuple(dataclasses.replace(x, k=1.0) for x in rec["weights"])
     marg, _ = weighted_marginal(rec["scored"], w, gate, T, rec["log_opt_prior"], rec["omega"])
-    return DirectionPosterior.from_parts(rec["dirs"], marg, power * rec["base_prior"], rec["omega"], T)
+    return DirectionPosterior.from_parts(rec["dirs"], marg, power * rec["base_prior"], rec["omega"], T, misled)
 
 
-def coverage_lines(recs: list, T: float, gate: float, power: float, weighed: bool) -> list[str]:
+def coverage_lines(recs: list, T: float, gate: float, power: float, weighed: bool, misled: float) -> list[str]:
     """Per stratum: n, the coverage of the stated 50/68/90 % cones, the mean log score."""
     import numpy as np
 
@@ -201,7 +208,7 @@ def coverage_lines(recs: list, T: float, gate: float, power: float, weighed: boo
         inside = {q: 0 for q in CONES}
         ls = []
         for r in sel:
-            post = posterior_of(r, T, gate, power, weighed)
+            post = posterior_of(r, T, gate, power, weighed, misled)
             ls.append(post.log_density(r["truth"]))
             to_mean = float(np.degrees(np.arccos(np.clip(post.mean_direction @ r["truth"], -1.0, 1.0))))
             for q in CONES:
@@ -215,8 +222,10 @@ def coverage_lines(recs: list, T: float, gate: float, power: float, weighed: boo
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("benches", nargs="+", type=Path)
-    ap.add_argument("--grid", default="5,8,12,16,20,25,30,40", help="temperatures to score")
-    ap.add_argument("--gate-grid", default="0,0.01,0.1", help="gates to score")
+    ap.add_argument("--grid", default="6,8,10,12,16,20,25,30", help="temperatures to score")
+    ap.add_argument("--misled-grid", default="0,0.1,0.2,0.25,0.3,0.4",
+                    help="chances that the cues mislead (the prior's share) to score")
+    ap.add_argument("--gate-grid", default="0,0.01", help="gates to score")
     ap.add_argument("--prior-grid", default="0,0.5,1", help="elevation prior powers to score")
     ap.add_argument("--hold-out", nargs="*", default=["hdr=studio", "lamp=AREA", "shape=chair"],
                     metavar="FAMILY=A,B", help="generator families held out of the fit (hdr, lamp, shape)")
@@ -230,6 +239,7 @@ def main(argv=None) -> int:
 
     grid = [float(x) for x in args.grid.split(",") if x.strip()]
     gate_grid = [float(x) for x in args.gate_grid.split(",") if x.strip()]
+    misled_grid = [float(x) for x in args.misled_grid.split(",") if x.strip()]
     prior_grid = [float(x) for x in args.prior_grid.split(",") if x.strip()]
     hold = {}
     for spec in args.hold_out:
@@ -261,34 +271,41 @@ def main(argv=None) -> int:
     for weighed in (True, False):
         for power in prior_grid:
             for gate in gate_grid:
-                for T in grid:
-                    ls = [posterior_of(r, T, gate, power, weighed).log_density(r["truth"]) for r in fit]
-                    scores.append((statistics.mean(ls), T, gate, power, weighed))
-                    print(f"  CUE_WEIGHTS {'on' if weighed else 'off'} TEMPERATURE {T:g} GATE {gate:g} PRIOR_POWER "
-                          f"{power:g}: mean log score {statistics.mean(ls):.3f} over {len(ls)} fit cases (a uniform "
-                          f"hemisphere: {uniform:.3f})", flush=True)
+                for misled in misled_grid:
+                    for T in grid:
+                        ls = [posterior_of(r, T, gate, power, weighed, misled).log_density(r["truth"]) for r in fit]
+                        scores.append((statistics.mean(ls), T, gate, power, weighed, misled))
+                        print(f"  CUE_WEIGHTS {'on' if weighed else 'off'} TEMPERATURE {T:g} MISLED {misled:g} GATE "
+                              f"{gate:g} PRIOR_POWER {power:g}: mean log score {statistics.mean(ls):.3f} over "
+                              f"{len(ls)} fit cases (a uniform hemisphere: {uniform:.3f})", flush=True)
     for weighed in (True, False):
         b = max(x for x in scores if x[4] is weighed)
         print(f"  the best with the cue weights {'on' if weighed else 'off'}: {b[0]:.3f} (temperature {b[1]:g}, "
-              f"gate {b[2]:g}, prior power {b[3]:g})")
-    _, T, gate, power, weighed = max(scores)
-    print(f"cue_weights = {weighed}, temperature = {T:g}, gate = {gate:g}, elevation_prior_power = {power:g}")
+              f"misled {b[5]:g}, gate {b[2]:g}, prior power {b[3]:g})")
+    b = max(x for x in scores if x[5] == 0.0) if 0.0 in misled_grid else None
+    if b is not None:
+        print(f"  the best never misled (misled 0): {b[0]:.3f} (temperature {b[1]:g}, gate {b[2]:g}, prior power "
+              f"{b[3]:g}, cue weights {'on' if b[4] else 'off'})")
+    _, T, gate, power, weighed, misled = max(scores)
+    print(f"cue_weights = {weighed}, temperature = {T:g}, misled = {misled:g}, gate = {gate:g}, "
+          f"elevation_prior_power = {power:g}")
     for name, sel in (("fit cases", fit), ("held-out families", check)):
         if sel:
-            ls = [posterior_of(r, T, gate, power, weighed).log_density(r["truth"]) for r in sel]
+            ls = [posterior_of(r, T, gate, power, weighed, misled).log_density(r["truth"]) for r in sel]
             print(f"  {name}: n={len(sel)}, mean log score {statistics.mean(ls):.3f}")
-            print("\n".join(coverage_lines(sel, T, gate, power, weighed)))
+            print("\n".join(coverage_lines(sel, T, gate, power, weighed, misled)))
     for b in args.check:
         sel = case_searches(b, DEFAULTS, args.cache)
-        ls = [posterior_of(r, T, gate, power, weighed).log_density(r["truth"]) for r in sel]
+        ls = [posterior_of(r, T, gate, power, weighed, misled).log_density(r["truth"]) for r in sel]
         print(f"  {b} (checked, not fitted on): n={len(sel)}, mean log score {statistics.mean(ls):.3f}")
-        print("\n".join(coverage_lines(sel, T, gate, power, weighed)))
+        print("\n".join(coverage_lines(sel, T, gate, power, weighed, misled)))
     fitted = dataclasses.replace(SearchConfig(), prior_sky_share=round(share, 2),
                                  prior_sky_share_spread=round(spread, 2), temperature=T, gate=gate,
-                                 elevation_prior_power=power, cue_weights=weighed)
+                                 elevation_prior_power=power, cue_weights=weighed, misled=misled)
     print(f"SearchConfig(prior_sky_share={fitted.prior_sky_share}, prior_sky_share_spread="
-          f"{fitted.prior_sky_share_spread}, temperature={fitted.temperature:g}, cue_weights={fitted.cue_weights}, "
-          f"gate={fitted.gate:g}, elevation_prior_power={fitted.elevation_prior_power:g})")
+          f"{fitted.prior_sky_share_spread}, temperature={fitted.temperature:g}, misled={fitted.misled:g}, "
+          f"cue_weights={fitted.cue_weights}, gate={fitted.gate:g}, "
+          f"elevation_prior_power={fitted.elevation_prior_power:g})")
     return 0
 
 

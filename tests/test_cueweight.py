@@ -168,7 +168,8 @@ def test_the_search_keeps_what_a_refit_needs_and_weighs_its_cues_when_asked():
     marg, _ = sr.weighted_marginal(res.scored, (dataclasses.replace(res.weights[0], k=1.0),
                                                 dataclasses.replace(res.weights[1], k=1.0)),
                                    cfg.search.gate, cfg.search.temperature, res.log_opt_prior, post.solid_angle)
-    again = DirectionPosterior.from_parts(post.dirs, marg, post.log_prior, post.solid_angle, cfg.search.temperature)
+    again = DirectionPosterior.from_parts(post.dirs, marg, post.log_prior, post.solid_angle, cfg.search.temperature,
+                                          cfg.search.misled)
     assert np.allclose(again.probabilities, post.probabilities, atol=1e-12)
     assert all(0 < w.k <= 1 for w in res.weights)
     on = dataclasses.replace(cfg, search=dataclasses.replace(cfg.search, cue_weights=True, gate=0.1))

@@ -175,6 +175,14 @@ def test_a_confident_shadow_is_one_light_and_a_vague_one_many_faint_ones():
     # "The radius's margin moves with the temperature")
     assert all(x.radius_deg < 2.0 for x in bare.suns)
     assert all(x.radius_deg <= 4.0 for x in crisp.suns)
+    # the chance that the cues mislead is stated beside the doubt, not drawn: the crisp
+    # light's doubt is its cues' own (a few degrees), and the report reads back
+    from zcomp_cli.light.config import DEFAULT_LIGHT
+    from zcomp_cli.scene.lightmodel import FitSummary
+
+    assert crisp.fit.misled == DEFAULT_LIGHT.search.misled > 0 and crisp.fit.uncertainty_deg < 10.0
+    assert bare.fit.uncertainty_deg > 3 * crisp.fit.uncertainty_deg
+    assert FitSummary.from_info(crisp.fit.to_info()).misled == crisp.fit.misled
 
 
 @pytest.mark.parametrize("position", [(0.5, 1.5, -3.0), (1.5, 1.0, -2.5), (-1.0, 2.0, -4.0)])

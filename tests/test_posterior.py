@@ -280,3 +280,50 @@ def test_the_rest_drawn_as_sky_shades_as_its_suns_would_on_average():
         assert shade(sharp, n) == pytest.approx(max(0.0, float(n @ c0)), abs=0.12)
     with pytest.raises(ValueError, match="mask"):
         flat.sun_sky_sh(np.ones(3, bool))
+
+
+def test_misled_mixes_the_prior_back_in_by_its_chance():
+    """``with_misled``: ``(1 - g) p + g q``, each normalised -- the mass far from a sharp
+    peak is the prior's share there times g; 0 leaves the posterior as it is; the
+    tempered copy keeps g; g outside [0, 1) is an error; -inf in the likelihood is fine."""
+    from zcomp_cli.light.posterior import log_integral, with_misled
+
+    d, om = _grid()
+    c = hemisphere(1, UP)[0]
+    sharp = _peaked(d, om, c, 3.0)
+    mixed = DirectionPosterior.from_parts(d, sharp.loglik, sharp.log_prior, om, 1.0, misled=0.2)
+    assert mixed.misled == 0.2 and mixed.tempered(2.0).misled == 0.2
+    assert math.exp(log_integral(mixed.log_post, om)) == pytest.approx(1.0, abs=1e-9)
+    far = np.degrees(np.arccos(np.clip(d @ c, -1, 1))) > 30
+    assert mixed.probabilities[far].sum() == pytest.approx(0.2 * om[far].sum() / om.sum(), rel=1e-3)
+    assert sharp.probabilities[far].sum() < 1e-6
+    # the peak keeps 1 - g of the mass, and the prior's share of its cap besides
+    assert mixed.mass_within(c, 10.0) == pytest.approx(0.8 + 0.2 * (1 - math.cos(math.radians(10.0))), abs=0.01)
+    assert np.array_equal(with_misled(sharp.log_post, sharp.log_prior, om, 0.0), sharp.log_post)
+    # a prior that leans (cos(elevation) ** -1): the misled share follows it, not the uniform
+    lp = -np.log(np.maximum(np.sqrt(1 - (d @ UP) ** 2), 1e-3))
+    m2 = DirectionPosterior.from_parts(d, sharp.loglik, lp, om, 1.0, misled=0.5)
+    q = np.exp(lp) * om / (np.exp(lp) * om).sum()
+    assert np.allclose(m2.probabilities[far], 0.5 * q[far], rtol=1e-3, atol=1e-12)
+    ll = np.where(far, -np.inf, 0.0)
+    assert np.all(np.isfinite(with_misled(ll, np.zeros(len(d)), om, 0.1)))
+    for bad in (-0.1, 1.0, 2.0):
+        with pytest.raises(ValueError, match="misled"):
+            DirectionPosterior.from_parts(d, sharp.loglik, sharp.log_prior, om, 1.0, misled=bad)
+
+
+def test_informed_is_the_posterior_the_cues_state():
+    """``informed`` drops the prior's share ``misled`` (what the search draws and states
+    as its doubt): a sharp posterior mixed with the prior is one mode again, and its RMS
+    angle the cues' own."""
+    d, om = _grid()
+    c = hemisphere(1, UP)[0]
+    sharp = _peaked(d, om, c, 3.0)
+    mixed = DirectionPosterior.from_parts(d, sharp.loglik, sharp.log_prior, om, 1.0, misled=0.25)
+    assert mixed.rms_angle_deg() > 20.0 and mixed.modes(4, 15.0, 0.9)[0].mass < 0.8
+    inf = mixed.informed
+    assert inf.misled == 0.0 and np.allclose(inf.probabilities, sharp.probabilities)
+    assert inf.rms_angle_deg() == pytest.approx(sharp.rms_angle_deg())
+    modes = inf.modes(4, 15.0, 0.9)
+    assert len(modes) == 1 and modes[0].mass > 0.99 and _angle_deg(modes[0].direction, c) < 2.0
+    assert sharp.informed is sharp

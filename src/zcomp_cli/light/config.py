@@ -53,9 +53,15 @@ class SearchConfig:
     """The direction search, its posterior and how it is drawn, the light's size and
     strength (``search``, ``shadowcast``)."""
 
-    temperature: float = knob(25.0, "fitted", "the posterior's one temperature over the cues' likelihoods: the best "
-                                              "mean log score of the true direction over the calibration cases "
-                                              "(benchmarks/fit_light_constants.py, docs/fit_light_constants.txt)")
+    temperature: float = knob(10.0, "fitted", "the posterior's one temperature over the cues' likelihoods: the best "
+                                              "mean log score of the true direction over the calibration cases, "
+                                              "with misled (benchmarks/fit_light_constants.py, "
+                                              "docs/fit_light_constants.txt)")
+    misled: float = knob(0.3, "fitted", "the chance that the cues mislead the estimate together (a bias all their "
+                                         "pixels share: the depth mesh's caster, the lit level's basis): the "
+                                         "posterior is mixed with the prior by this much (posterior.with_misled; "
+                                         "the best mean log score with the temperature, fit_light_constants.py "
+                                         "--misled-grid)", lo=0.0, lo_open=False, hi=0.9)
     cue_weights: bool = knob(False, "fitted", "weigh each cue by the power its own blocks bear out (cueweight) "
                                               "before the temperature: off, as the calibration's log score chose "
                                               "(fit_light_constants.py; the weights are measured and reported "

@@ -721,14 +721,17 @@ def _model(ctx: Context, params: LightParams, suns, lamps, sky: Sky, probe_ref, 
     """The ``LightModel`` of the filled terms: its lights, sky, what the fit says of
     itself (the searched light's doubt, and how its modes were drawn)."""
     pp = ctx.pp
-    spread = ctx.search.posterior.rms_angle_deg() if ctx.search is not None else float("nan")
+    # the doubt the cues state, apart from the chance that they mislead (``misled``)
+    spread = ctx.search.posterior.informed.rms_angle_deg() if ctx.search is not None else float("nan")
+    misled = ctx.search.posterior.misled if ctx.search is not None else float("nan")
     modes = tuple(ctx.search.modes) if ctx.search is not None else ()
     unfixed = len(modes) > 1
     if unfixed:
         fl = modes[0][0]
         size = f"{fl.radius:.3g} {'deg' if fl.kind == 'sun' else 'm'}"
         ctx.notes.append(
-            f"the photograph fixes the light's direction to within {spread:.0f} deg (RMS): drawn as the posterior's "
+            f"the photograph fixes the light's direction to within {spread:.0f} deg (RMS; unless its cues mislead, "
+            f"a {misled:.0%} chance): drawn as the posterior's "
             f"{len(modes)} likeliest lights ({', '.join(f'{w:.0%}' for _, w in modes)} of the light), each at the "
             f"light's size ({size}, {fl.radius_from})"
             + (", the rest of the posterior as sky" if ctx.search.rest_sh is not None else ""))
@@ -741,7 +744,7 @@ def _model(ctx: Context, params: LightParams, suns, lamps, sky: Sky, probe_ref, 
                    for name, w in zip(("shadow", "photometric"), weights)}
     summary = FitSummary(shadow_blocks=float(n_eff), uncertainty_deg=float(spread), residual=residual,
                          pixels=len(pp.fp), exposure=exposure, note=note, unfixed=unfixed, modes=mode_info,
-                         cue_weights=cue_weights, sky_share=float(share))
+                         cue_weights=cue_weights, sky_share=float(share), misled=float(misled))
     direct = [*suns, *lamps]
     estimated = any((s.direction_from if isinstance(s, Sun) else s.position_from) in ESTIMATED for s in direct)
     source = "manifest" if (params.given and not estimated) else "estimated"

@@ -37,6 +37,27 @@ def log_integral(log_density, solid_angle) -> float:
     return m + math.log(float(np.exp(a - m).sum()))
 
 
+def with_misled(log_post, log_prior, solid_angle, misled: float) -> np.ndarray:
+    """(K,) the log density of ``(1 - misled) p + misled q``: ``p`` the posterior
+    ``exp(log_post)`` and ``q`` the prior ``exp(log_prior)``, each normalised over the
+    directions (``solid_angle`` (K,) sr each); ``log_post`` itself where ``misled`` is 0.
+
+    The likelihood of a photograph's shadows and shading is built on a model -- the
+    depth mesh's casters, the lit level's basis, a white wall's bounce left out -- that
+    is sometimes wrong for every pixel at once: then it is confidently wrong, and no
+    temperature over its correlated pixels mends that without flattening the cases it
+    gets right. ``misled`` is that chance, fitted with the temperature by the log score
+    of the true direction over the generated calibration cases
+    (``benchmarks/fit_light_constants.py``): the posterior keeps the prior's share, the
+    direction the light takes when the cues mislead."""
+    lp = np.asarray(log_post, np.float64)
+    if misled <= 0.0:
+        return lp
+    q = np.asarray(log_prior, np.float64)
+    return np.logaddexp(math.log1p(-misled) + lp - log_integral(lp, solid_angle),
+                        math.log(misled) + q - log_integral(q, solid_angle))
+
+
 @dataclass(frozen=True)
 class Mode:
     """One mode of a posterior (``DirectionPosterior.modes``): its mean ``direction``
@@ -55,8 +76,10 @@ class DirectionPosterior:
     *densities* (per steradian); ``solid_angle`` (K,) the solid angle (sr) each stands
     for. The probabilities are ``exp(log_post) * solid_angle``, normalised.
     ``loglik`` (K,) and ``log_prior`` (K,), when given, are what ``log_post`` was made
-    of (``log_post = loglik / temperature + log_prior``), so that another temperature
-    can be tried (``tempered``) without scoring the directions again."""
+    of, so that another temperature can be tried (``tempered``) without scoring the
+    directions again: the tempered posterior ``loglik / temperature + log_prior``,
+    normalised, mixed with the prior, normalised, by ``misled`` (the chance that the
+    likelihood misleads: ``with_misled``)."""
 
     dirs: np.ndarray
     log_post: np.ndarray
@@ -64,19 +87,36 @@ class DirectionPosterior:
     loglik: np.ndarray | None = None
     log_prior: np.ndarray | None = None
     temperature: float = 1.0
+    misled: float = 0.0
 
     @classmethod
-    def from_parts(cls, dirs, loglik, log_prior, solid_angle, temperature: float) -> "DirectionPosterior":
+    def from_parts(cls, dirs, loglik, log_prior, solid_angle, temperature: float,
+                   misled: float = 0.0) -> "DirectionPosterior":
+        """The posterior of ``loglik`` (K,) tempered by ``temperature`` under ``log_prior``
+        (K,), mixed with the prior by ``misled`` in [0, 1) (``with_misled``)."""
         ll = np.asarray(loglik, np.float64)
         lp = np.asarray(log_prior, np.float64)
-        return cls(dirs=dirs, log_post=ll / float(temperature) + lp, solid_angle=solid_angle, loglik=ll,
-                   log_prior=lp, temperature=float(temperature))
+        if not 0.0 <= float(misled) < 1.0:
+            raise ValueError(f"DirectionPosterior: misled must be in [0, 1), got {misled!r}")
+        log_post = with_misled(ll / float(temperature) + lp, lp, solid_angle, float(misled))
+        return cls(dirs=dirs, log_post=log_post, solid_angle=solid_angle, loglik=ll,
+                   log_prior=lp, temperature=float(temperature), misled=float(misled))
 
     def tempered(self, temperature: float) -> "DirectionPosterior":
         """The same posterior at another temperature (needs ``loglik`` and ``log_prior``)."""
         if self.loglik is None or self.log_prior is None:
             raise ValueError("DirectionPosterior.tempered: made without its log-likelihood")
-        return DirectionPosterior.from_parts(self.dirs, self.loglik, self.log_prior, self.solid_angle, temperature)
+        return DirectionPosterior.from_parts(self.dirs, self.loglik, self.log_prior, self.solid_angle, temperature,
+                                             self.misled)
+
+    @property
+    def informed(self) -> "DirectionPosterior":
+        """The posterior the cues state where they do not mislead: this one without the
+        prior's share ``misled`` (itself where that is 0 or no log-likelihood is kept)."""
+        if self.misled <= 0.0 or self.loglik is None or self.log_prior is None:
+            return self
+        return DirectionPosterior.from_parts(self.dirs, self.loglik, self.log_prior, self.solid_angle,
+                                             self.temperature)
 
     def __post_init__(self):
         d = np.asarray(self.dirs, np.float64).reshape(-1, 3)
@@ -211,4 +251,4 @@ def hemisphere_solid_angles(n: int) -> float:
     return 2.0 * math.pi / max(int(n), 1)
 
 
-__all__ = ["DirectionPosterior", "Mode", "hemisphere_solid_angles"]
+__all__ = ["with_misled", "DirectionPosterior", "Mode", "hemisphere_solid_angles"]

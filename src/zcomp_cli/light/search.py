@@ -43,8 +43,12 @@ light whose direction is free; each returns a dataclass; every constant is
    light at a mean direction where the posterior may have no mass, nor one widened to
    stand for the doubt.
 
-The stated uncertainty (``fit.direction_uncertainty_deg``) is the posterior's RMS angle
-about its mean direction; the fit returns the posterior (``posterior.DirectionPosterior``)
+The posterior is mixed with the prior by the chance that the cues mislead together
+(``search.misled``, ``posterior.with_misled``: a bias every pixel shares, which no
+temperature mends without flattening the cases the cues get right); that share is
+stated, not drawn (step 6). The stated uncertainty (``fit.direction_uncertainty_deg``) is
+the RMS angle of the rest (``DirectionPosterior.informed``) about its mean direction,
+beside that chance (``fit.misled``); the fit returns the posterior (``posterior.DirectionPosterior``)
 for the audit (``benchmarks/audit_light.py``).
 """
 
@@ -439,7 +443,14 @@ def _drawn(post: DirectionPosterior, opts: np.ndarray, anchor, dists, cfg) -> tu
     where the modes are suns, is drawn as sky (the radiance where it lies:
     ``DirectionPosterior.sun_sky_sh``), and where they are lamps shared among them (a sky
     is at infinity and cannot stand for a near light). The lights' columns are made at
-    their size (step 4)."""
+    their size (step 4).
+
+    The posterior drawn is what the cues state (``DirectionPosterior.informed``), not
+    the prior's share where they mislead (``search.misled``): that share tells no
+    direction, and drawn as sky it would only wash out the shadow of every case the cues
+    get right, against the split the shadows measured (the light is a sun however
+    unsure its direction; the doubt is stated, ``fit.misled``, not drawn)."""
+    post = post.informed
     modes = post.modes(cfg.max_modes, cfg.mode_radius_deg, cfg.modes_mass)
     drawn = []
     for m in modes:
@@ -533,7 +544,8 @@ def search(pp: Prepared, settings: LightConfig, seed: int = 0) -> tuple[Search, 
     scored = Scored(np.concatenate([sf_c.loglik[~inside], sf_f.loglik]), np.concatenate([ph_c[~inside], ph_f]),
                     tuple(x for x, out in zip(lamp_c, inside) if not out) + tuple(lamp_f))
     marg, opts = weighted_marginal(scored, sc.weights, cfg.gate, T, log_opt_prior, om)
-    post = DirectionPosterior.from_parts(dirs, marg, log_elevation_prior(dirs, up, cfg.elevation_prior_power), om, T)
+    post = DirectionPosterior.from_parts(dirs, marg, log_elevation_prior(dirs, up, cfg.elevation_prior_power), om, T,
+                                         cfg.misled)
     drawn, mode_mass, rest_sh = _drawn(post, opts, anchor, dists, cfg)
     i_map = int(np.argmax(post.log_post))
     k = int(opts[i_map])

@@ -43,8 +43,9 @@ from zcomp_cli.scene.lightparams import LightParams
 # layer by its roughness, the offset growing toward grazing views, not one albedo offset:
 # issue 48. 5: a searched light drawn as its posterior's modes at its own size, never
 # widened to its doubt: issue 47. 6: each cue at the weight its own blocks bear out, and
-# gated: issue 47.)
-FORMAT = 6
+# gated: issue 47. 7: the posterior mixed with the prior by the chance that its cues
+# mislead, at the temperature fitted with it: issue 47.)
+FORMAT = 7
 # Fits kept in memory (per process): a batch visits its scenes in order, so a few are
 # enough; each holds the posterior and the evidence's small maps.
 KEEP_IN_MEMORY = 8
@@ -217,7 +218,7 @@ class SceneLight:
         p = fitted.posterior
         if p is not None:
             arrays.update(post_dirs=p.dirs, post_log=p.log_post, post_omega=p.solid_angle,
-                          post_temperature=np.float64(p.temperature))
+                          post_temperature=np.float64(p.temperature), post_misled=np.float64(p.misled))
             if p.loglik is not None and p.log_prior is not None:
                 arrays.update(post_loglik=p.loglik, post_prior=p.log_prior)
         ev = fitted.evidence
@@ -246,7 +247,8 @@ class SceneLight:
                     post = DirectionPosterior(dirs=z["post_dirs"], log_post=z["post_log"], solid_angle=z["post_omega"],
                                               loglik=z["post_loglik"] if "post_loglik" in z else None,
                                               log_prior=z["post_prior"] if "post_prior" in z else None,
-                                              temperature=float(z["post_temperature"]))
+                                              temperature=float(z["post_temperature"]),
+                                              misled=float(z["post_misled"]) if "post_misled" in z else 0.0)
                 ev = None
                 if "ev_soft" in z:
                     ev = LightEvidence(soft_mask=z["ev_soft"], confidence=z["ev_conf"], ratio=z["ev_ratio"],

@@ -295,7 +295,9 @@ class FitSummary:
     frame's blocks its likely directions shadow on the support; 0: none, the shading and
     the prior decided);
     ``uncertainty_deg``: the spread of the light directions the held-out pixels allow
-    (RMS angle from the chosen one); ``residual``: the robust relative residual;
+    (RMS angle about their mean), where the cues do not mislead; ``misled``: the chance
+    that they do (the prior's share of the posterior: ``search.misled``; nan where no
+    direction was searched); ``residual``: the robust relative residual;
     ``pixels``: fit pixels; ``exposure``: the one weight of the manifest's lights given
     in physical units (the photograph's exposure; nan without such lights); ``note``:
     what the fit could not do, in words; ``unfixed``: the photograph does not fix the
@@ -320,12 +322,14 @@ class FitSummary:
     modes: tuple = ()
     cue_weights: dict = field(default_factory=dict)
     sky_share: float = float("nan")
+    misled: float = float("nan")
 
     def to_info(self) -> dict:
         return {"shadow_blocks": self.shadow_blocks, "direction_uncertainty_deg": self.uncertainty_deg,
                 "residual": self.residual, "fit_pixels": self.pixels, "exposure": self.exposure, "note": self.note,
                 "unfixed": self.unfixed, "modes": [dict(m) for m in self.modes],
-                "cue_weights": {k: dict(v) for k, v in self.cue_weights.items()}, "sky_share": self.sky_share}
+                "cue_weights": {k: dict(v) for k, v in self.cue_weights.items()}, "sky_share": self.sky_share,
+                "misled": self.misled}
 
     @classmethod
     def from_info(cls, d: dict) -> "FitSummary":
@@ -333,7 +337,7 @@ class FitSummary:
                    residual=d["residual"], pixels=d["fit_pixels"], exposure=d["exposure"], note=d["note"],
                    unfixed=d["unfixed"], modes=tuple(dict(m) for m in d.get("modes", ())),
                    cue_weights={k: dict(v) for k, v in d.get("cue_weights", {}).items()},
-                   sky_share=float(d.get("sky_share", float("nan"))))
+                   sky_share=float(d.get("sky_share", float("nan"))), misled=float(d.get("misled", float("nan"))))
 
 
 @dataclass(frozen=True, kw_only=True)
