@@ -52,6 +52,7 @@ hand, with this script's output kept in ``docs/fit_light_constants.txt``.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import math
 import statistics
@@ -268,16 +269,12 @@ def main(argv=None) -> int:
               f"quartiles {k[len(k) // 4]:.3g} .. {k[3 * len(k) // 4]:.3g}, at the floor {sum(x <= 1e-3 for x in k)}")
     uniform = -math.log(2 * math.pi)
     scores = []
-    for weighed in (True, False):
-        for power in prior_grid:
-            for gate in gate_grid:
-                for misled in misled_grid:
-                    for T in grid:
-                        ls = [posterior_of(r, T, gate, power, weighed, misled).log_density(r["truth"]) for r in fit]
-                        scores.append((statistics.mean(ls), T, gate, power, weighed, misled))
-                        print(f"  CUE_WEIGHTS {'on' if weighed else 'off'} TEMPERATURE {T:g} MISLED {misled:g} GATE "
-                              f"{gate:g} PRIOR_POWER {power:g}: mean log score {statistics.mean(ls):.3f} over "
-                              f"{len(ls)} fit cases (a uniform hemisphere: {uniform:.3f})", flush=True)
+    for weighed, power, gate, misled, T in itertools.product((True, False), prior_grid, gate_grid, misled_grid, grid):
+        ls = [posterior_of(r, T, gate, power, weighed, misled).log_density(r["truth"]) for r in fit]
+        scores.append((statistics.mean(ls), T, gate, power, weighed, misled))
+        print(f"  CUE_WEIGHTS {'on' if weighed else 'off'} TEMPERATURE {T:g} MISLED {misled:g} GATE "
+              f"{gate:g} PRIOR_POWER {power:g}: mean log score {statistics.mean(ls):.3f} over "
+              f"{len(ls)} fit cases (a uniform hemisphere: {uniform:.3f})", flush=True)
     for weighed in (True, False):
         b = max(x for x in scores if x[4] is weighed)
         print(f"  the best with the cue weights {'on' if weighed else 'off'}: {b[0]:.3f} (temperature {b[1]:g}, "

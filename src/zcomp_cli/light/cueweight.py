@@ -41,6 +41,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from zcomp_cli.light.posterior import log_mixture
+
+
 @dataclass(frozen=True)
 class CueWeight:
     """A cue's weight: ``k`` the likelihood's power, ``coverage`` the share of the
@@ -145,10 +148,16 @@ def gated(ll, gate: float, log_z: float) -> np.ndarray:
     ll = np.asarray(ll, np.float64)
     if not 0.0 <= gate < 1.0:
         raise ValueError(f"gated: gate must be in [0, 1), got {gate}")
-    x = ll - float(log_z)
-    if gate == 0.0:
-        return x
-    return np.logaddexp(math.log1p(-gate) + x, math.log(gate / (2.0 * math.pi)))
+    return log_mixture(ll - float(log_z), -math.log(2.0 * math.pi), gate)
 
 
-__all__ = ["CueWeight", "block_ids", "block_sums", "cue_weight", "gated"]
+def combined(ll_shadow, ll_photo, weights, gate: float, norms) -> np.ndarray:
+    """The two cues' log-likelihoods (shadow, photometric), each at its weight
+    (``weights``: their ``CueWeight``) and gated with its log normaliser (``norms``:
+    ``gated``'s ``log_z`` of each weighted cue), summed."""
+    (ws, wp), (zs, zp) = weights, norms
+    return (gated(ws.k * np.asarray(ll_shadow, np.float64), gate, zs)
+            + gated(wp.k * np.asarray(ll_photo, np.float64), gate, zp))
+
+
+__all__ = ["CueWeight", "block_ids", "block_sums", "cue_weight", "gated", "combined"]

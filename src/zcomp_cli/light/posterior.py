@@ -37,6 +37,15 @@ def log_integral(log_density, solid_angle) -> float:
     return m + math.log(float(np.exp(a - m).sum()))
 
 
+def log_mixture(log_p, log_q, weight: float) -> np.ndarray:
+    """(K,) ``log((1 - weight) exp(log_p) + weight exp(log_q))`` of two log densities
+    (``log_q`` may be a number), ``weight`` in [0, 1); ``log_p`` itself where it is 0."""
+    lp = np.asarray(log_p, np.float64)
+    if weight <= 0.0:
+        return lp
+    return np.logaddexp(math.log1p(-weight) + lp, math.log(weight) + np.asarray(log_q, np.float64))
+
+
 def with_misled(log_post, log_prior, solid_angle, misled: float) -> np.ndarray:
     """(K,) the log density of ``(1 - misled) p + misled q``: ``p`` the posterior
     ``exp(log_post)`` and ``q`` the prior ``exp(log_prior)``, each normalised over the
@@ -54,8 +63,7 @@ def with_misled(log_post, log_prior, solid_angle, misled: float) -> np.ndarray:
     if misled <= 0.0:
         return lp
     q = np.asarray(log_prior, np.float64)
-    return np.logaddexp(math.log1p(-misled) + lp - log_integral(lp, solid_angle),
-                        math.log(misled) + q - log_integral(q, solid_angle))
+    return log_mixture(lp - log_integral(lp, solid_angle), q - log_integral(q, solid_angle), misled)
 
 
 @dataclass(frozen=True)
@@ -251,4 +259,4 @@ def hemisphere_solid_angles(n: int) -> float:
     return 2.0 * math.pi / max(int(n), 1)
 
 
-__all__ = ["with_misled", "DirectionPosterior", "Mode", "hemisphere_solid_angles"]
+__all__ = ["log_mixture", "with_misled", "DirectionPosterior", "Mode", "hemisphere_solid_angles"]

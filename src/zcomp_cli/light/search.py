@@ -62,7 +62,7 @@ import numpy as np
 
 from zcomp_cli.light import atoms as at
 from zcomp_cli.light.config import LightConfig
-from zcomp_cli.light.cueweight import CueWeight, block_ids, block_sums, cue_weight, gated
+from zcomp_cli.light.cueweight import CueWeight, block_ids, block_sums, combined, cue_weight
 from zcomp_cli.light.posterior import DirectionPosterior, log_integral
 from zcomp_cli.light.prepare import Prepared
 from zcomp_cli.light.shadowcast import shadow_fit, sun_visibility
@@ -342,9 +342,7 @@ class _Scorer:
         (``cueweight.gated``, ``search.gate``), summed (the weights set first:
         ``ensure_weights``)."""
         self.ensure_weights()
-        g = self.settings.search.gate
-        (ws, wp), (zs, zp) = self.weights, self.norms
-        return gated(ws.k * np.asarray(ll_shadow), g, zs) + gated(wp.k * np.asarray(ll_photo), g, zp)
+        return combined(ll_shadow, ll_photo, self.weights, self.settings.search.gate, self.norms)
 
 
 def _shadow_area_blocks(rec, V) -> np.ndarray:
@@ -420,15 +418,14 @@ def weighted_marginal(scored: Scored, weights, gate: float, T: float, log_opt_pr
     sun, else the lamp's distance index). The options' prior (``log_opt_prior``: the
     sun's, then each distance's) enters at the posterior's temperature ``T`` (log p
     times T here)."""
-    (ws, wp), (zs, zp) = weights, scored.norms(weights, solid_angle)
-    ll_sun = gated(ws.k * scored.sun_shadow, gate, zs) + gated(wp.k * scored.sun_photo, gate, zp)
+    norms = scored.norms(weights, solid_angle)
+    ll_sun = combined(scored.sun_shadow, scored.sun_photo, weights, gate, norms)
     marg = np.empty(len(ll_sun))
     best = np.full(len(ll_sun), -1)
     for i, ls in enumerate(ll_sun):
         terms = [(-1, ls + T * log_opt_prior[0])]
         for j, a, b in scored.lamps[i]:
-            v = gated(ws.k * a, gate, zs) + gated(wp.k * b, gate, zp)
-            terms.append((j, float(v) + T * log_opt_prior[1 + j]))
+            terms.append((j, float(combined(a, b, weights, gate, norms)) + T * log_opt_prior[1 + j]))
         vals = np.array([t for _, t in terms])
         marg[i] = T * np.logaddexp.reduce(vals / T)
         best[i] = terms[int(np.argmax(vals))][0]
