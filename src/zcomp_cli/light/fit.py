@@ -477,7 +477,7 @@ def _atoms(ctx: Context, terms: list[Term], level: np.ndarray) -> tuple[list[_Ti
     if key is not None and lobes and ctx.fitting:
         t = key[0]
         at_light = ctx.search.map_light if (ctx.search is not None and t.light is ctx.search.light) else t.light
-        share, n_eff = sr.split_from_shadows(ctx.scorer(), at_light)
+        share, n_eff = sr.split_from_shadows(ctx.scorer(), at_light, t.light.radius)
     light_unit = _unit(key[1].values, sup) if key is not None else None
     tied_key = key is not None and bool(lobes) and light_unit is not None and not legacy
     out: list[_Tied] = []

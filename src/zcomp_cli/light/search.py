@@ -657,20 +657,67 @@ def _shrunk_share(rho: float, n_eff: float, sigma: float, cfg) -> float:
     return (n_eff * rho + n0 * cfg.prior_sky_share) / (n_eff + n0)
 
 
-def split_from_shadows(sc: "_Scorer", light: FitLight) -> tuple[float, float]:
+def unshadowed(light: FitLight, points: np.ndarray, up) -> np.ndarray:
+    """(N,) ``light``'s irradiance per unit strength on a floor facing ``up`` (3,) at
+    ``points`` (N, 3), nothing in its way, in its column's units (``sun_column``,
+    ``lamp_column``): a sun's ``max(0, up.d)``, the same everywhere; a lamp's
+    ``max(0, up.(q - p)) / |q - p|^3``, times its panel's profile where it faces."""
+    P = np.asarray(points, np.float64).reshape(-1, 3)
+    u = np.asarray(up, np.float64)
+    q = np.asarray(light.param, np.float64)
+    if light.kind == "sun":
+        return np.full(len(P), max(float(q @ u), 0.0))
+    v = q[None] - P
+    r = np.maximum(np.linalg.norm(v, axis=1), 1e-6)
+    e = np.maximum(v @ u, 0.0) / r ** 3
+    if light.facing is not None:
+        e = e * 4.0 * np.maximum(-((v / r[:, None]) @ np.asarray(light.facing, np.float64)), 0.0)
+    return e
+
+
+def share_moved(rho: float, c: float) -> float:
+    """The sky's share where ``light``'s irradiance is ``c`` times what it is where the
+    share is ``rho`` (the sky the same at both, an open floor's): ``rho / (rho + c (1 -
+    rho))``; ``c`` 1 (a sun on a floor) leaves it, 0 (out of the light's reach) makes it
+    1."""
+    rho, c = float(np.clip(rho, 0.0, 1.0)), max(float(c), 0.0)
+    den = rho + c * (1.0 - rho)
+    return 1.0 if den <= 1e-12 else rho / den
+
+
+def receiver_visibility(sc: "_Scorer", light: FitLight, radius: float | None = None, seed: int = 0) -> np.ndarray:
+    """(R,) how much of ``light`` each receiver sees past the depth mesh: 1 or 0 for a
+    point (``radius`` None or 0), the share of its disc (a sun's ``radius`` degrees, its
+    ``cone_samples`` directions) or sphere (a lamp's ``radius`` metres, as many points)
+    where it has a size, as ``_Scorer.suns`` and ``lamp_sized`` shade it."""
+    from zcomp_cli.light.shadowcast import lamp_visibility
+    from zcomp_cli.scene.sampling import cone_directions, fibonacci_sphere
+
+    q = np.asarray(light.param, np.float64)
+    k = max(1, sc.settings.cone_samples)
+    r = 0.0 if radius is None or not np.isfinite(radius) else float(radius)
+    if light.kind == "sun":
+        dirs = cone_directions(q, r, k, seed=seed) if r > 0 else q[None]
+        return sun_visibility(sc.pp.grid.caster, sc.rec, dirs).mean(1)
+    pts = q[None] + r * fibonacci_sphere(k) if r > 0 else q[None]
+    return lamp_visibility(sc.pp.grid.caster, sc.rec, pts).mean(1)
+
+
+def split_from_shadows(sc: "_Scorer", light: FitLight, radius: float | None = None) -> tuple[float, float]:
     """Step 5: (the sky's share of the support's light, the blocks of shadow evidence
     behind it): Madsen and Nielsen's shadowed/lit ratio of the same surface, read across
     the edges of the shadow ``light`` (the most probable one) casts (its shadow fit's
     ``rho``), as much as that shadow falls on cast shadows tied to their casters (its
     overlap with them, in the frame's blocks), shrunk toward the prior
     (``_shrunk_share``, the shadow fit's noise). A shadow that falls on lit floor only
-    tells nothing of the split (no overlap, the prior's)."""
-    from zcomp_cli.light.shadowcast import lamp_visibility
+    tells nothing of the split (no overlap, the prior's).
 
+    ``rho`` is the sky's share where the shadow lies; the share is stated where the key
+    light's atom states it, at the support's median (``fit._unit``). A sun lights both
+    alike; a lamp's light falls off, so ``rho`` is moved by its unshadowed irradiance
+    there against the shadow's (``share_moved``)."""
     cfg = sc.settings.search
-    q = np.asarray(light.param, np.float64)[None]
-    V = sun_visibility(sc.pp.grid.caster, sc.rec, q) if light.kind == "sun" else lamp_visibility(
-        sc.pp.grid.caster, sc.rec, q)
+    V = receiver_visibility(sc, light, radius)[:, None]
     tied = sc.evidence.tied[sc.rec.ys, sc.rec.xs]
     share = float((sc.rec.weight * (1.0 - V[:, 0]) * tied).sum()) / max(float(sc.rec.weight.sum()), 1e-12)
     n_eff = share * sc.rec.blocks
@@ -681,8 +728,16 @@ def split_from_shadows(sc: "_Scorer", light: FitLight) -> tuple[float, float]:
     # noise scale, as the first scoring of a search sets it)
     sigma = fit_.best_sigma if sc.sigma is None else sc.sigma
     rho = float(np.clip(fit_.ratio[0], 0.0, 1.0))
+    w = sc.rec.weight * (1.0 - V[:, 0]) * tied
+    up = sc.fp.up
+    e_shadow = float((w * unshadowed(light, sc.rec.origins, up)).sum()) / max(float(w.sum()), 1e-12)
+    fp = sc.fp
+    pts = fp.points[fp.support] if fp.support.sum() >= 3 else fp.points
+    e_support = float(np.median(unshadowed(light, pts, up))) if len(pts) else e_shadow
+    if e_shadow > 1e-12:
+        rho = share_moved(rho, e_support / e_shadow)
     return _shrunk_share(rho, n_eff, sigma, cfg), n_eff
 
 
 __all__ = ["FitLight", "Search", "Scored", "search", "search_scorer", "choose_size", "chosen_radius", "sized",
-           "split_from_shadows", "sun_column", "lamp_column", "log_elevation_prior", "weighted_marginal"]
+           "split_from_shadows", "share_moved", "unshadowed", "sun_column", "lamp_column", "log_elevation_prior", "weighted_marginal"]
