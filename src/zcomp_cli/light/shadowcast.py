@@ -30,6 +30,7 @@ to 1 for all): the likelihood is flat, and the photograph does not tell the dire
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -60,6 +61,19 @@ class Receivers:
 
     def __len__(self) -> int:
         return len(self.ys)
+
+    @functools.cached_property
+    def projection(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(``sw`` (R,) the weights' roots, ``Q`` (R, p) an orthonormal basis of the lit
+        level's weighted span, ``yr`` (R,) the weighted log shading less its projection):
+        what every ``shadow_fit`` of these receivers shares, one SVD for all of them (it
+        was one per call: half the light estimate's time)."""
+        w = np.maximum(self.weight, 0.0)
+        sw = np.sqrt(w)
+        U, sv, _ = np.linalg.svd(self.basis * sw[:, None], full_matrices=False)
+        Q = U[:, sv > 1e-9 * max(float(sv.max()), 1e-300)]  # the basis's span (its albedo terms may be constant)
+        y = self.log_shading * sw
+        return sw, Q, y - Q @ (Q.T @ y)
 
 
 def receivers(mesh, evidence, *, max_receivers: int, bias_rel: float, blocks: int) -> Receivers:
@@ -173,18 +187,14 @@ def shadow_fit(rec: Receivers, V: np.ndarray, cfg: SearchConfig) -> ShadowFit:
     """Fit ``log s ~ X beta + c (1 - V)`` for every candidate column of ``V`` (R, K)
     (module docstring: ``c = log rho``, exact where V is 0 or 1, the log-linear
     interpolation across a penumbra), ``c <= 0``, by least squares on the residual of
-    ``X``'s projection: one SVD and one product for all candidates."""
+    ``X``'s projection: one SVD (``Receivers.projection``, once per receivers) and one
+    product for all candidates."""
     K = V.shape[1]
     if len(rec) == 0:
         return ShadowFit(resid=np.zeros((0, K)), weight=np.zeros(0), ratio=np.ones(K), blocks=1,
                          sigma_min=cfg.sigma_min)
     w = np.maximum(rec.weight, 0.0)
-    sw = np.sqrt(w)
-    X = rec.basis * sw[:, None]
-    U, sv, _ = np.linalg.svd(X, full_matrices=False)
-    Q = U[:, sv > 1e-9 * max(float(sv.max()), 1e-300)]  # the basis's span (its albedo terms may be constant)
-    y = rec.log_shading * sw
-    yr = y - Q @ (Q.T @ y)
+    sw, Q, yr = rec.projection
     D = (1.0 - np.clip(np.asarray(V, np.float64), 0.0, 1.0)) * sw[:, None]
     Dr = D - Q @ (Q.T @ D)
     dd = np.einsum("rk,rk->k", Dr, Dr)
