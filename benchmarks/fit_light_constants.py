@@ -8,6 +8,13 @@ check them on whole generator families held out of the fit:
 * ``search.prior_sky_share_spread``: that share's spread over the same cases (the
   median absolute deviation x 1.4826): the prior's weight against the shadows'
   measurement of the split;
+* ``search.default_radius_odds`` (with ``--radius-odds-grid``): how much more likely
+  (in tempered log-likelihood) another size must be than the Sun's for a sun to be
+  drawn at it: the odds whose drawn suns' sizes are right (within a factor 2 of the
+  truth, under 2 deg for a truth under 1 deg) in the most fit cases where the background
+  shows the light's cast shadows and the drawn direction is within 10 deg of the truth
+  (a lamp has no typical size and no odds: ``search.default_odds``; its sizes are
+  printed beside);
 * ``search.cue_weights``, ``search.temperature``, ``search.misled``, ``search.gate`` and
   ``search.elevation_prior_power``: whether each cue is weighed by the power its own
   blocks bear out (``light/cueweight.py``), and what the data fit around that: the
@@ -127,11 +134,11 @@ def _code() -> str:
     return "".join(out)
 
 
-def case_searches(bench: Path, settings, cache: Path | None):
-    """Per case of ``bench`` with a true light: a dict of the search's unweighted scores
-    and weights (``Search.scored``, ``weights``, ``log_opt_prior``), its directions and
-    their solid angles, the elevation prior's log density at power 1 on them, the true
-    direction, the stratum and the families. Cached in ``cache`` when given."""
+def _per_case(bench: Path, settings, cache: Path | None, tag: str, record):
+    """``record(case, search, scorer, truth)`` (a dict, or None to skip the case) over the
+    cases of ``bench`` whose background has enough pixels, each searched once at
+    ``settings`` (``search.search``); the list kept in ``cache`` (keyed by the benchmark,
+    ``tag``, the settings and the light stage's code) when given."""
     import hashlib
     import pickle
 
@@ -143,8 +150,9 @@ def case_searches(bench: Path, settings, cache: Path | None):
     from zcomp_cli.light.prepare import prepare
     from zcomp_cli.scene.frame import scene_up
 
-    key = hashlib.sha256(repr((str(bench.resolve()), settings, _code())).encode()).hexdigest()[:16]
-    path = None if cache is None else cache / f"{bench.name}-{key}.pkl"
+    what = (str(bench.resolve()), settings, _code())
+    key = hashlib.sha256(repr(what if not tag else (tag, *what)).encode()).hexdigest()[:16]
+    path = None if cache is None else cache / f"{bench.name}-{tag + '-' if tag else ''}{key}.pkl"
     if path is not None and path.is_file():
         return pickle.loads(path.read_bytes())
     truths = case_truths(bench)
@@ -156,29 +164,129 @@ def case_searches(bench: Path, settings, cache: Path | None):
         pp = prepare(d, n, sh, known, albedo, cam, up, settings)
         if len(pp.fp) < settings.search.few_pixels:
             continue
-        s, _ = estimate.search(pp, settings)
-        t = truths[case["id"]]
-        lights = [x for x in t["lights"] if x["visible"]]
-        if t["shown"]:
-            ref = max(t["shown"], key=lambda x: float(np.asarray(x["direction"]) @ s.posterior.map_direction))
-        elif lights:
-            ref = lights[0]
-        else:
-            continue
-        kind = str(ref.get("kind", "")).upper()
-        stratum = "shadows shown" if t["shown"] else ("lamp" if kind in ("AREA", "POINT", "SPOT") else "bare floor")
-        out.append({"case": f"{bench.name}/{case['id']}", "scored": s.scored, "weights": s.weights,
-                    "log_opt_prior": s.log_opt_prior, "dirs": s.posterior.dirs, "omega": s.posterior.solid_angle,
-                    "base_prior": estimate.log_elevation_prior(s.posterior.dirs, up, 1.0),
-                    "truth": true_direction(ref, s.anchor), "stratum": stratum, "case_desc": case})
-        print(f"  {bench.name}/{case['id']}: weights {s.weights[0].k:.3g} (shadow), {s.weights[1].k:.3g} "
-              f"(photometric)", flush=True)
+        s, sc = estimate.search(pp, settings)
+        rec = record(case, s, sc, truths[case["id"]], up)
+        if rec is not None:
+            out.append(rec)
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(".tmp")
         tmp.write_bytes(pickle.dumps(out))
         tmp.replace(path)
     return out
+
+
+def _reference(truth: dict, toward):
+    """The true light a case is scored against: the one whose cast shadows the
+    background shows nearest ``toward`` (3,), else the dominant one reaching the
+    object's base; None where none does."""
+    import numpy as np
+
+    lights = [x for x in truth["lights"] if x["visible"]]
+    if truth["shown"]:
+        return max(truth["shown"], key=lambda x: float(np.asarray(x["direction"]) @ toward))
+    return lights[0] if lights else None
+
+
+def case_searches(bench: Path, settings, cache: Path | None):
+    """Per case of ``bench`` with a true light: a dict of the search's unweighted scores
+    and weights (``Search.scored``, ``weights``, ``log_opt_prior``), its directions and
+    their solid angles, the elevation prior's log density at power 1 on them, the true
+    direction, the stratum and the families. Cached in ``cache`` when given."""
+    from zcomp_cli.light import search as estimate
+
+    def record(case, s, _sc, t, up):
+        ref = _reference(t, s.posterior.map_direction)
+        if ref is None:
+            return None
+        kind = str(ref.get("kind", "")).upper()
+        stratum = "shadows shown" if t["shown"] else ("lamp" if kind in ("AREA", "POINT", "SPOT") else "bare floor")
+        print(f"  {bench.name}/{case['id']}: weights {s.weights[0].k:.3g} (shadow), {s.weights[1].k:.3g} "
+              f"(photometric)", flush=True)
+        return {"case": f"{bench.name}/{case['id']}", "scored": s.scored, "weights": s.weights,
+                "log_opt_prior": s.log_opt_prior, "dirs": s.posterior.dirs, "omega": s.posterior.solid_angle,
+                "base_prior": estimate.log_elevation_prior(s.posterior.dirs, up, 1.0),
+                "truth": true_direction(ref, s.anchor), "stratum": stratum, "case_desc": case}
+
+    return _per_case(bench, settings, cache, "", record)
+
+
+def case_radii(bench: Path, settings, cache: Path | None):
+    """Per case of ``bench`` with a true light: the drawn light's candidate radii and
+    their untempered log-likelihoods (``search.radius_scores`` at the posterior's
+    heaviest mode, as ``chosen_radius`` scores them), the true light's radius
+    (``run_benchmark._true_radius_deg``), the mode's angle from the true direction,
+    whether the background shows the light's cast shadows, and the families. Cached in
+    ``cache`` like ``case_searches``."""
+    import numpy as np
+
+    from run_benchmark import _true_radius_deg
+    from zcomp_cli.light import search as estimate
+
+    def record(case, s, sc, t, _up):
+        fl = s.modes[0][0] if s.modes else s.light
+        toward = estimate.light_direction(fl, s.anchor)
+        ref = _reference(t, toward)
+        if ref is None:
+            return None
+        radii, ll = estimate.radius_scores(sc, fl, s.anchor, settings, 0)
+        err = float(np.degrees(np.arccos(np.clip(true_direction(ref, s.anchor) @ toward, -1.0, 1.0))))
+        rec = {"case": f"{bench.name}/{case['id']}", "kind": fl.kind, "radii": radii, "ll": ll, "err_deg": err,
+               "true_radius": float(_true_radius_deg(ref, case)), "shown": bool(t["shown"]), "case_desc": case}
+        print(f"  {bench.name}/{case['id']}: {err:.1f} deg off, true radius {rec['true_radius']:.2f} deg", flush=True)
+        return rec
+
+    return _per_case(bench, settings, cache, "radii", record)
+
+
+def radius_right(drawn: float, true: float) -> bool:
+    """Issue 47's test of a drawn size: within a factor 2 of the truth, or under 2 deg
+    where the truth is under 1 deg."""
+    if true < 1.0:
+        return drawn < 2.0
+    return true / 2.0 <= drawn <= 2.0 * true
+
+
+def _sizes_right(sel: list, T: float, odds: float) -> tuple[int, int, float]:
+    """(right sizes, cases, mean |log2(drawn / true)| with sizes under 0.1 deg as 0.1)
+    of the records ``sel`` drawn at ``odds``."""
+    import math
+
+    from zcomp_cli.light.search import picked_radius
+
+    drawn = [picked_radius(r["radii"], r["ll"], T, odds)[0] for r in sel]
+    right = sum(radius_right(d, r["true_radius"]) for d, r in zip(drawn, sel))
+    lr = [abs(math.log2(max(d, 0.1) / max(r["true_radius"], 0.1))) for d, r in zip(drawn, sel)]
+    return right, len(sel), (statistics.mean(lr) if lr else float("nan"))
+
+
+def radius_lines(recs: list, grid: list, T: float, hold: dict) -> tuple[float, list[str]]:
+    """(the odds chosen, the lines printed), over the cases whose background shows the
+    light's cast shadows and whose drawn direction is within 10 deg of the truth (where
+    a size is read at all): per odds of ``grid``, the right sizes (``radius_right``) of
+    the drawn suns on the fit cases and on the held-out ones, and the mean
+    |log2(drawn / true)|; the odds with the most right sizes on the fit cases (then the
+    least mean log ratio) are chosen. The drawn lamps (no odds: ``search.default_odds``)
+    are printed beside, at 0."""
+    pop = [r for r in recs if r["shown"] and r["err_deg"] <= 10.0]
+    suns = [r for r in pop if r.get("kind", "sun") == "sun"]
+    fit = [r for r in suns if not held_out(r["case_desc"], hold)]
+    check = [r for r in suns if held_out(r["case_desc"], hold)]
+    lines, best = [], None
+    for odds in grid:
+        (fr, fn, fl), (cr, cn, cl) = _sizes_right(fit, T, odds), _sizes_right(check, T, odds)
+        lines.append(f"  DEFAULT_RADIUS_ODDS {odds:g}: right sizes of the drawn suns {fr}/{fn} fit cases (mean "
+                     f"|log2 ratio| {fl:.2f}), {cr}/{cn} held out ({cl:.2f})")
+        key = (fr, -fl)
+        if best is None or key > best[0]:
+            best = (key, odds)
+    lamps = [r for r in pop if r.get("kind") == "lamp"]
+    for name, sel in (("fit cases", [r for r in lamps if not held_out(r["case_desc"], hold)]),
+                      ("held out", [r for r in lamps if held_out(r["case_desc"], hold)])):
+        if sel:
+            right, n, lr = _sizes_right(sel, T, 0.0)
+            lines.append(f"  the drawn lamps (no odds), {name}: right sizes {right}/{n} (mean |log2 ratio| {lr:.2f})")
+    return (best[1] if best else 1.0), lines
 
 
 def posterior_of(rec: dict, T: float, gate: float, power: float, weighed: bool = True, misled: float = 0.0):
@@ -231,6 +339,9 @@ def main(argv=None) -> int:
     ap.add_argument("--hold-out", nargs="*", default=["hdr=studio", "lamp=AREA", "shape=chair"],
                     metavar="FAMILY=A,B", help="generator families held out of the fit (hdr, lamp, shape)")
     ap.add_argument("--cache", type=Path, default=None, help="keep each benchmark's searches here")
+    ap.add_argument("--radius-odds-grid", default="",
+                    help="also fit search.default_radius_odds: the odds to score (e.g. 0,0.25,0.5,1,2; each case's "
+                         "search is run again for its radii, cached beside its searches)")
     ap.add_argument("--check", nargs="*", type=Path, default=[], metavar="BENCH",
                     help="benchmarks never fitted on (a report seed): scored at the chosen constants only")
     args = ap.parse_args(argv)
@@ -296,13 +407,21 @@ def main(argv=None) -> int:
         ls = [posterior_of(r, T, gate, power, weighed, misled).log_density(r["truth"]) for r in sel]
         print(f"  {b} (checked, not fitted on): n={len(sel)}, mean log score {statistics.mean(ls):.3f}")
         print("\n".join(coverage_lines(sel, T, gate, power, weighed, misled)))
+    odds_grid = [float(x) for x in args.radius_odds_grid.split(",") if x.strip()]
+    odds = SearchConfig().default_radius_odds
+    if odds_grid:
+        radii = [r for b in args.benches for r in case_radii(b, DEFAULTS, args.cache)]
+        odds, lines = radius_lines(radii, odds_grid, T, hold)
+        print("the drawn size (where the shadows show and the direction is within 10 deg):")
+        print("\n".join(lines))
+        print(f"default_radius_odds = {odds:g}")
     fitted = dataclasses.replace(SearchConfig(), prior_sky_share=round(share, 2),
                                  prior_sky_share_spread=round(spread, 2), temperature=T, gate=gate,
                                  elevation_prior_power=power, cue_weights=weighed, misled=misled)
     print(f"SearchConfig(prior_sky_share={fitted.prior_sky_share}, prior_sky_share_spread="
           f"{fitted.prior_sky_share_spread}, temperature={fitted.temperature:g}, misled={fitted.misled:g}, "
           f"cue_weights={fitted.cue_weights}, gate={fitted.gate:g}, "
-          f"elevation_prior_power={fitted.elevation_prior_power:g})")
+          f"elevation_prior_power={fitted.elevation_prior_power:g}, default_radius_odds={odds:g})")
     return 0
 
 

@@ -202,3 +202,33 @@ def test_a_lamps_pool_of_light_places_it_where_no_shadow_shows(position):
         assert found and len(m.lamps) == 1 and not m.suns and m.fit.uncertainty_deg < 15.0
     else:
         assert found or (m.fit.unfixed and m.fit.uncertainty_deg > 30.0)
+
+
+def test_the_size_rule_keeps_the_default_unless_another_beats_it_by_the_odds():
+    """``search.picked_radius``: the likeliest radius at the posterior's temperature,
+    unless the default (the first, the Sun's) is within ``default_radius_odds`` of it."""
+    from zcomp_cli.light.search import picked_radius
+    from zcomp_cli.scene.lightparams import SUN_RADIUS_DEG, Origin
+
+    radii = (SUN_RADIUS_DEG, 1.0, 4.0)
+    ll = np.array([0.0, 5.0, 12.0])
+    assert picked_radius(radii, ll, 10.0, 1.0) == (4.0, Origin.SHADOWS)  # 1.2 units ahead
+    assert picked_radius(radii, ll, 10.0, 1.5) == (SUN_RADIUS_DEG, Origin.DEFAULT)  # not 1.5 ahead
+    assert picked_radius(radii, ll, 1.0, 100.0) == (SUN_RADIUS_DEG, Origin.DEFAULT)
+    assert picked_radius(radii, ll, 10.0, 0.0) == (4.0, Origin.SHADOWS)  # no odds: the likeliest
+    assert picked_radius(radii, np.array([3.0, 1.0, 2.0]), 10.0, 0.0) == (SUN_RADIUS_DEG, Origin.DEFAULT)
+
+
+def test_a_sun_has_the_suns_size_as_its_default_and_a_lamp_no_typical_size():
+    """``search.default_odds``: the fitted odds for a sun, none for a lamp (a bulb, a
+    panel, a softbox alike), so a lamp is drawn at the size its shadows like best."""
+    import dataclasses
+
+    from zcomp_cli.light.config import LightConfig
+    from zcomp_cli.light.search import FitLight, default_odds
+
+    cfg = LightConfig()
+    cfg = dataclasses.replace(cfg, search=dataclasses.replace(cfg.search, default_radius_odds=2.5))
+    sun = FitLight("sun", np.array([0.0, 1.0, 0.0]), None, np.zeros(0))
+    lamp = FitLight("lamp", np.array([0.0, 2.0, -3.0]), None, np.zeros(0))
+    assert default_odds(sun, cfg) == 2.5 and default_odds(lamp, cfg) == 0.0

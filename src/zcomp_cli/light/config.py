@@ -97,6 +97,12 @@ class SearchConfig:
     prior_sky_share_spread: float = knob(0.15, "fitted", "that share's spread over the development cases: the "
                                                          "prior's weight against the shadows' measurement "
                                                          "(fit_light_constants.py)", hi=10.0)
+    default_radius_odds: float = knob(3.0, "fitted", "a sun keeps the Sun's size unless another's tempered "
+                                                     "log-likelihood beats it by this much: the default's prior "
+                                                     "odds, fitted on the calibration cases' true sizes "
+                                                     "(benchmarks/fit_light_constants.py --radius-odds-grid); a "
+                                                     "lamp has no typical size, no odds (search.default_odds)",
+                                      lo=0.0, lo_open=False, hi=100.0)
     radii_deg: tuple = knob((0.0, 1.0, 2.0, 4.0, 8.0, 16.0), "sampling", "angular radii a sun's size is chosen "
                                                                           "among (the Sun's own besides)", hi=MAX_RADIUS_DEG)
     lamp_distances_rel: tuple = knob((0.3, 0.6, 1.2, 2.4), "sampling", "a lamp's distances along a direction, in "

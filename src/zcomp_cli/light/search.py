@@ -563,9 +563,9 @@ def choose_size(pp: Prepared, sc: _Scorer, light: FitLight, settings: LightConfi
     its angular radius seen from the caster's base (``anchor``; a sun's is the same from
     everywhere) among the Sun's own (``SUN_RADIUS_DEG``, the default) and
     ``search.radii_deg``, the one whose cone-averaged shadow has the largest summed
-    log-likelihood -- unless the default is within one unit of tempered log-likelihood of
-    it (the pixels cannot tell: the default stays, a bulb's ``LAMP_RADIUS_M`` for a
-    lamp). The width of a shadow's soft edge against its caster's distance is what tells
+    log-likelihood -- unless the default is within ``search.default_radius_odds`` of it
+    in tempered log-likelihood (the pixels cannot tell: the default stays, a bulb's
+    ``LAMP_RADIUS_M`` for a lamp; the odds fitted on the calibration cases' true sizes). The width of a shadow's soft edge against its caster's distance is what tells
     the radii apart (a light's size is the penumbra's, never the direction's doubt). A
     lamp's radius in metres covers that angle at its distance from ``anchor``. The
     renderer's ``shadow_softness`` forces one (a sun's angle)."""
@@ -591,8 +591,24 @@ def chosen_radius(sc: _Scorer, light: FitLight, anchor, settings: LightConfig, s
     ``Origin.SHADOWS`` where they chose it). A sun's candidates are suns of each radius; a
     lamp's, lamps at its place whose radius covers each angle at its distance, scored on
     their own shadows and columns (a big lamp's pool of light is not a bulb's). The most
-    likely radius, unless the default (the Sun's, a bulb's) is within one unit of it at
-    the posterior's temperature."""
+    likely radius, unless the default (the Sun's, a bulb's) is within
+    ``search.default_radius_odds`` of it at the posterior's temperature
+    (``picked_radius``)."""
+    radii, ll = radius_scores(sc, light, anchor, settings, seed)
+    return picked_radius(radii, ll, settings.search.temperature, default_odds(light, settings))
+
+
+def default_odds(light: FitLight, settings: LightConfig) -> float:
+    """The default size's prior odds (tempered log-likelihood) for ``light``: a sun's
+    angular size is the Sun's, to within the sky's haze, so its default is kept unless
+    the shadows beat it (``search.default_radius_odds``, fitted); a lamp has no typical
+    size (a bulb, a panel, a window's softbox), so no candidate is preferred."""
+    return settings.search.default_radius_odds if light.kind == "sun" else 0.0
+
+
+def radius_scores(sc: _Scorer, light: FitLight, anchor, settings: LightConfig, seed: int) -> tuple[tuple, np.ndarray]:
+    """(the candidate angular radii, the Sun's own first; (n,) each one's untempered
+    log-likelihood): ``light`` at each radius (``chosen_radius``)."""
     radii = (SUN_RADIUS_DEG,) + tuple(r for r in settings.search.radii_deg if r != SUN_RADIUS_DEG)
     d = light_direction(light, anchor)
     dist = float(np.linalg.norm(np.asarray(light.param, np.float64) - np.asarray(anchor, np.float64)))
@@ -604,9 +620,16 @@ def chosen_radius(sc: _Scorer, light: FitLight, anchor, settings: LightConfig, s
             rm = LAMP_RADIUS_M if r == SUN_RADIUS_DEG else dist * math.tan(math.radians(r))
             sf, lh = sc.lamp_sized(light.param, rm, light.facing)
         ll, _ = sc.loglik(sf, lh)
-        scored.append(float(ll[0]) / settings.search.temperature)
-    i = int(np.argmax(scored))
-    if scored[i] - scored[0] < 1.0:
+        scored.append(float(ll[0]))
+    return radii, np.asarray(scored)
+
+
+def picked_radius(radii, ll: np.ndarray, temperature: float, odds: float) -> tuple[float, Origin]:
+    """(radius, origin) the rule picks from ``radius_scores``: the likeliest, unless the
+    first (the default) is within ``odds`` of it at ``temperature``."""
+    t = np.asarray(ll, np.float64) / float(temperature)
+    i = int(np.argmax(t))
+    if i == 0 or t[i] - t[0] < odds:
         return SUN_RADIUS_DEG, Origin.DEFAULT
     return float(radii[i]), Origin.SHADOWS
 
@@ -740,4 +763,5 @@ def split_from_shadows(sc: "_Scorer", light: FitLight, radius: float | None = No
 
 
 __all__ = ["FitLight", "Search", "Scored", "search", "search_scorer", "choose_size", "chosen_radius", "sized",
+           "radius_scores", "picked_radius", "default_odds",
            "split_from_shadows", "share_moved", "unshadowed", "sun_column", "lamp_column", "log_elevation_prior", "weighted_marginal"]

@@ -45,8 +45,9 @@ from zcomp_cli.scene.lightparams import LightParams
 # widened to its doubt: issue 47. 6: each cue at the weight its own blocks bear out, and
 # gated: issue 47. 7: the posterior mixed with the prior by the chance that its cues
 # mislead, at the temperature fitted with it: issue 47. 8: the split read with the shadow
-# the drawn light casts at its size and moved by a lamp's fall-off to where it is stated:
-# issue 47.)
+# the drawn light casts at its size and moved by a lamp's fall-off to where it is stated;
+# a sun's size kept at the Sun's unless its shadows beat it by the fitted odds, a lamp's
+# the likeliest: issue 47.)
 FORMAT = 8
 # Fits kept in memory (per process): a batch visits its scenes in order, so a few are
 # enough; each holds the posterior and the evidence's small maps.
