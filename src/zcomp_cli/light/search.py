@@ -563,12 +563,12 @@ def choose_size(pp: Prepared, sc: _Scorer, light: FitLight, settings: LightConfi
     its angular radius seen from the caster's base (``anchor``; a sun's is the same from
     everywhere) among the Sun's own (``SUN_RADIUS_DEG``, the default) and
     ``search.radii_deg``, the one whose cone-averaged shadow has the largest summed
-    log-likelihood -- unless the default is within ``search.default_radius_odds`` of it
-    in tempered log-likelihood (the pixels cannot tell: the default stays, a bulb's
-    ``LAMP_RADIUS_M`` for a lamp; the odds fitted on the calibration cases' true sizes). The width of a shadow's soft edge against its caster's distance is what tells
-    the radii apart (a light's size is the penumbra's, never the direction's doubt). A
-    lamp's radius in metres covers that angle at its distance from ``anchor``. The
-    renderer's ``shadow_softness`` forces one (a sun's angle)."""
+    log-likelihood -- unless the default is within the default's odds of it in tempered
+    log-likelihood (``default_odds``: a sun's fitted, a lamp's none). The width of a
+    shadow's soft edge against its caster's distance is what tells the radii apart (a
+    light's size is the penumbra's, never the direction's doubt). A lamp's radius in
+    metres covers that angle at its distance from ``anchor``. The renderer's
+    ``shadow_softness`` forces one (a sun's angle)."""
     if light.kind == "sun" and settings.shadow_softness is not None:
         r = float(settings.shadow_softness)
         return dataclasses.replace(light, radius=r, radius_from=Origin.MANIFEST, column=at.sun_column(
@@ -591,9 +591,8 @@ def chosen_radius(sc: _Scorer, light: FitLight, anchor, settings: LightConfig, s
     ``Origin.SHADOWS`` where they chose it). A sun's candidates are suns of each radius; a
     lamp's, lamps at its place whose radius covers each angle at its distance, scored on
     their own shadows and columns (a big lamp's pool of light is not a bulb's). The most
-    likely radius, unless the default (the Sun's, a bulb's) is within
-    ``search.default_radius_odds`` of it at the posterior's temperature
-    (``picked_radius``)."""
+    likely radius, unless the default (the Sun's, a bulb's) is within its odds
+    (``default_odds``) of it at the posterior's temperature (``picked_radius``)."""
     radii, ll = radius_scores(sc, light, anchor, settings, seed)
     return picked_radius(radii, ll, settings.search.temperature, default_odds(light, settings))
 
@@ -742,7 +741,8 @@ def split_from_shadows(sc: "_Scorer", light: FitLight, radius: float | None = No
     cfg = sc.settings.search
     V = receiver_visibility(sc, light, radius)[:, None]
     tied = sc.evidence.tied[sc.rec.ys, sc.rec.xs]
-    share = float((sc.rec.weight * (1.0 - V[:, 0]) * tied).sum()) / max(float(sc.rec.weight.sum()), 1e-12)
+    w = sc.rec.weight * (1.0 - V[:, 0]) * tied  # the receivers in its shadow and in a tied one
+    share = float(w.sum()) / max(float(sc.rec.weight.sum()), 1e-12)
     n_eff = share * sc.rec.blocks
     if n_eff <= 0:
         return cfg.prior_sky_share, 0.0
@@ -751,17 +751,15 @@ def split_from_shadows(sc: "_Scorer", light: FitLight, radius: float | None = No
     # noise scale, as the first scoring of a search sets it)
     sigma = fit_.best_sigma if sc.sigma is None else sc.sigma
     rho = float(np.clip(fit_.ratio[0], 0.0, 1.0))
-    w = sc.rec.weight * (1.0 - V[:, 0]) * tied
-    up = sc.fp.up
-    e_shadow = float((w * unshadowed(light, sc.rec.origins, up)).sum()) / max(float(w.sum()), 1e-12)
     fp = sc.fp
+    e_shadow = float((w * unshadowed(light, sc.rec.origins, fp.up)).sum()) / max(float(w.sum()), 1e-12)
     pts = fp.points[fp.support] if fp.support.sum() >= 3 else fp.points
-    e_support = float(np.median(unshadowed(light, pts, up))) if len(pts) else e_shadow
+    e_support = float(np.median(unshadowed(light, pts, fp.up))) if len(pts) else e_shadow
     if e_shadow > 1e-12:
         rho = share_moved(rho, e_support / e_shadow)
     return _shrunk_share(rho, n_eff, sigma, cfg), n_eff
 
 
 __all__ = ["FitLight", "Search", "Scored", "search", "search_scorer", "choose_size", "chosen_radius", "sized",
-           "radius_scores", "picked_radius", "default_odds",
-           "split_from_shadows", "share_moved", "unshadowed", "sun_column", "lamp_column", "log_elevation_prior", "weighted_marginal"]
+           "radius_scores", "picked_radius", "default_odds", "split_from_shadows", "share_moved", "unshadowed",
+           "receiver_visibility", "sun_column", "lamp_column", "log_elevation_prior", "weighted_marginal"]

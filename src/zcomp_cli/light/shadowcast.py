@@ -67,7 +67,7 @@ class Receivers:
         """(``sw`` (R,) the weights' roots, ``Q`` (R, p) an orthonormal basis of the lit
         level's weighted span, ``yr`` (R,) the weighted log shading less its projection):
         what every ``shadow_fit`` of these receivers shares, one SVD for all of them (it
-        was one per call: half the light estimate's time)."""
+        was one per call)."""
         w = np.maximum(self.weight, 0.0)
         sw = np.sqrt(w)
         U, sv, _ = np.linalg.svd(self.basis * sw[:, None], full_matrices=False)
