@@ -260,7 +260,7 @@ def test_a_lamps_split_is_read_across_its_shadow_and_stated_on_the_floor_it_ligh
 
 def test_a_soft_suns_split_is_read_with_its_own_penumbra():
     """A sun 8 deg wide: its shadow's ratio is read with the shadow the composite draws
-    at that size (``search.receiver_visibility``), not a point's hard edge, whose lit
+    at that size (``_Scorer.visibility``), not a point's hard edge, whose lit
     side takes in the penumbra and reads the sky's share high."""
     amb = 0.3
     s = floor_scene(128, 96, light_dir=(0.6, 1.0, 0.3), ambient=amb, with_box=True, box_center=(0.4, -3.0),

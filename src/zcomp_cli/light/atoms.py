@@ -91,6 +91,11 @@ class FitPixels:
 
         return dataclasses.replace(self, caster=caster)
 
+    @property
+    def support_points(self) -> np.ndarray:
+        """(M, 3) the support's points (every point where fewer than 3 are on it)."""
+        return self.points[self.support] if self.support.sum() >= 3 else self.points
+
     def ray_origins(self) -> np.ndarray:
         """(N, 3) the points moved off their surface along the normal (``bias_rel`` of
         their depth), where shadow rays start."""
@@ -336,7 +341,7 @@ def lamp_candidates(fp: FitPixels, n_directions: int, distances_rel) -> np.ndarr
     """(K, 3) lamp positions to try: above the support's centre, in ``n_directions``
     directions above the ground, at ``distances_rel`` times the support's median
     distance from the camera (a relative depth map gives the same candidates)."""
-    pts = fp.points[fp.support] if fp.support.sum() >= 3 else fp.points
+    pts = fp.support_points
     aim = np.median(pts, 0)
     scale = float(np.median(np.linalg.norm(pts, axis=1)))
     W = fibonacci_sphere(2 * int(n_directions))

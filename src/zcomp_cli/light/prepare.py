@@ -56,8 +56,7 @@ class Prepared:
     def anchor(self) -> np.ndarray:
         """(3,) the support's centre (median of its fit pixels), where a lamp's direction
         is measured from."""
-        fp = self.fp
-        pts = fp.points[fp.support] if fp.support.sum() >= 3 else fp.points
+        pts = self.fp.support_points
         return np.median(pts, 0) if len(pts) else np.zeros(3)
 
 

@@ -191,9 +191,9 @@ class _Scorer:
             V = np.zeros((len(self.rec), len(D)))
             C = np.zeros((len(self.fp), len(D)))
             for j, d in enumerate(D):
-                cone = cone_directions(d, radius_deg, k, seed=seed)
-                V[:, j] = sun_visibility(self.pp.grid.caster, self.rec, cone).mean(1)
-                C[:, j] = at.sun_columns(self.fp, cone, steps=self.settings.estimate_march_steps).mean(1)
+                V[:, j] = self.visibility("sun", d, radius_deg, seed)
+                C[:, j] = at.sun_columns(self.fp, cone_directions(d, radius_deg, k, seed=seed),
+                                         steps=self.settings.estimate_march_steps).mean(1)
         else:
             V = sun_visibility(self.pp.grid.caster, self.rec, D)
             C = at.sun_columns(self.fp, D, steps=self.settings.estimate_march_steps)
@@ -240,14 +240,27 @@ class _Scorer:
         """(scored shadow fit, photometric held-out losses (1,)) of one lamp of radius
         ``radius_m`` at ``position`` (a panel facing ``facing``): its shadow averaged over
         ``cone_samples`` points of its sphere, its column ``lamp_column``'s."""
-        from zcomp_cli.light.shadowcast import lamp_visibility
-        from zcomp_cli.scene.sampling import fibonacci_sphere
-
         q = np.asarray(position, np.float64)
-        pts = q[None] + float(radius_m) * fibonacci_sphere(max(1, self.settings.cone_samples))
-        V = lamp_visibility(self.pp.grid.caster, self.rec, pts).mean(1, keepdims=True)
+        V = self.visibility("lamp", q, float(radius_m))[:, None]
         C = lamp_column(self.fp, q, float(radius_m), facing, self.settings, 0)[:, None]
         return self._scored(shadow_fit(self.rec, V, self.settings.search)), self.photo_losses(C)
+
+    def visibility(self, kind: str, param, radius: float | None = None, seed: int = 0) -> np.ndarray:
+        """(R,) how much of a light each receiver sees past the depth mesh: a sun
+        (``param`` its direction) over ``cone_samples`` directions of its disc of
+        ``radius`` degrees, a lamp (``param`` its position) over as many points of its
+        sphere of ``radius`` metres; 1 or 0 for a point (``radius`` None, 0 or nan)."""
+        from zcomp_cli.light.shadowcast import lamp_visibility
+        from zcomp_cli.scene.sampling import cone_directions, fibonacci_sphere
+
+        q = np.asarray(param, np.float64)
+        k = max(1, self.settings.cone_samples)
+        r = 0.0 if radius is None or not np.isfinite(radius) else float(radius)
+        if kind == "sun":
+            dirs = cone_directions(q, r, k, seed=seed) if r > 0 else q[None]
+            return sun_visibility(self.pp.grid.caster, self.rec, dirs).mean(1)
+        pts = q[None] + r * fibonacci_sphere(k) if r > 0 else q[None]
+        return lamp_visibility(self.pp.grid.caster, self.rec, pts).mean(1)
 
     def _scored(self, fit_) -> "_Shadow":
         if self.sigma is None:
@@ -481,8 +494,7 @@ def search(pp: Prepared, settings: LightConfig, seed: int = 0) -> tuple[Search, 
     # must explain the photograph better than the sun by the log of their number)
     n_lamp = len(cfg.lamp_distances_rel)
     log_opt_prior = np.log(np.array([0.5] + [0.5 / max(n_lamp, 1)] * n_lamp))
-    pts = fp.points[fp.support] if fp.support.sum() >= 3 else fp.points
-    dists = float(np.median(np.linalg.norm(pts, axis=1))) * np.asarray(cfg.lamp_distances_rel, np.float64)
+    dists = float(np.median(np.linalg.norm(fp.support_points, axis=1))) * np.asarray(cfg.lamp_distances_rel, np.float64)
     anchor = caster_anchor(pp, ev, settings.evidence)
 
     def lamps(positions):
@@ -707,24 +719,6 @@ def share_moved(rho: float, c: float) -> float:
     return 1.0 if den <= 1e-12 else rho / den
 
 
-def receiver_visibility(sc: "_Scorer", light: FitLight, radius: float | None = None, seed: int = 0) -> np.ndarray:
-    """(R,) how much of ``light`` each receiver sees past the depth mesh: 1 or 0 for a
-    point (``radius`` None or 0), the share of its disc (a sun's ``radius`` degrees, its
-    ``cone_samples`` directions) or sphere (a lamp's ``radius`` metres, as many points)
-    where it has a size, as ``_Scorer.suns`` and ``lamp_sized`` shade it."""
-    from zcomp_cli.light.shadowcast import lamp_visibility
-    from zcomp_cli.scene.sampling import cone_directions, fibonacci_sphere
-
-    q = np.asarray(light.param, np.float64)
-    k = max(1, sc.settings.cone_samples)
-    r = 0.0 if radius is None or not np.isfinite(radius) else float(radius)
-    if light.kind == "sun":
-        dirs = cone_directions(q, r, k, seed=seed) if r > 0 else q[None]
-        return sun_visibility(sc.pp.grid.caster, sc.rec, dirs).mean(1)
-    pts = q[None] + r * fibonacci_sphere(k) if r > 0 else q[None]
-    return lamp_visibility(sc.pp.grid.caster, sc.rec, pts).mean(1)
-
-
 def split_from_shadows(sc: "_Scorer", light: FitLight, radius: float | None = None) -> tuple[float, float]:
     """Step 5: (the sky's share of the support's light, the blocks of shadow evidence
     behind it): Madsen and Nielsen's shadowed/lit ratio of the same surface, read across
@@ -739,7 +733,7 @@ def split_from_shadows(sc: "_Scorer", light: FitLight, radius: float | None = No
     alike; a lamp's light falls off, so ``rho`` is moved by its unshadowed irradiance
     there against the shadow's (``share_moved``)."""
     cfg = sc.settings.search
-    V = receiver_visibility(sc, light, radius)[:, None]
+    V = sc.visibility(light.kind, light.param, radius)[:, None]
     tied = sc.evidence.tied[sc.rec.ys, sc.rec.xs]
     w = sc.rec.weight * (1.0 - V[:, 0]) * tied  # the receivers in its shadow and in a tied one
     share = float(w.sum()) / max(float(sc.rec.weight.sum()), 1e-12)
@@ -753,7 +747,7 @@ def split_from_shadows(sc: "_Scorer", light: FitLight, radius: float | None = No
     rho = float(np.clip(fit_.ratio[0], 0.0, 1.0))
     fp = sc.fp
     e_shadow = float((w * unshadowed(light, sc.rec.origins, fp.up)).sum()) / max(float(w.sum()), 1e-12)
-    pts = fp.points[fp.support] if fp.support.sum() >= 3 else fp.points
+    pts = fp.support_points
     e_support = float(np.median(unshadowed(light, pts, fp.up))) if len(pts) else e_shadow
     if e_shadow > 1e-12:
         rho = share_moved(rho, e_support / e_shadow)
@@ -762,4 +756,4 @@ def split_from_shadows(sc: "_Scorer", light: FitLight, radius: float | None = No
 
 __all__ = ["FitLight", "Search", "Scored", "search", "search_scorer", "choose_size", "chosen_radius", "sized",
            "radius_scores", "picked_radius", "default_odds", "split_from_shadows", "share_moved", "unshadowed",
-           "receiver_visibility", "sun_column", "lamp_column", "log_elevation_prior", "weighted_marginal"]
+           "sun_column", "lamp_column", "log_elevation_prior", "weighted_marginal"]

@@ -251,7 +251,7 @@ class SceneLight:
                                               loglik=z["post_loglik"] if "post_loglik" in z else None,
                                               log_prior=z["post_prior"] if "post_prior" in z else None,
                                               temperature=float(z["post_temperature"]),
-                                              misled=float(z["post_misled"]) if "post_misled" in z else 0.0)
+                                              misled=float(z["post_misled"]))
                 ev = None
                 if "ev_soft" in z:
                     ev = LightEvidence(soft_mask=z["ev_soft"], confidence=z["ev_conf"], ratio=z["ev_ratio"],
