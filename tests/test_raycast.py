@@ -209,3 +209,59 @@ def test_chunking_does_not_change_the_answers(cube, monkeypatch):
     monkeypatch.setattr(raycast, "RAY_CHUNK", 7)
     assert (cube.occluded(o, d, t) == occ).all()
     np.testing.assert_array_equal(cube.hit_distance(o, d), dist)
+
+
+def _grid_rays(n=40, k=9, seed=5):
+    rng = np.random.default_rng(seed)
+    o = rng.uniform(-2, 2, size=(n, 3))
+    d = rng.normal(size=(k, 3)) * rng.uniform(0.5, 3.0, size=(k, 1))  # not unit: normalised inside
+    o[3] = np.nan  # a bad origin and a bad direction: never occluded, never raise
+    d[2] = 0.0
+    return o, d
+
+
+def test_occluded_grid_is_occluded_on_every_pair(cube):
+    o, d = _grid_rays()
+    got = cube.occluded_grid(o, d)
+    assert got.shape == (len(d), len(o))
+    want = np.stack([cube.occluded(o, dk) for dk in d])
+    np.testing.assert_array_equal(got, want)
+    assert 0 < got.sum() < got.size
+    assert not got[:, 3].any() and not got[2].any()
+
+
+def test_occluded_grid_traces_only_the_live_pairs(cube):
+    o, d = _grid_rays()
+    full = cube.occluded_grid(o, d)
+    live = np.random.default_rng(1).random(full.shape) < 0.5
+    got = cube.occluded_grid(o, d, live)
+    np.testing.assert_array_equal(got, full & live)
+    assert not cube.occluded_grid(o, d, np.zeros_like(live)).any()
+
+
+def test_threads_change_no_answer(cube, monkeypatch):
+    """The queries split over threads (and over parts of directions) give each ray the
+    answer it has in one piece; a query made from inside the pool runs on its own thread."""
+    from zcomp_cli import threads
+    from zcomp_cli.scene import raycast
+
+    rng = np.random.default_rng(7)
+    o = rng.uniform(-2, 2, size=(2000, 3))
+    d = rng.normal(size=(2000, 3))
+    t = rng.uniform(0.1, 3.0, size=2000)
+    og, dg = _grid_rays(n=300, k=11)
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    one = cube.occluded(o, d, t), cube.hit_distance(o, d), cube.occluded_grid(og, dg)
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")
+    monkeypatch.setattr(raycast, "MIN_THREAD_RAYS", 64)
+    many = cube.occluded(o, d, t), cube.hit_distance(o, d), cube.occluded_grid(og, dg)
+    for a, b in zip(one, many):
+        np.testing.assert_array_equal(a, b)
+    inside = threads.pool().submit(lambda: (cube.occluded(o, d, t), cube.occluded_grid(og, dg))).result()
+    np.testing.assert_array_equal(inside[0], one[0])
+    np.testing.assert_array_equal(inside[1], one[2])
+
+
+def test_direction_count_must_match_the_origins(cube):
+    with pytest.raises(ValueError, match="3 origins but 2 directions"):
+        cube.occluded(np.zeros((3, 3)), np.ones((2, 3)))

@@ -101,6 +101,7 @@ def within_reach(points: np.ndarray, casters: np.ndarray, up, support: np.ndarra
     cfg = EvidenceConfig() if cfg is None else cfg
     from scipy.spatial import cKDTree
 
+    from zcomp_cli.threads import compute_threads
     from zcomp_cli.worldframe import ground_frame
 
     out = np.zeros(support.shape, bool)
@@ -121,7 +122,7 @@ def within_reach(points: np.ndarray, casters: np.ndarray, up, support: np.ndarra
         if height <= 0:
             continue
         tree = cKDTree(np.stack([C @ right, C @ fwd], 1))
-        dist, _ = tree.query(Sg, k=1, distance_upper_bound=cfg.reach_heights * height)
+        dist, _ = tree.query(Sg, k=1, distance_upper_bound=cfg.reach_heights * height, workers=compute_threads())
         hit |= np.isfinite(dist)
     out[support] = hit
     return out

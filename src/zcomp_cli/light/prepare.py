@@ -107,6 +107,7 @@ def prepare(depth, normals, shading, known, albedo, camera: Camera, up, settings
     from zcomp_cli.light.ledger import timed
     from zcomp_cli.scene.depthmesh import build_depth_mesh
     from zcomp_cli.scene.planes import find_walls
+    from zcomp_cli.threads import beside
     from zcomp_cli.worldframe import ground_frame
 
     # the shadows' copy: its walls beyond the frame, its mesh
@@ -122,18 +123,23 @@ def prepare(depth, normals, shading, known, albedo, camera: Camera, up, settings
     if len(fp) == 0:
         return Prepared(fp=fp, shading=S, sky_vis=(np.zeros((1, 0, 3)), np.zeros((1, 0))), ground=np.zeros(3),
                         frame=frame, lobe_columns=np.zeros((0, len(at.sky_lobes(frame)))))
-    mesh = caster = None
-    if shadows:
+    def shadow_mesh():
         with timed({} if steps is None else steps, "shadows"):
-            mesh = build_depth_mesh(d2, n2, cam2, up, walls=walls, cfg=settings.mesh)
-            caster = mesh.caster()
-        fp = dataclasses.replace(fp, caster=caster)
+            m = build_depth_mesh(d2, n2, cam2, up, walls=walls, cfg=settings.mesh)
+            return m, m.caster()
+
+    # the depth mesh and its tracer are built on a second thread while this one fits the
+    # photometric atoms (neither reads the other: the atoms' sky is marched on the depth)
+    meshing = beside(shadow_mesh) if shadows else None
     ground = at.ground_radiance(fp, S)
     vis = at.sky_visibility(fp)
     S = np.maximum(S - at.bounce(fp, ground), 0.0)
     lobes = np.stack([at.sky_atom_values(fp, c, vis) for _, c in at.sky_lobes(frame)], 1)
     r = (at.specular_roughness(fp, S, lobes, cfg=settings.frame, solver=settings.solver) if fp.train.any()
          else float("nan"))
+    mesh, caster = meshing.result() if meshing is not None else (None, None)
+    if shadows:
+        fp = dataclasses.replace(fp, caster=caster)
     if not shadows:
         return Prepared(fp=fp, shading=at.offset_shading(fp, S, r), sky_vis=vis, ground=ground, frame=frame,
                         lobe_columns=lobes, specular_roughness=r)

@@ -69,6 +69,7 @@ from zcomp_cli.light.shadowcast import shadow_fit, sun_visibility
 from zcomp_cli.light.solver import base_sigma, candidate_losses
 from zcomp_cli.scene.lightparams import LAMP_RADIUS_M, SUN_RADIUS_DEG, Origin
 from zcomp_cli.scene.sampling import fine_spiral, hemisphere, spacing_deg
+from zcomp_cli.threads import beside
 
 
 @dataclass(frozen=True)
@@ -207,8 +208,14 @@ class _Scorer:
         probability 1/2. Returns (scored shadow fit, held-out losses, columns, hard
         visibility (R, K))."""
         D = np.asarray(dirs, np.float64).reshape(-1, 3)
-        C = at.sun_columns(self.fp, D, steps=self.settings.estimate_march_steps)
-        lh, lh_blocks = self.photo_losses(C, by_block=True)
+
+        def photometric():
+            C = at.sun_columns(self.fp, D, steps=self.settings.estimate_march_steps)
+            return C, self.photo_losses(C, by_block=True)
+
+        # the photometric cue on a second thread while this one traces the shadows (the
+        # two read nothing of each other's)
+        photo = beside(photometric)
         V = sun_visibility(self.pp.grid.caster, self.rec, D)
         near = (D @ D.T >= math.cos(math.radians(self.settings.search.soft_deg))).astype(np.float64)
         hard = shadow_fit(self.rec, V, self.settings.search)
@@ -223,6 +230,7 @@ class _Scorer:
         ids, n = self.rec_blocks
         blk = np.where(is_soft[None], soft.block_loglik(self.sigma, ids, n), hard.block_loglik(self.sigma, ids, n))
         blk += ((ll - np.maximum(lhard, lsoft)) / max(n, 1))[None]
+        C, (lh, lh_blocks) = photo.result()
         return _Shadow(ll, ratio, blk), (lh, lh_blocks), C, V
 
     def lamps(self, positions):
@@ -273,7 +281,7 @@ class _Scorer:
         (``solver.candidate_losses``), the mean over the held-out pixels; ``by_block``:
         also (n, K) each held-out block's share of that mean."""
         loss = candidate_losses(self.B, C, self.y, self.fp.train, sigma=self.sig, iters=iters,
-                                cfg=self.settings.solver)[self.held]
+                                cfg=self.settings.solver, rows=self.held)
         lh = loss.mean(0)
         if not by_block:
             return lh
@@ -504,13 +512,15 @@ def search(pp: Prepared, settings: LightConfig, seed: int = 0) -> tuple[Search, 
 
     coarse = hemisphere(settings.n_light_candidates, up, cfg.min_elevation_deg)
     omega = np.full(len(coarse), 2 * math.pi / len(coarse))
-    sf_c, (lh_c, lhb_c), _, V_c = sc.suns_any_size(coarse)
     # the lamps worth scoring: every (direction, distance) screened by its unshadowed
     # photometric fit plus the sun's shadow along that direction; the LAMP_TOP best, and
-    # the lamps along the LAMP_TOP best suns
+    # the lamps along the LAMP_TOP best suns (the screen's fits on a second thread while
+    # this one scores the suns: neither reads the other)
     K, nd = len(coarse), len(dists)
     Q = anchor[None, None] + dists[None, :, None] * coarse[:, None, :]
-    lh0 = sc.photo_losses(at.lamp_columns(fp, Q.reshape(-1, 3)), iters=cfg.screen_iters)
+    screening = beside(lambda: sc.photo_losses(at.lamp_columns(fp, Q.reshape(-1, 3)), iters=cfg.screen_iters))
+    sf_c, (lh_c, lhb_c), _, V_c = sc.suns_any_size(coarse)
+    lh0 = screening.result()
     # the photometric noise and reference: the best candidate's, sun or lamp
     sc.set_photo_noise(float(min(lh_c.min(), lh0.min())))
     # each cue's weight off the coarse grid (where they are used: the lamps screened and

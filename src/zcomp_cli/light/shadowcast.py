@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from zcomp_cli.light.config import SearchConfig
+from zcomp_cli.scene.sampling import length
 
 
 @dataclass(frozen=True)
@@ -121,21 +122,18 @@ def sun_visibility(caster, rec: Receivers, dirs: np.ndarray, *, chunk: int = 64)
     out = np.zeros((len(rec), len(D)))
     for c0 in range(0, len(D), chunk):
         Dc = D[c0:c0 + chunk]
-        occ = caster.occluded(np.tile(rec.origins, (len(Dc), 1)), np.repeat(Dc, len(rec), 0))
-        out[:, c0:c0 + len(Dc)] = (~occ).reshape(len(Dc), len(rec)).T
+        out[:, c0:c0 + len(Dc)] = ~caster.occluded_grid(rec.origins, Dc).T
     return out
 
 
 def lamp_visibility(caster, rec: Receivers, positions: np.ndarray) -> np.ndarray:
     """(R, K) 1 where the receiver sees the lamp position past the mesh, 0 in its shadow."""
     Q = np.asarray(positions, np.float64).reshape(-1, 3)
-    out = np.zeros((len(rec), len(Q)))
-    for k, q in enumerate(Q):
-        v = q[None] - rec.origins
-        r = np.linalg.norm(v, axis=1)
-        occ = caster.occluded(rec.origins, v / np.maximum(r, 1e-12)[:, None], tmax=r)
-        out[:, k] = ~occ
-    return out
+    v = Q[:, None, :] - rec.origins[None]  # (K, R, 3): every lamp's rays in one query
+    r = length(v)
+    occ = caster.occluded(np.broadcast_to(rec.origins, v.shape).reshape(-1, 3),
+                          (v / np.maximum(r, 1e-12)[..., None]).reshape(-1, 3), tmax=r.ravel())
+    return (~occ).reshape(len(Q), len(rec)).T.astype(np.float64)
 
 
 @dataclass(frozen=True)

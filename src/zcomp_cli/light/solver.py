@@ -95,8 +95,16 @@ def huber_weights(r: np.ndarray, sigma: float, huber_c: float) -> tuple[np.ndarr
     """IRLS weights and per-residual Huber loss of residuals ``r`` at scale ``sigma``."""
     c = huber_c * sigma
     a = np.abs(r)
-    loss = np.where(a <= c, 0.5 * a * a, c * (a - 0.5 * c))
-    return _huber_w(a, c), loss
+    return _huber_w(a, c), _huber_loss(a, c)
+
+
+def _huber_loss(a: np.ndarray, c: float) -> np.ndarray:
+    """Huber's loss alone of absolute residuals ``a`` at the threshold ``c``: ``a^2 / 2``
+    within it, ``c (a - c / 2)`` beyond, as one product ``m (a - m / 2)`` of ``m = min(a,
+    c)`` (the same bits as either branch: ``a - a / 2`` is exact) over one pass instead
+    of both branches and a select."""
+    m = np.minimum(a, c)
+    return m * (a - 0.5 * m)
 
 
 def _huber_w(a: np.ndarray, c: float) -> np.ndarray:
@@ -275,10 +283,11 @@ def score_candidates(base: np.ndarray, cands: np.ndarray, y: np.ndarray, train: 
 
 def candidate_losses(base: np.ndarray, cands: np.ndarray, y: np.ndarray, train: np.ndarray, *,
                      sigma: float | None = None, iters: int | None = None,
-                     cfg: SolverConfig | None = None) -> np.ndarray:
+                     cfg: SolverConfig | None = None, rows: np.ndarray | None = None) -> np.ndarray:
     """(N, K) each pixel's loss of ``y`` (N,) fitted on ``base`` (N, B) plus each
     candidate column of ``cands`` (N, K), for K candidates at once, over the data scale
-    squared.
+    squared; ``rows`` (N,) bool: only those pixels' losses, (rows.sum(), K) (the
+    held-out ones, where only they are scored).
 
     The same Huber IRLS as ``fit`` on the training pixels, by batched normal equations,
     every candidate at the one scale ``sigma`` (None: the base's robust fit's), so that
@@ -305,7 +314,8 @@ def candidate_losses(base: np.ndarray, cands: np.ndarray, y: np.ndarray, train: 
     if sigma is None:
         sigma = base_sigma(Bt, yt, scale=scale, cfg=cfg)
     w = np.ones((nt, K))
-    for _ in range(cfg.irls_iters if iters is None else iters):
+    n_iter = cfg.irls_iters if iters is None else iters
+    for it in range(n_iter):
         wd = w * Dt
         A = np.empty((K, nb + 1, nb + 1))
         A[:, :nb, :nb] = (BB.T @ w).T.reshape(K, nb, nb)
@@ -329,10 +339,23 @@ def candidate_losses(base: np.ndarray, cands: np.ndarray, y: np.ndarray, train: 
         if neg.any():  # refit those without the candidate
             coef[neg, :nb] = solve_spd(A[neg][:, :nb, :nb], rhs[neg, :nb])  # (regularised above)
             coef[neg, nb] = 0.0
-        r = yt[:, None] - Bt @ coef[:, :nb].T - Dt * coef[:, nb][None]
-        w = _huber_w(np.abs(r), cfg.huber_c * sigma)
-    r = y[:, None] - B @ coef[:, :nb].T - D * coef[:, nb][None]
-    return huber_weights(r, sigma, cfg.huber_c)[1] / scale ** 2
+        if it + 1 < n_iter:  # the next iteration's weights (the last one's would go unused)
+            r = yt[:, None] - Bt @ coef[:, :nb].T - Dt * coef[:, nb][None]
+            w = _huber_w(np.abs(r), cfg.huber_c * sigma)
+    if rows is not None:
+        rows = np.asarray(rows, bool)
+        B, D, y = B[rows], D[rows], y[rows]
+    # the residuals and their loss in place (the same operations, in the same order, as
+    # ``_huber_loss(|y - B b - D c|)``: (N, K) temporaries are the bulk of the time)
+    r = B @ coef[:, :nb].T
+    np.subtract(y[:, None], r, out=r)
+    r -= D * coef[:, nb][None]
+    np.abs(r, out=r)
+    m = np.minimum(r, cfg.huber_c * sigma)
+    r -= 0.5 * m
+    m *= r
+    m /= scale ** 2
+    return m
 
 
 def base_sigma(B: np.ndarray, y: np.ndarray, ridge: np.ndarray | None = None,

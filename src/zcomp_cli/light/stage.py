@@ -187,12 +187,14 @@ class SceneLight:
         from zcomp_cli.light.fit import fit_light
         from zcomp_cli.scene.depthmesh import has_geometry
         from zcomp_cli.scene.frame import scene_up
+        from zcomp_cli.threads import own_threads
 
         t0 = time.perf_counter()
         d, n = inputs.depth, inputs.normals
         up, up_from = scene_up(params.tilt, n, inputs.known & has_geometry(d, n), self.cfg.frame)
-        res = fit_light(params, d, n, inputs.shading, inputs.known, inputs.albedo, inputs.camera, up=up,
-                        up_from=up_from, cfg=self.cfg, seed=seed)
+        with own_threads():  # (the fit's own threads; numpy's BLAS on one: threads.own_threads)
+            res = fit_light(params, d, n, inputs.shading, inputs.known, inputs.albedo, inputs.camera, up=up,
+                            up_from=up_from, cfg=self.cfg, seed=seed)
         evidence = LightEvidence.from_fit(res.diagnostics.get("evidence"), res.diagnostics.get("mesh"))
         return FittedLight(model=res.model, params=res.params, posterior=res.posterior, evidence=evidence, key=key,
                            seconds=time.perf_counter() - t0, steps=dict(res.diagnostics.get("steps") or {}))

@@ -39,6 +39,7 @@ import numpy as np
 from zcomp_cli.camera import Camera
 from zcomp_cli.conventions import unit_normal_mask
 from zcomp_cli.scene.config import MeshConfig
+from zcomp_cli.scene.sampling import dot, length
 
 
 
@@ -93,12 +94,12 @@ def _continuous(Pa, Na, Pb, Nb, ra, rb, ok, cfg: MeshConfig | None = None):
     zmin = np.maximum(np.minimum(za, zb), 1e-9)
     small = np.abs(za - zb) <= cfg.join_rel * zmin
     # a pixel's footprint at that depth: the angle between the two rays times the depth
-    crease = np.linalg.norm(Pa - Pb, axis=1) <= cfg.crease_px * zmin * np.linalg.norm(ra - rb, axis=1)
+    crease = length(Pa - Pb) <= cfg.crease_px * zmin * length(ra - rb)
 
     def predicted(P, N, r, z_self, z_other):
-        den = np.sum(N * r, 1)
+        den = dot(N, r)
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.sum(N * P, 1) / den
+            t = dot(N, P) / den
         # (a step longer than ``step_max_rel`` of the depth is no surface's next pixel: a
         # face seen edge on, whose plane's extension merely passes the other point)
         good = np.isfinite(t) & (np.abs(den) > 1e-6) & (t > 0) & (np.abs(t - z_self) <= cfg.step_max_rel * z_self)

@@ -21,6 +21,14 @@ def length(v: np.ndarray) -> np.ndarray:
     return np.sqrt(v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1] + v[..., 2] * v[..., 2])
 
 
+def dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(...) the dot products of vectors ``a`` and ``b`` (..., 3) (broadcast): the sum
+    ``(a * b).sum(-1)`` forms, in the same order (the same values), without a reduction
+    over an axis of 3 (several times the time)."""
+    a, b = np.asarray(a), np.asarray(b)
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+
+
 def fibonacci_sphere(n: int) -> np.ndarray:
     """(n, 3) float64 unit vectors spread evenly over the sphere (a Fibonacci spiral
     about +z); deterministic."""
@@ -106,5 +114,5 @@ def disc_samples(k: int, jitter: np.ndarray) -> np.ndarray:
     return np.stack([r * np.cos(ph), r * np.sin(ph)], -1)
 
 
-__all__ = ["length", "fibonacci_sphere", "hemisphere", "spacing_deg", "orthonormal", "cone_directions", "fine_spiral",
+__all__ = ["length", "dot", "fibonacci_sphere", "hemisphere", "spacing_deg", "orthonormal", "cone_directions", "fine_spiral",
            "pixel_jitter", "orthonormal_rows", "disc_samples"]
