@@ -185,6 +185,8 @@ def test_no_bare_constant_in_the_scene_the_light_or_the_physical_renderer():
         ("sampling", "GOLDEN_ANGLE"): "a mathematical constant",
         ("raycast", "RAY_CHUNK"): "a memory bound: the results do not depend on it",
         ("raycast", "_FAR"): "Embree's no-hit distance",
+        ("raycast", "MIN_THREAD_RAYS"): "a speed bound: the results do not depend on it",
+        ("atoms", "_PIXEL_BLOCK"): "a speed bound (the cache): the results do not depend on it",
         ("evidence_maps", "CASTER_VALUE"): "the debug map's encoding",
         ("evidence_maps", "SUPPORT_VALUE"): "the debug map's encoding",
         ("lightparams", "SUN_RADIUS_DEG"): "the Sun's angular radius (physical)",

@@ -62,6 +62,15 @@ def beside(fn):
     return f
 
 
+def map_over(fn, items) -> list:
+    """``[fn(x) for x in items]``, the items shared among the pool's threads (in order;
+    on this thread alone where the process has one, or where this is a pool thread)."""
+    items = list(items)
+    if compute_threads() > 1 and not in_pool() and len(items) > 1:
+        return list(pool().map(fn, items))
+    return [fn(x) for x in items]
+
+
 @contextlib.contextmanager
 def own_threads():
     """A block that splits its own work over ``compute_threads()`` threads (``pool``,
@@ -80,4 +89,4 @@ def own_threads():
         yield
 
 
-__all__ = ["compute_threads", "in_pool", "pool", "beside", "own_threads"]
+__all__ = ["compute_threads", "in_pool", "pool", "beside", "map_over", "own_threads"]

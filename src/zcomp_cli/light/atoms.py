@@ -337,21 +337,26 @@ def lamp_columns(fp: FitPixels, positions: np.ndarray, *, steps: int | None = No
         u = orthonormal_rows(lv)[0]
         w = np.cross(lv, u)
         cos_max = np.sqrt(1 - np.clip(radius_m / rv, 0.0, 0.99) ** 2)
-    origins = fp.ray_origins()[nn] if fp.caster is not None else None
-    acc = np.zeros(len(kk))
-    for s in range(n_s):
-        if sampled:
-            cz = 1 - (1 - cos_max) * fr[s]
-            sz = np.sqrt(np.maximum(0, 1 - cz * cz))
-            d = cz[:, None] * lv + sz[:, None] * (np.cos(ph[s]) * u + np.sin(ph[s]) * w)
-            d /= length(d)[:, None]
-        else:
-            d = lv
-        # the ray ends at the lamp: nothing beyond it occludes
-        if fp.caster is not None:
-            acc += ~fp.caster.occluded(origins, d, tmax=rv)
-        else:
-            acc += march_visibility(P[nn], Nr[nn], d, fp.depth, fp.camera, cfg=fp.march, steps=steps,
+
+    def toward(s: int) -> np.ndarray:  # (M,) the rays' directions of sample s
+        if not sampled:
+            return lv
+        cz = 1 - (1 - cos_max) * fr[s]
+        sz = np.sqrt(np.maximum(0, 1 - cz * cz))
+        d = cz[:, None] * lv + sz[:, None] * (np.cos(ph[s]) * u + np.sin(ph[s]) * w)
+        d /= length(d)[:, None]
+        return d
+
+    # the ray ends at the lamp: nothing beyond it occludes
+    if fp.caster is not None:  # every sample's rays in one query (a count of the seen ones: exact in any order)
+        o = fp.ray_origins()[nn]
+        occ = fp.caster.occluded(np.tile(o, (n_s, 1)), np.concatenate([toward(s) for s in range(n_s)]),
+                                 tmax=np.tile(rv, n_s))
+        acc = (~occ).reshape(n_s, -1).sum(0).astype(np.float64)
+    else:
+        acc = np.zeros(len(kk))
+        for s in range(n_s):
+            acc += march_visibility(P[nn], Nr[nn], toward(s), fp.depth, fp.camera, cfg=fp.march, steps=steps,
                                     max_distance=rv, walls=fp.walls)
     out[nn, kk] = g[kk, nn] * acc / n_s
     return out

@@ -69,7 +69,7 @@ from zcomp_cli.light.shadowcast import shadow_fit, sun_visibility
 from zcomp_cli.light.solver import base_sigma, candidate_losses
 from zcomp_cli.scene.lightparams import LAMP_RADIUS_M, SUN_RADIUS_DEG, Origin
 from zcomp_cli.scene.sampling import fine_spiral, hemisphere, spacing_deg
-from zcomp_cli.threads import beside
+from zcomp_cli.threads import beside, map_over
 
 
 @dataclass(frozen=True)
@@ -633,16 +633,17 @@ def radius_scores(sc: _Scorer, light: FitLight, anchor, settings: LightConfig, s
     radii = (SUN_RADIUS_DEG,) + tuple(r for r in settings.search.radii_deg if r != SUN_RADIUS_DEG)
     d = light_direction(light, anchor)
     dist = float(np.linalg.norm(np.asarray(light.param, np.float64) - np.asarray(anchor, np.float64)))
-    scored = []
-    for r in radii:
+
+    def score(r: float) -> float:  # (each radius apart: they share the cores)
         if light.kind == "sun":
             sf, lh, _ = sc.suns(d[None], r, seed=seed)
         else:
             rm = LAMP_RADIUS_M if r == SUN_RADIUS_DEG else dist * math.tan(math.radians(r))
             sf, lh = sc.lamp_sized(light.param, rm, light.facing)
         ll, _ = sc.loglik(sf, lh)
-        scored.append(float(ll[0]))
-    return radii, np.asarray(scored)
+        return float(ll[0])
+
+    return radii, np.asarray(map_over(score, radii))
 
 
 def picked_radius(radii, ll: np.ndarray, temperature: float, odds: float) -> tuple[float, Origin]:

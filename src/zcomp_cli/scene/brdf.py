@@ -22,6 +22,7 @@ import functools
 import numpy as np
 
 from zcomp_cli.scene.config import BrdfTable
+from zcomp_cli.scene.sampling import dot, length
 
 # Blender's Principled BSDF's default IOR (a dielectric's reflectance at normal
 # incidence ((n - 1) / (n + 1))^2 = 0.04, what its "Specular IOR Level" 0.5 keeps)
@@ -94,13 +95,20 @@ def _env_lut(size: int, samples: int, min_alpha: float, fresnel: str = "schlick"
 
 def _bilinear(lut: np.ndarray, roughness, ndv) -> np.ndarray:
     """(N, C) the table ``lut`` (size, size, C) (row roughness, column n.v, both 0..1)
-    at ``roughness`` (N,) and ``ndv`` (N,), bilinear."""
+    at ``roughness`` (N,) or one for all (a scalar: its row found once) and ``ndv``
+    (N,), bilinear."""
     m = lut.shape[0] - 1
-    r = np.clip(np.nan_to_num(np.asarray(roughness, np.float64).reshape(-1)), 0.0, 1.0) * m
     c = np.clip(np.nan_to_num(np.asarray(ndv, np.float64).reshape(-1)), 0.0, 1.0) * m
-    r0 = np.minimum(np.floor(r).astype(int), m - 1)
     c0 = np.minimum(np.floor(c).astype(int), m - 1)
-    fr, fc = (r - r0)[:, None], (c - c0)[:, None]
+    fc = (c - c0)[:, None]
+    if np.ndim(roughness) == 0:
+        r = float(np.clip(np.nan_to_num(np.float64(roughness)), 0.0, 1.0)) * m
+        r0 = min(int(np.floor(r)), m - 1)
+        fr = r - r0
+    else:
+        r = np.clip(np.nan_to_num(np.asarray(roughness, np.float64).reshape(-1)), 0.0, 1.0) * m
+        r0 = np.minimum(np.floor(r).astype(int), m - 1)
+        fr = (r - r0)[:, None]
     return ((1 - fr) * ((1 - fc) * lut[r0, c0] + fc * lut[r0, c0 + 1])
             + fr * ((1 - fc) * lut[r0 + 1, c0] + fc * lut[r0 + 1, c0 + 1]))
 
@@ -165,7 +173,8 @@ def smith_g(alpha, nv, nl):
 def specular_albedo(roughness: np.ndarray, ndv: np.ndarray, f0: np.ndarray,
                     cfg: BrdfTable | None = None, *, fresnel: str) -> np.ndarray:
     """(N, C) directional albedo ``(F0 A + B) x multiscatter`` of the GGX specular layer
-    toward the viewer, for perceptual ``roughness`` (N,), ``n.v`` (N,) and ``f0`` (N, C)
+    toward the viewer, for perceptual ``roughness`` (N,) (or a scalar, one for all), ``n.v``
+    (N,) and ``f0`` (N, C)
     in [0, 1] of the ``fresnel`` curve ("dielectric": f0 is the dielectric's 0.04)."""
     cfg = BrdfTable() if cfg is None else cfg
     a, b = env_brdf(roughness, ndv, cfg, fresnel=fresnel)
@@ -187,7 +196,7 @@ def dielectric_offset(ndv, roughness: float, albedo, cfg: BrdfTable | None = Non
     mu = np.clip(np.nan_to_num(np.asarray(ndv, np.float64).reshape(-1)), 0.0, 1.0)
     a = np.clip(np.nan_to_num(np.asarray(albedo, np.float64).reshape(len(mu), -1)), 0.0, 1.0)
     r = float(np.clip(np.nan_to_num(roughness), 0.0, 1.0))
-    R = specular_albedo(np.full(len(mu), r), mu, np.full((len(mu), 1), DIELECTRIC_F0), cfg, fresnel="dielectric")
+    R = specular_albedo(r, mu, np.full((len(mu), 1), DIELECTRIC_F0), cfg, fresnel="dielectric")
     return R * (1.0 - a)
 
 
@@ -200,7 +209,7 @@ def camera_offset(points, normals, roughness: float, albedo, cfg: BrdfTable | No
     if not np.isfinite(roughness):
         return np.zeros_like(a)
     n = np.asarray(normals, np.float64).reshape(-1, 3)
-    ndv = -np.sum(n * p, 1) / np.maximum(np.linalg.norm(p, axis=1), 1e-12)
+    ndv = -dot(n, p) / np.maximum(length(p), 1e-12)
     return dielectric_offset(ndv, roughness, a, cfg)
 
 
