@@ -54,3 +54,44 @@ def test_own_threads_holds_blas_to_one_thread_and_restores_it(monkeypatch):
     monkeypatch.setenv("OMP_NUM_THREADS", "1")
     with threads.own_threads():  # one thread: nothing to hold back
         assert blas() == before
+
+
+@pytest.mark.parametrize("n", ["1", "3"])
+def test_map_over_keeps_the_order_and_raises_the_error(monkeypatch, n):
+    monkeypatch.setenv("OMP_NUM_THREADS", n)
+    assert threads.map_over(lambda x: x * x, range(50)) == [x * x for x in range(50)]
+    assert threads.map_over(str, []) == []
+
+    def picky(x):
+        if x == 7:
+            raise KeyError("seven")
+        return x
+
+    with pytest.raises(KeyError, match="seven"):
+        threads.map_over(picky, range(20))
+
+
+def test_map_over_does_its_work_on_the_callers_thread_when_the_pool_is_busy(monkeypatch):
+    """Every pool thread held by other work (``beside``'s): the caller does all the items
+    itself and returns, without waiting for the pool."""
+    import threading
+
+    monkeypatch.setenv("OMP_NUM_THREADS", "2")
+    release = threading.Event()
+    started = [threading.Event(), threading.Event()]
+
+    def hold(i):
+        started[i].set()
+        release.wait()
+
+    held = [threads.pool().submit(hold, i) for i in range(2)]
+    for s in started:
+        s.wait()
+    me = threading.current_thread()
+    try:
+        who = threads.map_over(lambda x: threading.current_thread(), range(8))
+    finally:
+        release.set()
+    assert all(t is me for t in who)
+    for h in held:
+        h.result()

@@ -63,12 +63,34 @@ def beside(fn):
 
 
 def map_over(fn, items) -> list:
-    """``[fn(x) for x in items]``, the items shared among the pool's threads (in order;
-    on this thread alone where the process has one, or where this is a pool thread)."""
+    """``[fn(x) for x in items]``, in order, the items taken in turn by this thread and
+    the pool's (this thread works too, rather than wait on a pool busy with other work:
+    ``beside``'s); on this thread alone where the process has one, or where this is a
+    pool thread. ``fn`` must not depend on which thread runs it."""
     items = list(items)
-    if compute_threads() > 1 and not in_pool() and len(items) > 1:
-        return list(pool().map(fn, items))
-    return [fn(x) for x in items]
+    n = min(compute_threads(), len(items))
+    if n < 2 or in_pool():
+        return [fn(x) for x in items]
+    out = [None] * len(items)
+    order = iter(range(len(items)))
+    lock = threading.Lock()
+
+    def work():
+        while True:
+            with lock:
+                i = next(order, None)
+            if i is None:
+                return
+            out[i] = fn(items[i])
+
+    helpers = [pool().submit(work) for _ in range(n - 1)]
+    try:
+        work()
+    finally:
+        for h in helpers:  # a helper still queued (the pool busy) has nothing left to do
+            if not h.cancel():
+                h.result()
+    return out
 
 
 @contextlib.contextmanager

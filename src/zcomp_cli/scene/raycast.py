@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from zcomp_cli.threads import in_pool, pool, compute_threads
+from zcomp_cli.threads import compute_threads, in_pool, map_over
 
 # Rays per call to the intersector: bounds the temporary arrays (float32 x 3 x 2 + the
 # result: ~30 MB at 1M rays).
@@ -111,7 +111,7 @@ class RayCaster:
         ``threads.compute_threads``; each ray's answer is its own: the split changes no answer)."""
         n = len(o32)
         threads = 1 if in_pool() else min(compute_threads() if threads is None else threads, max(1, n // MIN_THREAD_RAYS))
-        step = min(RAY_CHUNK, -(-n // threads))
+        step = min(RAY_CHUNK, -(-n // (2 * threads if threads > 1 else 1)))  # two parts per thread, taken in turn
         parts = [slice(s, min(n, s + step)) for s in range(0, n, step)]
 
         def one(j):
@@ -119,10 +119,7 @@ class RayCaster:
                 {"dists": np.full(j.stop - j.start, _FAR, np.float32) if t32 is None else t32[j]}
             return np.asarray(self._scene.run(o32[j], d32[j], query=query, **kw))
 
-        if threads == 1 or len(parts) == 1:
-            res = [one(j) for j in parts]
-        else:
-            res = list(pool().map(one, parts))
+        res = [one(j) for j in parts] if threads == 1 else map_over(one, parts)
         return np.concatenate(res) if res else np.zeros(0)
 
     def _run_occluded(self, o32: np.ndarray, d32: np.ndarray, t32: np.ndarray | None) -> np.ndarray:
@@ -181,14 +178,11 @@ class RayCaster:
                 kk, nn = np.nonzero(m)
                 out[k.start + kk, nn] = self._run(o32[nn], d32[k.start + kk], None, "OCCLUDED", threads=1) != -1
 
-        # parts of whole directions, one per thread (the building of the rays splits too)
+        # parts of whole directions, two per thread, taken in turn (the building of the rays
+        # splits too)
         threads = 1 if in_pool() else min(compute_threads(), max(1, int(mask.sum()) // MIN_THREAD_RAYS), len(d))
-        step = -(-len(d) // threads)
-        parts = [slice(k0, min(len(d), k0 + step)) for k0 in range(0, len(d), step)]
-        if len(parts) == 1:
-            part(parts[0])
-        else:
-            list(pool().map(part, parts))
+        step = -(-len(d) // min(len(d), 2 * threads)) if threads > 1 else len(d)
+        map_over(part, [slice(k0, min(len(d), k0 + step)) for k0 in range(0, len(d), step)])
         return out
 
     def hit_distance(self, origins, dirs) -> np.ndarray:
