@@ -51,7 +51,7 @@ def light_entries(fitted, params, lookup_s: float) -> list[dict]:
     steps = dict(getattr(fitted, "steps", None) or {})
     out = [entry("light", lookup_s, what=("a given light: its free values" if given else "estimated"))]
     prep = steps.get("prepare")
-    shadows = steps.get("shadows")
+    shadows = steps.get("shadows")  # (built beside the rest of prepare: the entries sum to the wall time)
     out.append(entry("light.prepare", None if prep is None else prep - (shadows or 0.0),
                      what="fit pixels, the sky's visibility, the bounce, the specular layer"))
     out.append(entry("light.shadows", shadows, None if shadows is not None else
