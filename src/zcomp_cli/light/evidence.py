@@ -180,6 +180,7 @@ def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarra
     level = nan
     med = 0.0
     res = np.full((h, w), np.nan)
+    X_ok = X[ok]  # (the basis at the known pixels, gathered once for every iteration)
     for _ in range(cfg.lit_iters):
         fit_px = np.flatnonzero(lit.ravel())
         if len(fit_px) > cfg.max_lit_pixels:  # a stride: a low-order surface needs few
@@ -187,7 +188,7 @@ def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarra
         Xf = X.reshape(-1, X.shape[-1])[fit_px]
         beta = np.linalg.lstsq(Xf, logs.ravel()[fit_px], rcond=None)[0]
         lv = np.full((h, w), np.nan)
-        lv[ok] = X[ok] @ beta
+        lv[ok] = X_ok @ beta
         res = np.where(ok, logs - np.nan_to_num(lv), np.nan)
         rl = res[lit]
         if len(rl) < 10:
