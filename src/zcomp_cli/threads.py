@@ -96,15 +96,14 @@ def map_over(fn, items) -> list:
 @contextlib.contextmanager
 def own_threads():
     """A block that splits its own work over ``compute_threads()`` threads (``pool``,
-    ``beside``, the ray queries), with the BLAS libraries (numpy's OpenBLAS) held to one
-    thread meanwhile: the light fit's matrices are small (thousands of rows by at most
-    a thousand columns), where OpenBLAS's threads, spinning beside ours on the same
-    cores, cost more than they give (benchmarks/bench_physical_speed.py, interleaved in
-    one process on 2 cores: the estimate's median 0.63 -> 0.52 s with a sun). Where the
-    process has one thread, nothing changes."""
-    if compute_threads() < 2:
-        yield
-        return
+    ``beside``, ``map_over``, the ray queries), with the BLAS libraries (numpy's
+    OpenBLAS) held to one thread meanwhile:
+    * the light fit's matrices are small (thousands of rows by at most a thousand
+      columns), where OpenBLAS's threads, spinning beside ours on the same cores, cost
+      more than they give (benchmarks/bench_physical_speed.py, interleaved in one
+      process on 2 cores: the estimate's median 0.63 -> 0.52 s with a sun);
+    * one BLAS thread rounds the same whatever the machine's core count, so the block's
+      results do not depend on it."""
     from threadpoolctl import threadpool_limits
 
     with threadpool_limits(limits=1, user_api="blas"):
