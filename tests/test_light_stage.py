@@ -327,3 +327,23 @@ def test_no_module_reads_a_default_config_where_one_is_passed(monkeypatch):
     for req in reqs:
         out = r.render([req, req])
         assert np.all(np.isfinite(out.images[1]))
+
+
+def test_a_free_size_is_the_same_on_one_thread_and_on_many(monkeypatch):
+    """A given sun with a free size: its candidate radii are scored on the pool's threads
+    by a scorer made for it, whose noise scales the first radius sets (the others only
+    read them): the light is the same, to the bit, on one thread and on three."""
+    from zcomp_cli.scene import raycast
+
+    s = _scene(sun_radius_deg=4.0)
+    s.meta["sun_radius_deg"] = 4.0
+    fits = []
+    for n in ("1", "3"):
+        monkeypatch.setenv("OMP_NUM_THREADS", n)
+        monkeypatch.setattr(raycast, "MIN_THREAD_RAYS", 64)
+        f = SceneLight(SMALL).get(_inputs(s, "r"), _truth_tree(s, radius=True), 469)
+        fits.append([np.asarray(v, np.float64) for v in (f.model.suns[0].radius_deg, f.model.suns[0].irradiance,
+                                                         f.model.fit.residual, f.model.sky.radiance_sh)])
+    for a, b in zip(*fits):
+        np.testing.assert_array_equal(a, b)
+    assert fits[0][0] > 0

@@ -123,6 +123,7 @@ def prepare(depth, normals, shading, known, albedo, camera: Camera, up, settings
     if len(fp) == 0:
         return Prepared(fp=fp, shading=S, sky_vis=(np.zeros((1, 0, 3)), np.zeros((1, 0))), ground=np.zeros(3),
                         frame=frame, lobe_columns=np.zeros((0, len(at.sky_lobes(frame)))))
+
     def shadow_mesh():
         with timed({} if steps is None else steps, "shadows"):
             m = build_depth_mesh(d2, n2, cam2, up, walls=walls, cfg=settings.mesh)
@@ -137,12 +138,11 @@ def prepare(depth, normals, shading, known, albedo, camera: Camera, up, settings
     lobes = np.stack([at.sky_atom_values(fp, c, vis) for _, c in at.sky_lobes(frame)], 1)
     r = (at.specular_roughness(fp, S, lobes, cfg=settings.frame, solver=settings.solver) if fp.train.any()
          else float("nan"))
-    mesh, caster = meshing.result() if meshing is not None else (None, None)
-    if shadows:
-        fp = dataclasses.replace(fp, caster=caster)
-    if not shadows:
+    if meshing is None:
         return Prepared(fp=fp, shading=at.offset_shading(fp, S, r), sky_vis=vis, ground=ground, frame=frame,
                         lobe_columns=lobes, specular_roughness=r)
+    mesh, caster = meshing.result()
+    fp = dataclasses.replace(fp, caster=caster)
     # the shadows' shading: the copy's image over its albedo (plus the specular layer's
     # offset), each area-averaged apart -- an anti-aliased albedo edge averages out in both,
     # where the average of per-pixel ratios keeps its error

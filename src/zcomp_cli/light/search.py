@@ -634,7 +634,7 @@ def radius_scores(sc: _Scorer, light: FitLight, anchor, settings: LightConfig, s
     d = light_direction(light, anchor)
     dist = float(np.linalg.norm(np.asarray(light.param, np.float64) - np.asarray(anchor, np.float64)))
 
-    def score(r: float) -> float:  # (each radius apart: they share the cores)
+    def score(r: float) -> float:
         if light.kind == "sun":
             sf, lh, _ = sc.suns(d[None], r, seed=seed)
         else:
@@ -643,7 +643,11 @@ def radius_scores(sc: _Scorer, light: FitLight, anchor, settings: LightConfig, s
         ll, _ = sc.loglik(sf, lh)
         return float(ll[0])
 
-    return radii, np.asarray(map_over(score, radii))
+    # the first radius alone: a scorer made for a given light sets its noise scales from
+    # the first light it scores (``_Scorer._scored``, ``loglik_photo``); the others, which
+    # only read them, share the cores
+    first = score(radii[0])
+    return radii, np.asarray([first] + map_over(score, radii[1:]))
 
 
 def picked_radius(radii, ll: np.ndarray, temperature: float, odds: float) -> tuple[float, Origin]:
