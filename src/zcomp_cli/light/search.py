@@ -239,10 +239,16 @@ class _Scorer:
         from zcomp_cli.light.shadowcast import lamp_visibility
 
         Q = np.asarray(positions, np.float64).reshape(-1, 3)
+
+        def photometric():
+            C = at.lamp_columns(self.fp, Q, steps=self.settings.estimate_march_steps)
+            return C, self.photo_losses(C)
+
+        photo = beside(photometric)  # (as suns_any_size: the cues apart)
         V = lamp_visibility(self.pp.grid.caster, self.rec, Q)
-        C = at.lamp_columns(self.fp, Q, steps=self.settings.estimate_march_steps)
-        lh = self.photo_losses(C)
-        return self._scored(shadow_fit(self.rec, V, self.settings.search)), lh, C
+        scored = self._scored(shadow_fit(self.rec, V, self.settings.search))
+        C, lh = photo.result()
+        return scored, lh, C
 
     def lamp_sized(self, position, radius_m: float, facing=None):
         """(scored shadow fit, photometric held-out losses (1,)) of one lamp of radius
