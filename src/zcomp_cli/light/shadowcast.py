@@ -133,7 +133,7 @@ def lamp_visibility(caster, rec: Receivers, positions: np.ndarray) -> np.ndarray
     r = length(v)
     occ = caster.occluded(np.broadcast_to(rec.origins, v.shape).reshape(-1, 3),
                           (v / np.maximum(r, 1e-12)[..., None]).reshape(-1, 3), tmax=r.ravel())
-    return (~occ).reshape(len(Q), len(rec)).T.astype(np.float64)
+    return np.ascontiguousarray((~occ).reshape(len(Q), len(rec)).T, np.float64)
 
 
 @dataclass(frozen=True)
