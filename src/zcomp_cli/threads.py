@@ -74,14 +74,19 @@ def map_over(fn, items) -> list:
     out = [None] * len(items)
     order = iter(range(len(items)))
     lock = threading.Lock()
+    failed = []  # (an error or an interrupt on any thread: no item is handed out after it)
 
     def work():
         while True:
             with lock:
-                i = next(order, None)
+                i = None if failed else next(order, None)
             if i is None:
                 return
-            out[i] = fn(items[i])
+            try:
+                out[i] = fn(items[i])
+            except BaseException:
+                failed.append(True)
+                raise
 
     helpers = [pool().submit(work) for _ in range(n - 1)]
     try:

@@ -243,7 +243,9 @@ class SceneLight:
         if path is None or not path.is_file():
             return None
         try:
-            with np.load(path, allow_pickle=False) as z:
+            # (read whole, then parsed from memory: an interrupt inside np.load left a zip
+            # reader over a closed file, whose clean-up printed a traceback at exit)
+            with np.load(io.BytesIO(path.read_bytes()), allow_pickle=False) as z:
                 doc = json.loads(str(z["doc"]))
                 if doc.get("format") != FORMAT:
                     return None
