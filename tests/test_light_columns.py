@@ -82,6 +82,7 @@ def test_huber_loss_known_values():
     for c in (1e-3, 0.37, 2.5):  # the two branches of the definition, to the bit
         ref = np.where(np.abs(r) <= c, 0.5 * r * r, c * (np.abs(r) - 0.5 * c))
         np.testing.assert_array_equal(huber_weights(r, c, 1.0)[1], ref)
+        np.testing.assert_array_equal(_huber_loss(np.abs(r), c, overwrite=True), ref)  # in place: the same bits
 
 
 def test_candidate_losses_of_some_rows_are_those_rows():

@@ -98,13 +98,18 @@ def huber_weights(r: np.ndarray, sigma: float, huber_c: float) -> tuple[np.ndarr
     return _huber_w(a, c), _huber_loss(a, c)
 
 
-def _huber_loss(a: np.ndarray, c: float) -> np.ndarray:
+def _huber_loss(a: np.ndarray, c: float, *, overwrite: bool = False) -> np.ndarray:
     """Huber's loss alone of absolute residuals ``a`` at the threshold ``c``: ``a^2 / 2``
     within it, ``c (a - c / 2)`` beyond, as one product ``m (a - m / 2)`` of ``m = min(a,
     c)`` (the same bits as either branch: ``a - a / 2`` is exact) over one pass instead
-    of both branches and a select."""
+    of both branches and a select; ``overwrite``: ``a`` (a float array) is used as
+    scratch space (one (N, K) temporary fewer)."""
     m = np.minimum(a, c)
-    return m * (a - 0.5 * m)
+    if not overwrite:
+        return m * (a - 0.5 * m)
+    a -= 0.5 * m
+    m *= a
+    return m
 
 
 def _huber_w(a: np.ndarray, c: float) -> np.ndarray:
@@ -345,17 +350,15 @@ def candidate_losses(base: np.ndarray, cands: np.ndarray, y: np.ndarray, train: 
     if rows is not None:
         rows = np.asarray(rows, bool)
         B, D, y = B[rows], D[rows], y[rows]
-    # the residuals and their loss in place (the same operations, in the same order, as
-    # ``_huber_loss(|y - B b - D c|)``: (N, K) temporaries are the bulk of the time)
+    # the residuals ``|y - B b - D c|`` and their loss in place ((N, K) temporaries are
+    # the bulk of the time)
     r = B @ coef[:, :nb].T
     np.subtract(y[:, None], r, out=r)
     r -= D * coef[:, nb][None]
     np.abs(r, out=r)
-    m = np.minimum(r, cfg.huber_c * sigma)
-    r -= 0.5 * m
-    m *= r
-    m /= scale ** 2
-    return m
+    loss = _huber_loss(r, cfg.huber_c * sigma, overwrite=True)
+    loss /= scale ** 2
+    return loss
 
 
 def base_sigma(B: np.ndarray, y: np.ndarray, ridge: np.ndarray | None = None,

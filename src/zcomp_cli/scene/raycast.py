@@ -122,10 +122,6 @@ class RayCaster:
         res = [one(j) for j in parts] if threads == 1 else map_over(one, parts)
         return np.concatenate(res) if res else np.zeros(0)
 
-    def _run_occluded(self, o32: np.ndarray, d32: np.ndarray, t32: np.ndarray | None) -> np.ndarray:
-        """Embree's occlusion (bool) of float32 rays (``_run``)."""
-        return self._run(o32, d32, t32, "OCCLUDED") != -1
-
     def occluded(self, origins, dirs, tmax=None) -> np.ndarray:
         """(N,) bool: a surface lies along each ray (origins (N, 3), unit ``dirs`` (N, 3)
         or (3,)) closer than ``tmax`` ((N,) or a number, metres; None: any distance).
@@ -138,8 +134,8 @@ class RayCaster:
             idx = None if good.all() else np.flatnonzero(good)
             pick = (lambda a: a) if idx is None else (lambda a: a[idx])
             t32 = None if tmax is None else np.minimum(pick(t), _FAR).astype(np.float32)
-            r = self._run_occluded(np.ascontiguousarray(pick(o), np.float32), np.ascontiguousarray(pick(d), np.float32),
-                                  t32)
+            r = self._run(np.ascontiguousarray(pick(o), np.float32), np.ascontiguousarray(pick(d), np.float32), t32,
+                          "OCCLUDED") != -1
             if idx is None:
                 return r
             out[idx] = r
