@@ -289,21 +289,27 @@ def radius_lines(recs: list, grid: list, T: float, hold: dict) -> tuple[float, l
     return (best[1] if best else 1.0), lines
 
 
-def posterior_of(rec: dict, T: float, gate: float, power: float, weighed: bool = True, misled: float = 0.0):
+def posterior_of(rec: dict, T: float, gate: float, power: float, weighed: bool = True, misled: float = 0.0,
+                 photo: float = 1.0):
     """A case's posterior at temperature ``T``, gate ``gate`` and prior power ``power``,
-    its cues at their measured weights (``weighed``) or at 1 each, mixed with the prior
-    by ``misled`` (``posterior.with_misled``)."""
+    its cues at their measured weights (``weighed``) or at 1 each, the photometric cue's
+    times ``photo`` (``search.photo_weight`` at ``photo`` times the one it was scored at:
+    the photometric log-likelihood is linear in it), mixed with the prior by ``misled``
+    (``posterior.with_misled``)."""
     import dataclasses
 
     from zcomp_cli.light.posterior import DirectionPosterior
     from zcomp_cli.light.search import weighted_marginal
 
     w = rec["weights"] if weighed else tuple(dataclasses.replace(x, k=1.0) for x in rec["weights"])
+    if photo != 1.0:
+        w = (w[0], dataclasses.replace(w[1], k=w[1].k * photo))
     marg, _ = weighted_marginal(rec["scored"], w, gate, T, rec["log_opt_prior"], rec["omega"])
     return DirectionPosterior.from_parts(rec["dirs"], marg, power * rec["base_prior"], rec["omega"], T, misled)
 
 
-def coverage_lines(recs: list, T: float, gate: float, power: float, weighed: bool, misled: float) -> list[str]:
+def coverage_lines(recs: list, T: float, gate: float, power: float, weighed: bool, misled: float,
+                   photo: float = 1.0) -> list[str]:
     """Per stratum: n, the coverage of the stated 50/68/90 % cones, the mean log score."""
     import numpy as np
 
@@ -317,7 +323,7 @@ def coverage_lines(recs: list, T: float, gate: float, power: float, weighed: boo
         inside = {q: 0 for q in CONES}
         ls = []
         for r in sel:
-            post = posterior_of(r, T, gate, power, weighed, misled)
+            post = posterior_of(r, T, gate, power, weighed, misled, photo)
             ls.append(post.log_density(r["truth"]))
             to_mean = float(np.degrees(np.arccos(np.clip(post.mean_direction @ r["truth"], -1.0, 1.0))))
             for q in CONES:
@@ -336,6 +342,9 @@ def main(argv=None) -> int:
                     help="chances that the cues mislead (the prior's share) to score")
     ap.add_argument("--gate-grid", default="0,0.01", help="gates to score")
     ap.add_argument("--prior-grid", default="0,0.5,1", help="elevation prior powers to score")
+    ap.add_argument("--photo-grid", default="",
+                    help="photometric weights (search.photo_weight) to score, e.g. 0.5,1,2,4 (default: the one in "
+                         "place only)")
     ap.add_argument("--hold-out", nargs="*", default=["hdr=studio", "lamp=AREA", "shape=chair"],
                     metavar="FAMILY=A,B", help="generator families held out of the fit (hdr, lamp, shape)")
     ap.add_argument("--cache", type=Path, default=None, help="keep each benchmark's searches here")
@@ -353,6 +362,8 @@ def main(argv=None) -> int:
     gate_grid = [float(x) for x in args.gate_grid.split(",") if x.strip()]
     misled_grid = [float(x) for x in args.misled_grid.split(",") if x.strip()]
     prior_grid = [float(x) for x in args.prior_grid.split(",") if x.strip()]
+    pw0 = DEFAULTS.search.photo_weight  # the weight the cases' searches are scored at
+    photo_grid = [float(x) for x in args.photo_grid.split(",") if x.strip()] or [pw0]
     hold = {}
     for spec in args.hold_out:
         fam, _, vals = spec.partition("=")
@@ -380,33 +391,39 @@ def main(argv=None) -> int:
               f"quartiles {k[len(k) // 4]:.3g} .. {k[3 * len(k) // 4]:.3g}, at the floor {sum(x <= 1e-3 for x in k)}")
     uniform = -math.log(2 * math.pi)
     scores = []
-    for weighed, power, gate, misled, T in itertools.product((True, False), prior_grid, gate_grid, misled_grid, grid):
-        ls = [posterior_of(r, T, gate, power, weighed, misled).log_density(r["truth"]) for r in fit]
-        scores.append((statistics.mean(ls), T, gate, power, weighed, misled))
+    for weighed, power, gate, misled, T, pw in itertools.product((True, False), prior_grid, gate_grid, misled_grid,
+                                                                   grid, photo_grid):
+        ls = [posterior_of(r, T, gate, power, weighed, misled, pw / pw0).log_density(r["truth"]) for r in fit]
+        scores.append((statistics.mean(ls), T, gate, power, weighed, misled, pw))
         print(f"  CUE_WEIGHTS {'on' if weighed else 'off'} TEMPERATURE {T:g} MISLED {misled:g} GATE "
-              f"{gate:g} PRIOR_POWER {power:g}: mean log score {statistics.mean(ls):.3f} over "
+              f"{gate:g} PRIOR_POWER {power:g} PHOTO_WEIGHT {pw:g}: mean log score {statistics.mean(ls):.3f} over "
               f"{len(ls)} fit cases (a uniform hemisphere: {uniform:.3f})", flush=True)
     for weighed in (True, False):
         b = max(x for x in scores if x[4] is weighed)
         print(f"  the best with the cue weights {'on' if weighed else 'off'}: {b[0]:.3f} (temperature {b[1]:g}, "
-              f"misled {b[5]:g}, gate {b[2]:g}, prior power {b[3]:g})")
+              f"misled {b[5]:g}, gate {b[2]:g}, prior power {b[3]:g}, photometric weight {b[6]:g})")
     b = max(x for x in scores if x[5] == 0.0) if 0.0 in misled_grid else None
     if b is not None:
         print(f"  the best never misled (misled 0): {b[0]:.3f} (temperature {b[1]:g}, gate {b[2]:g}, prior power "
               f"{b[3]:g}, cue weights {'on' if b[4] else 'off'})")
-    _, T, gate, power, weighed, misled = max(scores)
+    _, T, gate, power, weighed, misled, pw = max(scores)
+    if len(photo_grid) > 1:
+        for w in photo_grid:
+            b = max(x for x in scores if x[6] == w)
+            print(f"  the best at photometric weight {w:g}: {b[0]:.3f} (temperature {b[1]:g}, misled {b[5]:g})")
     print(f"cue_weights = {weighed}, temperature = {T:g}, misled = {misled:g}, gate = {gate:g}, "
-          f"elevation_prior_power = {power:g}")
+          f"elevation_prior_power = {power:g}, photo_weight = {pw:g}")
+    ph = pw / pw0
     for name, sel in (("fit cases", fit), ("held-out families", check)):
         if sel:
-            ls = [posterior_of(r, T, gate, power, weighed, misled).log_density(r["truth"]) for r in sel]
+            ls = [posterior_of(r, T, gate, power, weighed, misled, ph).log_density(r["truth"]) for r in sel]
             print(f"  {name}: n={len(sel)}, mean log score {statistics.mean(ls):.3f}")
-            print("\n".join(coverage_lines(sel, T, gate, power, weighed, misled)))
+            print("\n".join(coverage_lines(sel, T, gate, power, weighed, misled, ph)))
     for b in args.check:
         sel = case_searches(b, DEFAULTS, args.cache)
-        ls = [posterior_of(r, T, gate, power, weighed, misled).log_density(r["truth"]) for r in sel]
+        ls = [posterior_of(r, T, gate, power, weighed, misled, ph).log_density(r["truth"]) for r in sel]
         print(f"  {b} (checked, not fitted on): n={len(sel)}, mean log score {statistics.mean(ls):.3f}")
-        print("\n".join(coverage_lines(sel, T, gate, power, weighed, misled)))
+        print("\n".join(coverage_lines(sel, T, gate, power, weighed, misled, ph)))
     odds_grid = [float(x) for x in args.radius_odds_grid.split(",") if x.strip()]
     odds = SearchConfig().default_radius_odds
     if odds_grid:
@@ -417,11 +434,13 @@ def main(argv=None) -> int:
         print(f"default_radius_odds = {odds:g}")
     fitted = dataclasses.replace(SearchConfig(), prior_sky_share=round(share, 2),
                                  prior_sky_share_spread=round(spread, 2), temperature=T, gate=gate,
-                                 elevation_prior_power=power, cue_weights=weighed, misled=misled)
+                                 elevation_prior_power=power, cue_weights=weighed, misled=misled,
+                                 photo_weight=pw)
     print(f"SearchConfig(prior_sky_share={fitted.prior_sky_share}, prior_sky_share_spread="
           f"{fitted.prior_sky_share_spread}, temperature={fitted.temperature:g}, misled={fitted.misled:g}, "
           f"cue_weights={fitted.cue_weights}, gate={fitted.gate:g}, "
-          f"elevation_prior_power={fitted.elevation_prior_power:g}, default_radius_odds={odds:g})")
+          f"elevation_prior_power={fitted.elevation_prior_power:g}, photo_weight={fitted.photo_weight:g}, "
+          f"default_radius_odds={odds:g})")
     return 0
 
 

@@ -234,13 +234,13 @@ class _Scorer:
         soft = shadow_fit(self.rec, softened(V, D, self.settings.search.soft_deg), self.settings.search)
         if self.sigma is None:
             self.sigma = min(hard.best_sigma, soft.best_sigma)
-        lhard, lsoft = hard.loglik(self.sigma), soft.loglik(self.sigma)
+        ids, n = self.rec_blocks
+        (lhard, bhard), (lsoft, bsoft) = hard.block_loglik(self.sigma, ids, n), soft.block_loglik(self.sigma, ids, n)
         ll = np.logaddexp(lhard, lsoft) - math.log(2.0)
         is_soft = lsoft > lhard
         ratio = np.where(is_soft, soft.ratio, hard.ratio)
         # per block: the likelier of the two, the mixture's remainder shared evenly
-        ids, n = self.rec_blocks
-        blk = np.where(is_soft[None], soft.block_loglik(self.sigma, ids, n), hard.block_loglik(self.sigma, ids, n))
+        blk = np.where(is_soft[None], bsoft, bhard)
         blk += ((ll - np.maximum(lhard, lsoft)) / max(n, 1))[None]
         C, (lh, lh_blocks) = photo.result()
         return _Shadow(ll, ratio, blk), (lh, lh_blocks), C, V

@@ -167,12 +167,14 @@ class ShadowFit:
         median error on the shown shadows went from 26 to 32 deg.)"""
         return self._terms(sigma).sum(0)
 
-    def block_loglik(self, sigma: float, ids: np.ndarray, n: int) -> np.ndarray:
-        """(n, K) ``loglik``'s share of each block: the receivers' terms summed by their
-        block ``ids`` (R,) in 0..n-1 (``cueweight.block_ids``); the rows sum to ``loglik``."""
+    def block_loglik(self, sigma: float, ids: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """(``loglik``, (n, K) its share of each block: the receivers' terms summed by
+        their block ``ids`` (R,) in 0..n-1, ``cueweight.block_ids``; the rows sum to
+        ``loglik``), from one pass over the terms."""
         from zcomp_cli.light.cueweight import block_sums
 
-        return block_sums(self._terms(sigma), ids, n)
+        t = self._terms(sigma)
+        return t.sum(0), block_sums(t, ids, n)
 
     def _terms(self, sigma: float) -> np.ndarray:
         """(R, K) each receiver's term of the log-likelihood at noise scale ``sigma``."""
