@@ -38,12 +38,14 @@ manifest's working size, every valid pixel known), and the audit prints:
   prior's) and the truth's at the object's base (the generator's HDR sky against its
   sun and lamps);
 * ``in50/68/90``: whether the truth lies inside the stated 50, 68 and 90 % cones (the
-  smallest cones about the posterior's mean direction holding that much of its mass).
+  smallest cones about the posterior's mean direction holding that much of its mass);
+  in the summary, beside them, inside the 50, 68 and 90 % highest-density sets
+  (``hpd_mass``: the region a multimodal posterior states).
 
 At the end: the median error and the share of cases under 10 and 20 deg (all cases with
 a true light reaching the object, and those showing cast shadows), the miss classes, per
 stratum (shadows shown / bare floor / lamp) the coverage of the stated 50, 68 and 90 %
-cones beside the mean log score, the mean log score of the truth (the proper scoring rule the temperature is fitted with,
+cones and highest-density sets beside the mean log score, the mean log score of the truth (the proper scoring rule the temperature is fitted with,
 ``fit_light_constants.py``), and Spearman's rank correlation between the stated
 uncertainty and the error.
 """
@@ -113,6 +115,21 @@ def cone_deg(post, mass: float) -> float:
     order = np.argsort(ang)
     cum = np.cumsum(post.probabilities[order])
     return float(ang[order][min(int(np.searchsorted(cum, mass)), len(ang) - 1)])
+
+
+def hpd_mass(post, direction) -> float:
+    """The mass of the posterior's highest-density set that reaches ``direction``: the
+    grid directions denser (mass over solid angle) than the one nearest ``direction``.
+    The truth lies inside the stated ``q`` highest-density set when this is at most
+    ``q``: the region a posterior states, however many modes it has (a cone about the
+    mean direction takes in the prior's mass wherever the cues' own share, ``1 -
+    misled``, is near ``q``). (On the grid's own densities: the kernel-smoothed density
+    of ``log_density`` is higher at a grid direction, its own kernel's centre, than
+    between them, which would count too much mass as denser.)"""
+    p = np.asarray(post.probabilities, np.float64)
+    dens = np.log(np.maximum(p, 1e-300)) - np.log(np.asarray(post.solid_angle, np.float64))
+    near = int(np.argmax(post.dirs @ np.asarray(direction, np.float64)))
+    return float(p[dens > dens[near]].sum())
 
 
 CONES = (0.5, 0.68, 0.9)
@@ -186,8 +203,10 @@ def audit_case(bench: Path, case: dict, truth: dict, settings=None) -> dict:
         row["rank"] = int(post.rank(true_dir))
         row["mass15"] = float(post.mass_within(true_dir, MISS_DEG))
         to_mean = angle_deg(post.mean_direction, true_dir)
+        row["hpd_true"] = hpd_mass(post, true_dir)
         for q in CONES:
             row[f"in{round(100 * q)}"] = bool(to_mean <= cone_deg(post, q))
+            row[f"hpd{round(100 * q)}"] = bool(row["hpd_true"] <= q)
         if row["err_deg"] > MISS_DEG:
             row["miss"] = "search" if row["logp_true"] > row["logp_est"] else "objective"
     return row
@@ -223,9 +242,12 @@ def summarise(rows: list[dict]) -> str:
         if sel:
             cov = ", ".join(f"{round(100 * q)} %: {100 * np.mean([r[f'in{round(100 * q)}'] for r in sel]):.0f} %"
                             for q in CONES)
+            hpd = ", ".join(f"{round(100 * q)} %: {100 * np.mean([r.get(f'hpd{round(100 * q)}') for r in sel]):.0f} %"
+                            for q in CONES)
             lps = [r["logp_true"] for r in sel if math.isfinite(r.get("logp_true", math.nan))]
-            lines.append(f"{name}: n={len(sel)}, the truth inside the stated cones {cov}; mean log score "
-                         f"{statistics.mean(lps):.3f}" if lps else f"{name}: n={len(sel)}, {cov}")
+            lines.append(f"{name}: n={len(sel)}, the truth inside the stated cones {cov}; inside the highest-"
+                         f"density sets {hpd}; mean log score "
+                         f"{statistics.mean(lps):.3f}" if lps else f"{name}: n={len(sel)}, {cov}; {hpd}")
     for name, sel in (("read off the shadows", [r for r in rows if r.get("split_read")]),
                       ("the prior's (no tied shadow under the light)", [r for r in rows if not r.get("split_read")])):
         d = [abs(r["split_est"] - r["split_true"]) for r in sel if math.isfinite(r.get("split_est", math.nan))]

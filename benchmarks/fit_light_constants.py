@@ -313,7 +313,7 @@ def coverage_lines(recs: list, T: float, gate: float, power: float, weighed: boo
     """Per stratum: n, the coverage of the stated 50/68/90 % cones, the mean log score."""
     import numpy as np
 
-    from audit_light import CONES, cone_deg
+    from audit_light import CONES, cone_deg, hpd_mass
 
     lines = []
     for st in STRATA:
@@ -321,16 +321,20 @@ def coverage_lines(recs: list, T: float, gate: float, power: float, weighed: boo
         if not sel:
             continue
         inside = {q: 0 for q in CONES}
+        dense = {q: 0 for q in CONES}
         ls = []
         for r in sel:
             post = posterior_of(r, T, gate, power, weighed, misled, photo)
             ls.append(post.log_density(r["truth"]))
             to_mean = float(np.degrees(np.arccos(np.clip(post.mean_direction @ r["truth"], -1.0, 1.0))))
+            m = hpd_mass(post, r["truth"])
             for q in CONES:
                 inside[q] += to_mean <= cone_deg(post, q)
+                dense[q] += m <= q
         cov = ", ".join(f"{round(100 * q)} %: {100 * inside[q] / len(sel):.0f} %" for q in CONES)
-        lines.append(f"    {st}: n={len(sel)}, the truth inside the stated cones {cov}; mean log score "
-                     f"{statistics.mean(ls):.3f}")
+        hpd = ", ".join(f"{round(100 * q)} %: {100 * dense[q] / len(sel):.0f} %" for q in CONES)
+        lines.append(f"    {st}: n={len(sel)}, the truth inside the stated cones {cov}; inside the highest-density "
+                     f"sets {hpd}; mean log score {statistics.mean(ls):.3f}")
     return lines
 
 
