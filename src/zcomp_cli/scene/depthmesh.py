@@ -87,10 +87,10 @@ class DepthMesh:
 
 
 def _continuous(Pa, Na, Pb, Nb, ra, rb, ok, cfg: MeshConfig | None = None):
-    """(M,) bool: pixels a and b (points P, unit normals N, rays r with z = -1) are
-    continuous (module docstring)."""
+    """(...) bool: pixels a and b (points P, unit normals N, rays r with z = -1; each
+    (..., 3)) are continuous (module docstring), where ``ok``."""
     cfg = MeshConfig() if cfg is None else cfg
-    za, zb = -Pa[:, 2], -Pb[:, 2]
+    za, zb = -Pa[..., 2], -Pb[..., 2]
     zmin = np.maximum(np.minimum(za, zb), 1e-9)
     small = np.abs(za - zb) <= cfg.join_rel * zmin
     # a pixel's footprint at that depth: the angle between the two rays times the depth
@@ -111,9 +111,14 @@ def _continuous(Pa, Na, Pb, Nb, ra, rb, ok, cfg: MeshConfig | None = None):
     return ok & (small | crease | predicted(Pa, Na, rb, za, zb) | predicted(Pb, Nb, ra, zb, za))
 
 
+# the (h, w) map's slices whose pixels pair as ``_edges``' right, down and anti-diagonal
+# neighbours, in its order
+_EDGE_VIEWS = ((np.s_[:, :-1], np.s_[:, 1:]), (np.s_[:-1, :], np.s_[1:, :]), (np.s_[:-1, 1:], np.s_[1:, :-1]))
+
+
 def _edges(valid):
-    """Index pairs (flat) of the right, down and anti-diagonal neighbours whose both
-    pixels are valid."""
+    """Index pairs (flat) of the right, down and anti-diagonal neighbours (of the
+    (h, w) map ``valid``'s shape)."""
     h, w = valid.shape
     idx = np.arange(h * w).reshape(h, w)
     pairs = []
@@ -171,15 +176,15 @@ def build_depth_mesh(depth: np.ndarray, normals: np.ndarray, camera: Camera, up,
     rays = camera.ray(xs + 0.5, ys + 0.5).astype(np.float64)
     support, h0 = support_mask(P, n, ok, up, cfg)
     occ = ok & ~support
-    Pf, Nf, Rf, okf = P.reshape(-1, 3), n.reshape(-1, 3), rays.reshape(-1, 3), ok.ravel()
+    Pf, okf = P.reshape(-1, 3), ok.ravel()
     cont = {}
-    for k, (a, b) in enumerate(_edges(ok)):
-        both = okf[a] & okf[b]
-        c = np.zeros(len(a), bool)
-        sel = np.flatnonzero(both)
-        c[sel] = _continuous(Pf[a[sel]], Nf[a[sel]], Pf[b[sel]], Nf[b[sel]], Rf[a[sel]], Rf[b[sel]],
-                             np.ones(len(sel), bool), cfg)
-        cont[k] = c
+    # each edge of ``_edges`` (in its order) on the map's shifted views: every pair at once,
+    # without gathering them (the pairs with a pixel of no geometry are computed and
+    # dropped: their 0/0 is no surface's)
+    for k, (ea, eb) in enumerate(_EDGE_VIEWS):
+        both = ok[ea] & ok[eb]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cont[k] = _continuous(P[ea], n[ea], P[eb], n[eb], rays[ea], rays[eb], both, cfg).ravel()
     right = cont[0].reshape(h, w - 1)
     down = cont[1].reshape(h - 1, w)
     diag = cont[2].reshape(h - 1, w - 1)  # (y, x+1) - (y+1, x)
