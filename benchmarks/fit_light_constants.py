@@ -214,11 +214,14 @@ def case_searches(bench: Path, settings, cache: Path | None):
 def case_radii(bench: Path, settings, cache: Path | None):
     """Per case of ``bench`` with a true light: the drawn light's candidate radii and
     their untempered log-likelihoods (``search.radius_scores`` at the posterior's
-    heaviest mode, as ``chosen_radius`` scores them), the true light's radius
+    heaviest mode, as ``chosen_radius`` scores them; ``ll_true``: the same light moved
+    to the true direction, the size's oracle), the true light's radius
     (``run_benchmark._true_radius_deg``), the mode's angle from the true direction,
     whether the background shows the light's cast shadows, and the families. Cached in
     ``cache`` like ``case_searches``."""
     import numpy as np
+
+    import dataclasses
 
     from run_benchmark import _true_radius_deg
     from zcomp_cli.light import search as estimate
@@ -230,8 +233,14 @@ def case_radii(bench: Path, settings, cache: Path | None):
         if ref is None:
             return None
         radii, ll = estimate.radius_scores(sc, fl, s.anchor, settings, 0)
-        err = float(np.degrees(np.arccos(np.clip(true_direction(ref, s.anchor) @ toward, -1.0, 1.0))))
-        rec = {"case": f"{bench.name}/{case['id']}", "kind": fl.kind, "radii": radii, "ll": ll, "err_deg": err,
+        td = true_direction(ref, s.anchor)
+        # the same light toward the truth (a lamp at its distance along it)
+        at_truth = dataclasses.replace(fl, param=td if fl.kind == "sun" else
+                                       s.anchor + float(np.linalg.norm(fl.param - s.anchor)) * td)
+        _, ll_true = estimate.radius_scores(sc, at_truth, s.anchor, settings, 0)
+        err = float(np.degrees(np.arccos(np.clip(td @ toward, -1.0, 1.0))))
+        rec = {"case": f"{bench.name}/{case['id']}", "kind": fl.kind, "radii": radii, "ll": ll, "ll_true": ll_true,
+               "err_deg": err,
                "true_radius": float(_true_radius_deg(ref, case)), "shown": bool(t["shown"]), "case_desc": case}
         print(f"  {bench.name}/{case['id']}: {err:.1f} deg off, true radius {rec['true_radius']:.2f} deg", flush=True)
         return rec
@@ -247,14 +256,15 @@ def radius_right(drawn: float, true: float) -> bool:
     return true / 2.0 <= drawn <= 2.0 * true
 
 
-def _sizes_right(sel: list, T: float, odds: float) -> tuple[int, int, float]:
+def _sizes_right(sel: list, T: float, odds: float, key: str = "ll") -> tuple[int, int, float]:
     """(right sizes, cases, mean |log2(drawn / true)| with sizes under 0.1 deg as 0.1)
-    of the records ``sel`` drawn at ``odds``."""
+    of the records ``sel`` drawn at ``odds`` from their scores ``key`` (``ll`` at the
+    drawn direction, ``ll_true`` at the true one)."""
     import math
 
     from zcomp_cli.light.search import picked_radius
 
-    drawn = [picked_radius(r["radii"], r["ll"], T, odds)[0] for r in sel]
+    drawn = [picked_radius(r["radii"], r[key], T, odds)[0] for r in sel]
     right = sum(radius_right(d, r["true_radius"]) for d, r in zip(drawn, sel))
     lr = [abs(math.log2(max(d, 0.1) / max(r["true_radius"], 0.1))) for d, r in zip(drawn, sel)]
     return right, len(sel), (statistics.mean(lr) if lr else float("nan"))
@@ -275,11 +285,25 @@ def radius_lines(recs: list, grid: list, T: float, hold: dict) -> tuple[float, l
     lines, best = [], None
     for odds in grid:
         (fr, fn, fl), (cr, cn, cl) = _sizes_right(fit, T, odds), _sizes_right(check, T, odds)
+        truth = [r for r in suns if "ll_true" in r]
+        tr, tn, tl = _sizes_right(truth, T, odds, "ll_true")
         lines.append(f"  DEFAULT_RADIUS_ODDS {odds:g}: right sizes of the drawn suns {fr}/{fn} fit cases (mean "
-                     f"|log2 ratio| {fl:.2f}), {cr}/{cn} held out ({cl:.2f})")
+                     f"|log2 ratio| {fl:.2f}), {cr}/{cn} held out ({cl:.2f}); all of them scored at the true "
+                     f"direction {tr}/{tn} ({tl:.2f})")
         key = (fr, -fl)
         if best is None or key > best[0]:
             best = (key, odds)
+    truth = [r for r in suns if "ll_true" in r]
+    if truth:  # where the size's error lives: the likeliest radius, at the drawn and at the true direction
+        import collections
+
+        import numpy as np
+
+        for name, key in (("drawn", "ll"), ("true", "ll_true")):
+            c = collections.Counter(float(r["radii"][int(np.argmax(r[key]))]) for r in truth)
+            lines.append(f"  the likeliest radius at the {name} direction (deg: cases): "
+                         + ", ".join(f"{k:g}: {c[k]}" for k in sorted(c)) + " (the true radii: "
+                         + ", ".join(f"{r['true_radius']:.2g}" for r in truth) + ")")
     lamps = [r for r in pop if r.get("kind") == "lamp"]
     for name, sel in (("fit cases", [r for r in lamps if not held_out(r["case_desc"], hold)]),
                       ("held out", [r for r in lamps if held_out(r["case_desc"], hold)])):
