@@ -219,9 +219,9 @@ def case_radii(bench: Path, settings, cache: Path | None):
     (``run_benchmark._true_radius_deg``), the mode's angle from the true direction,
     whether the background shows the light's cast shadows, and the families. Cached in
     ``cache`` like ``case_searches``."""
-    import numpy as np
-
     import dataclasses
+
+    import numpy as np
 
     from run_benchmark import _true_radius_deg
     from zcomp_cli.light import search as estimate
@@ -276,29 +276,31 @@ def radius_lines(recs: list, grid: list, T: float, hold: dict) -> tuple[float, l
     a size is read at all): per odds of ``grid``, the right sizes (``radius_right``) of
     the drawn suns on the fit cases and on the held-out ones, and the mean
     |log2(drawn / true)|; the odds with the most right sizes on the fit cases (then the
-    least mean log ratio) are chosen. The drawn lamps (no odds: ``search.default_odds``)
-    are printed beside, at 0."""
+    least mean log ratio) are chosen. Beside them, the size's oracle: the right sizes and
+    the likeliest radii of the same lights moved to the true direction (``ll_true``). The
+    drawn lamps (no odds: ``search.default_odds``) are printed beside, at 0."""
+    import collections
+
+    import numpy as np
+
     pop = [r for r in recs if r["shown"] and r["err_deg"] <= 10.0]
     suns = [r for r in pop if r.get("kind", "sun") == "sun"]
     fit = [r for r in suns if not held_out(r["case_desc"], hold)]
     check = [r for r in suns if held_out(r["case_desc"], hold)]
+    truth = [r for r in suns if "ll_true" in r]  # (a cache of the rounds before the oracle has none)
     lines, best = [], None
     for odds in grid:
         (fr, fn, fl), (cr, cn, cl) = _sizes_right(fit, T, odds), _sizes_right(check, T, odds)
-        truth = [r for r in suns if "ll_true" in r]
-        tr, tn, tl = _sizes_right(truth, T, odds, "ll_true")
+        at_truth = ""
+        if truth:
+            tr, tn, tl = _sizes_right(truth, T, odds, "ll_true")
+            at_truth = f"; all of them scored at the true direction {tr}/{tn} ({tl:.2f})"
         lines.append(f"  DEFAULT_RADIUS_ODDS {odds:g}: right sizes of the drawn suns {fr}/{fn} fit cases (mean "
-                     f"|log2 ratio| {fl:.2f}), {cr}/{cn} held out ({cl:.2f}); all of them scored at the true "
-                     f"direction {tr}/{tn} ({tl:.2f})")
+                     f"|log2 ratio| {fl:.2f}), {cr}/{cn} held out ({cl:.2f}){at_truth}")
         key = (fr, -fl)
         if best is None or key > best[0]:
             best = (key, odds)
-    truth = [r for r in suns if "ll_true" in r]
     if truth:  # where the size's error lives: the likeliest radius, at the drawn and at the true direction
-        import collections
-
-        import numpy as np
-
         for name, key in (("drawn", "ll"), ("true", "ll_true")):
             c = collections.Counter(float(r["radii"][int(np.argmax(r[key]))]) for r in truth)
             lines.append(f"  the likeliest radius at the {name} direction (deg: cases): "
@@ -334,7 +336,8 @@ def posterior_of(rec: dict, T: float, gate: float, power: float, weighed: bool =
 
 def coverage_lines(recs: list, T: float, gate: float, power: float, weighed: bool, misled: float,
                    photo: float = 1.0) -> list[str]:
-    """Per stratum: n, the coverage of the stated 50/68/90 % cones, the mean log score."""
+    """Per stratum: n, the coverage of the stated 50/68/90 % cones and highest-density
+    sets (``audit_light.hpd_mass``), the mean log score."""
     import numpy as np
 
     from audit_light import CONES, cone_deg, hpd_mass
