@@ -335,7 +335,7 @@ def lamp_columns(fp: FitPixels, positions: np.ndarray, *, steps: int | None = No
     kk, nn = np.nonzero(live)
     lv, rv = L[kk, nn], r[kk, nn]
     sampled = cone_samples > 1 and radius_m > 0
-    n_s = max(1, cone_samples) if sampled else 1
+    n_s = cone_samples if sampled else 1
     fr, ph = _cone_offsets(max(1, cone_samples), seed)
     if sampled:
         u = orthonormal_rows(lv)[0]

@@ -103,14 +103,22 @@ class RayCaster:
         good = self._finite_rows(o) & good_d & (t > 0)
         return o, d, t, good
 
+    @staticmethod
+    def _threads_for(rays: int) -> int:
+        """Threads a query of ``rays`` rays splits over: ``threads.compute_threads``, at
+        most one per ``MIN_THREAD_RAYS`` rays, and only its own inside the pool
+        (``threads.in_pool``)."""
+        return 1 if in_pool() else min(compute_threads(), max(1, rays // MIN_THREAD_RAYS))
+
     def _run(self, o32: np.ndarray, d32: np.ndarray, t32: np.ndarray | None, query: str,
-             threads: int | None = None) -> np.ndarray:
+             split: bool = True) -> np.ndarray:
         """Embree's answers (``query`` OCCLUDED: -1 where free; DISTANCE: the first hit's
         distance) for float32 rays ``o32``, ``d32`` (n, 3) within ``t32`` (n,) (None: any
-        distance), in parts of at most ``RAY_CHUNK`` rays over ``threads`` threads (None:
-        ``threads.compute_threads``; each ray's answer is its own: the split changes no answer)."""
+        distance), in parts of at most ``RAY_CHUNK`` rays, over ``_threads_for`` threads
+        where ``split`` (else on this one; each ray's answer is its own: the split changes
+        no answer)."""
         n = len(o32)
-        threads = 1 if in_pool() else min(compute_threads() if threads is None else threads, max(1, n // MIN_THREAD_RAYS))
+        threads = self._threads_for(n) if split else 1
         step = min(RAY_CHUNK, -(-n // (2 * threads if threads > 1 else 1)))  # two parts per thread, taken in turn
         parts = [slice(s, min(n, s + step)) for s in range(0, n, step)]
 
@@ -169,14 +177,14 @@ class RayCaster:
             m = mask[k]
             if m.all():
                 out[k] = self._run(np.tile(o32, (k.stop - k.start, 1)), np.repeat(d32[k], n, 0), None, "OCCLUDED",
-                                   threads=1).reshape(-1, n) != -1
+                                   split=False).reshape(-1, n) != -1
             elif m.any():
                 kk, nn = np.nonzero(m)
-                out[k.start + kk, nn] = self._run(o32[nn], d32[k.start + kk], None, "OCCLUDED", threads=1) != -1
+                out[k.start + kk, nn] = self._run(o32[nn], d32[k.start + kk], None, "OCCLUDED", split=False) != -1
 
         # parts of whole directions, two per thread, taken in turn (the building of the rays
         # splits too)
-        threads = 1 if in_pool() else min(compute_threads(), max(1, int(mask.sum()) // MIN_THREAD_RAYS), len(d))
+        threads = min(self._threads_for(int(mask.sum())), len(d))
         step = -(-len(d) // min(len(d), 2 * threads)) if threads > 1 else len(d)
         map_over(part, [slice(k0, min(len(d), k0 + step)) for k0 in range(0, len(d), step)])
         return out
