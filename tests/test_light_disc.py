@@ -155,3 +155,53 @@ def test_a_broad_sun_still_shines_past_the_terminator():
     assert got[2] == 0.0  # past the whole disc
     # half of the disc is above the terminator, its mean height there tan(r) 4 / 3 pi
     assert got[0] == pytest.approx(0.5 * math.tan(math.radians(10.0)) * 4 / (3 * math.pi), rel=0.05)
+
+
+def _normals(m, seed=0):
+    """(m, 3) unit normals spread over the sphere (some facing a light, some grazing it,
+    some turned away)."""
+    v = np.random.default_rng(seed).normal(size=(m, 3))
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+@pytest.mark.parametrize("light", LIGHTS, ids=["sun", "sphere", "panel"])
+def test_disc_shading_samples_only_where_the_horizon_cuts_the_disc(light):
+    P = np.repeat(_floor(9), 40, 0)
+    n = _normals(len(P))
+    jit = np.linspace(0, 1, len(P), endpoint=False)
+    k = 64
+    asked = []
+
+    def offsets(i):
+        asked.append(np.asarray(i))
+        return disc_samples(k, jit[i])
+
+    got = disc_shading(light, P, n, offsets)
+    assert np.allclose(got, disc_shading(light, P, n, disc_samples(k, jit)), rtol=0, atol=1e-12)
+    # brute force: every point over many samples of its disc
+    d, _, E = light.disc(P, disc_samples(4096, jit))
+    ref = (np.maximum(np.einsum("knc,nc->kn", d, n), 0.0)[..., None] * E).mean(0)
+    assert np.allclose(got, ref, rtol=2e-3, atol=2e-3 * float(np.abs(ref).max()))
+    L, _, E0 = light.toward(P)
+    cos = np.einsum("nc,nc->n", L, n)
+    cut = np.zeros(len(P), bool)
+    cut[np.concatenate(asked)] = True
+    if getattr(light, "facing", None) is not None:  # a panel's profile is not symmetric: every point sampled
+        assert cut.all()
+        return
+    # the points asked for are those whose horizon passes through the disc; the others
+    # get their centre's cosine exactly
+    assert 0 < cut.sum() < len(P)
+    assert np.array_equal(got[~cut], np.maximum(cos[~cut], 0.0)[:, None] * E0[~cut])
+    assert np.all(np.abs(cos[cut]) < 0.5)  # (the lights span at most 30 deg here)
+
+
+def test_disc_shading_of_a_light_without_size_is_its_centres():
+    sun = Sun(direction=[0.3, 0.6, -0.5], radius_deg=0.0, irradiance=[1.0, 1.0, 1.0])
+    P, n = _floor(), _normals(41, seed=1)
+
+    def never(i):
+        raise AssertionError("a light without size has nothing to sample")
+
+    out = disc_shading(sun, P, n, never)
+    assert np.array_equal(out, np.maximum(n @ sun.direction, 0.0)[:, None] * sun.irradiance[None])

@@ -223,17 +223,44 @@ class Lamp:
                    strength_from=Origin[d["strength_from"]])
 
 
-def disc_shading(light, points: np.ndarray, normals: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+def disc_shading(light, points: np.ndarray, normals: np.ndarray, offsets) -> np.ndarray:
     """(N, 3) the shading ``light`` (a ``Sun`` or ``Lamp``) gives points (N, 3) of unit
-    ``normals`` (N, 3), unshadowed: the mean over samples of its disc (``offsets`` (k, N,
-    2), ``Sun.disc``/``Lamp.disc``) of each one's shading times max(0, n.l). Where the
-    whole disc is above a point's horizon and the lamp is far, it is its centre's
-    ``max(0, n.l) E``; where the disc straddles the horizon (an object's terminator under
-    a broad light) part of it still shines, where the centre's cosine said none or too
-    much."""
-    d, _, E = light.disc(points, offsets)
-    cos = np.maximum(np.einsum("knc,nc->kn", d, np.asarray(normals, np.float64)), 0.0)
-    return (cos[..., None] * E).mean(0)
+    ``normals`` (N, 3), unshadowed: the mean over samples of its disc (``Sun.disc``,
+    ``Lamp.disc``) of each one's shading times max(0, n.l). Where the disc straddles a
+    point's horizon (an object's terminator under a broad light) part of it still shines,
+    where the centre's cosine said none or too much; elsewhere a sun's or a sphere's disc,
+    symmetric about its centre and wholly on one side of the horizon, gives exactly its
+    centre's ``max(0, n.l) E`` (the mean of the cosine over a symmetric disc is the
+    centre's times the mean cosine to the centre, which ``disc`` divides out), so only
+    the points the horizon cuts are sampled (a panel's profile is not symmetric: all of
+    its points are). ``offsets``: (k, N, 2) on the unit disc
+    (``sampling.disc_samples``), or a function of an index array (M,) into ``points``
+    giving those points' (k, M, 2) (the samples only where they are needed)."""
+    P = np.asarray(points, np.float64).reshape(-1, 3)
+    n = np.asarray(normals, np.float64).reshape(-1, 3)
+    L, _, E = light.toward(P)
+    cos = np.einsum("nc,nc->n", L, n)
+    out = np.maximum(cos, 0.0)[:, None] * E
+    cut = np.ones(len(P), bool) if getattr(light, "facing", None) is not None else np.abs(cos) < _rim_sine(light, P)
+    idx = np.flatnonzero(cut)
+    if len(idx):
+        off = offsets(idx) if callable(offsets) else np.asarray(offsets, np.float64)[:, idx]
+        d, _, Es = light.disc(P[idx], off)
+        c = np.maximum(np.einsum("knc,nc->kn", d, n[idx]), 0.0)
+        out[idx] = (c[..., None] * Es).mean(0)
+    return out
+
+
+def _rim_sine(light, P: np.ndarray):
+    """The sine of the angle from ``light``'s centre to the rim of the disc its ``disc``
+    samples, seen from ``P`` (N, 3): scalar for a sun, (N,) for a lamp (its disc of radius
+    ``radius_m`` at its distance). A surface whose cosine to the centre is beyond it,
+    either way, sees the whole disc on one side of its horizon."""
+    if isinstance(light, Sun):
+        t = float(light.tan_radius())
+    else:
+        t = light.radius_m / np.maximum(length(light.position[None] - P), 1e-6)
+    return t / np.sqrt(1.0 + t * t)
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -303,8 +303,10 @@ class PhysicalRenderer(Renderer):
                     # fades out at the mask's edge instead of stopping in a seam
                     v_t = 1.0 - (1.0 - v_t) * fade
                 # the light over its disc: a broad one still shines past the terminator
-                direct += v_t[:, None] * disc_shading(light, P, nv, _disc_points(light, P, ys, xs, cfg.light_samples,
-                                                                                 salt=3)[0])
+                # (the disc's samples only where a point's horizon cuts it: ``disc_shading``)
+                direct += v_t[:, None] * disc_shading(
+                    light, P, nv, lambda i, light=light: _disc_points(light, P[i], ys[i], xs[i], cfg.light_samples,
+                                                                      salt=3)[0])
                 lit.append((light, L, E, v_t))
         return ambient, direct, vis_sky, nv, lit, scene_only, seen
 
