@@ -100,13 +100,19 @@ def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndar
         raise ValueError("march_visibility: give max_distance_rel or a finite max_distance")
     jit = 0.0 if jitter is None else np.asarray(jitter, np.float64) - 0.5
     texel = np.full((N, 2), -1, np.int64) if return_texel else None
+    # the rays still marching: a ray that met an occluder has its answer, and one that
+    # left the frame (its image a line leaving a convex frame) or passed behind the
+    # camera never comes back in; each step works on the others alone
+    act = np.arange(N)
     for k in range(1, steps + 1):
-        t = dmax * (np.minimum(np.maximum(k + jit, 0.25), steps) / steps) ** 2
-        qz = -(sz + lz * t)
+        tk = dmax[act] * (np.minimum(np.maximum(k + (jit if np.ndim(jit) == 0 else jit[act]), 0.25), steps) / steps) ** 2
+        ax_, ay_, az_ = sx[act], sy[act], sz[act]
+        bx, by, bz = lx[act], ly[act], lz[act]
+        qz = -(az_ + bz * tk)
         with np.errstate(divide="ignore", invalid="ignore"):
             zs = np.where(qz > 1e-6, qz, np.nan)
-            x = camera.fx * (sx + lx * t) / zs + camera.cx
-            y = -camera.fy * (sy + ly * t) / zs + camera.cy
+            x = camera.fx * (ax_ + bx * tk) / zs + camera.cx
+            y = -camera.fy * (ay_ + by * tk) / zs + camera.cy
         inside = np.isfinite(x) & np.isfinite(y) & (x >= 0) & (x < W) & (y >= 0) & (y < H)
         if not inside.any():
             break
@@ -118,12 +124,15 @@ def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndar
         hit = inside & (ds > 0) & (gap > bias_rel * qz) & (gap < thickness_rel * np.maximum(qz, 1e-6))
         if occluder_mask is not None:
             hit &= occluder_mask[iy, ix]
+        first = act[hit]
         if return_distance:
-            t_hit = np.where(hit & ~occluded, t, t_hit)
+            t_hit[first] = tk[hit]
         if return_texel:
-            first = hit & ~occluded
-            texel[first] = np.stack([iy[first], ix[first]], 1)
-        occluded |= hit
+            texel[first] = np.stack([iy[hit], ix[hit]], 1)
+        occluded[first] = True
+        act = act[inside & ~hit]
+        if not len(act):
+            break
     if walls:
         from zcomp_cli.scene.planes import walls_block
 
