@@ -344,6 +344,42 @@ def test_sky_occlusion_known_values():
     assert sky_occlusion(sph, np.zeros((0, 3)), np.zeros((0, 3)), pool, 8, np.zeros(0), np.zeros(0)).shape == (0, 3)
 
 
+def test_sky_occlusion_is_each_channels_weighted_share_of_its_own_rays():
+    """Against the definition, ray by ray: each point's k pool directions (its stratified
+    share, turned by its jitter), each weighed by its cosine and its colour channel by
+    channel; the hidden share the hit rays' weight over all of them. A sky coloured
+    differently per direction, normals tilted every way, points near and under the
+    sphere and far from it."""
+    from zcomp_cli.scene.gather import caster
+    from zcomp_cli.scene.meshrays import sky_occlusion
+
+    sph = _sphere_mesh(np.array([0.0, 0.5, 0.0]), 0.5)
+    rng = np.random.default_rng(4)
+    dirs = rng.normal(size=(64, 3))
+    dirs[:, 1] = np.abs(dirs[:, 1])
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    chroma = rng.uniform(0.2, 1.5, size=(64, 3))
+    chroma[::7, 0] = 0.0  # some directions without red: their green and blue are still hidden
+    m = 200
+    P = np.stack([rng.uniform(-1.5, 1.5, m), rng.uniform(0.0, 0.2, m), rng.uniform(-1.5, 1.5, m)], 1)
+    N = rng.normal(size=(m, 3)) * [0.5, 1.0, 0.5] + [0.0, 1.0, 0.0]
+    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    jit, bias, k = rng.uniform(0, 1, m), np.full(m, 1e-4), 16
+    got = sky_occlusion(sph, P, N, (dirs, chroma), k, jit, bias)
+    start = P + N * bias[:, None]
+    pick = ((jit * (64 / k)).astype(np.int64)[None] + (np.arange(k)[:, None] * 64) // k) % 64
+    want = np.zeros((m, 3))
+    rays = caster(sph)
+    for i in range(m):
+        d = dirs[pick[:, i]]
+        w = np.maximum(d @ N[i], 0.0)[:, None] * chroma[pick[:, i]]
+        hit = rays.occluded(np.repeat(start[i][None], k, 0), d)
+        den = w.sum(0)
+        want[i] = np.where(den > 1e-12, (w * hit[:, None]).sum(0) / np.maximum(den, 1e-300), 0.0)
+    assert 0.1 < (got[:, 1] > 0).mean() < 0.9  # the points tell hidden from open sky
+    assert np.allclose(got, want, rtol=0, atol=1e-12)
+
+
 def test_sky_occlusion_weighs_each_direction_by_the_sky_behind_it():
     """Directions are drawn where the sky is bright: an object on the bright side of a
     point hides more of its sky than on the dark side, by the radiance's own share."""

@@ -149,18 +149,25 @@ def sky_occlusion(mesh, points: np.ndarray, normals: np.ndarray, pool, k: int, j
     k = max(1, min(int(k), n))
     base = (np.asarray(jitter, np.float64) * (n / k)).astype(np.int64)
     pick = (base[None] + (np.arange(k)[:, None] * n) // k) % n  # (k, N)
-    d = dirs[pick]  # (k, N, 3)
-    w = np.maximum(np.sum(Nn[None] * d, -1), 0.0)[..., None] * chroma[pick]  # (k, N, 3)
-    den = w.sum(0)
+    # per component, (k, N) each (the (k, N, 3) gathers and products, and their sums
+    # over a strided axis of 3, were most of the time; the same sums in the same order)
+    dx, dy, dz = (np.ascontiguousarray(dirs[:, j])[pick] for j in range(3))
+    cos = dx * Nn[:, 0] + dy * Nn[:, 1] + dz * Nn[:, 2]
+    np.maximum(cos, 0.0, out=cos)
+    wc = [cos * np.ascontiguousarray(chroma[:, j])[pick] for j in range(3)]  # (k, N) each channel's weight
+    den = np.stack([x.sum(0) for x in wc], 1)
     u0, cos_b = _toward_sphere(start, c, R)
-    cand = ((w[..., 0] > 0) & (np.einsum("knj,nj->kn", d, u0) >= cos_b[None])).reshape(-1)
-    S = np.broadcast_to(start, d.shape).reshape(-1, 3)
-    D = d.reshape(-1, 3)
-    W = w.reshape(-1, 3)
-    hit = np.zeros(len(S), bool)
-    if cand.any():
-        hit[cand] = caster(mesh).occluded(S[cand], D[cand])
-    num = (W * hit[:, None]).reshape(k, -1, 3).sum(0)
+    toward = dx * u0[:, 0] + dy * u0[:, 1] + dz * u0[:, 2]
+    # the rays that may meet the mesh (above the point's horizon: every colour's weight
+    # is its cosine's; a sky without red there still sends green and blue)
+    cand = np.flatnonzero(((cos > 0) & (toward >= cos_b[None])).reshape(-1))
+    num = np.zeros((len(P), 3))
+    if len(cand):
+        pt = cand % len(P)
+        D = np.stack([dx.reshape(-1)[cand], dy.reshape(-1)[cand], dz.reshape(-1)[cand]], 1)
+        hit = caster(mesh).occluded(start[pt], D)
+        for j in range(3):  # each hit's weight summed per point, in the samples' order
+            num[:, j] = np.bincount(pt[hit], weights=wc[j].reshape(-1)[cand][hit], minlength=len(P))
     ok = den > 1e-12
     out[ok] = num[ok] / den[ok]
     return out

@@ -39,6 +39,7 @@ from zcomp_cli.scene.lightmodel import LightModel, ShadowKind, disc_shading
 from zcomp_cli.scene.march import grid_points, march_visibility
 from zcomp_cli.scene.sampling import disc_samples, length, pixel_jitter
 from zcomp_cli.scene.skyvis import sky_samples, weighted_visibility
+from zcomp_cli.threads import compute_threads
 
 
 class PhysicalRenderer(Renderer):
@@ -245,12 +246,17 @@ class PhysicalRenderer(Renderer):
             return occ
         cen = sample_triangles(tri, area / area.sum(), cfg.mesh_fade_samples)[1]
         tree = cKDTree(cen)
-        dist = tree.query(P)[0]
         # the mask's radius: its farthest pixel from the mesh, whatever region is shaded
         uy, ux = np.nonzero(unknown)
-        R = float(tree.query(camera.ray(ux + 0.5, uy + 0.5) * d[uy, ux][:, None])[0].max()) if len(uy) else 0.0
+        workers = compute_threads()
+        R = (float(tree.query(camera.ray(ux + 0.5, uy + 0.5) * d[uy, ux][:, None], workers=workers)[0].max())
+             if len(uy) else 0.0)
         if not R > 0:
             return occ
+        # (the fade only where the mesh hides some sky: elsewhere it multiplies 0)
+        dist = np.zeros(len(P))
+        some = np.flatnonzero(occ.any(1))
+        dist[some] = tree.query(P[some], workers=workers)[0]
         t = np.clip((R - dist) / max(cfg.mesh_ao_fade * R, 1e-9), 0.0, 1.0)
         px = cv2.distanceTransform(np.pad(unknown, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1][ys, xs]
         # (from the film filter's reach inside the edge: it reads its neighbours)
