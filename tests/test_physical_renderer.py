@@ -188,6 +188,30 @@ def test_visibility_primitives():
                                 d, floor_scene(10, 10).camera, cfg=MarchConfig(), steps=8)) == 0
 
 
+@pytest.mark.parametrize("nearest", [False, True])
+def test_a_batch_of_rays_marches_as_each_ray_alone(nearest):
+    """``march_visibility`` drops a ray from its batch once it has met an occluder, left
+    the frame or passed behind the camera: each ray's visibility, first hit's distance
+    and texel are the ones it gets marched alone, for rays that hit the box, leave the
+    frame lit, or head back toward the camera."""
+    s = floor_scene(64, 48, with_box=True, box_center=(0.0, -3.0))
+    ys, xs = np.nonzero(s.depth > 0)
+    pick = np.linspace(0, len(ys) - 1, 300).astype(int)
+    P = s.camera.ray(xs[pick] + 0.5, ys[pick] + 0.5) * s.depth[ys[pick], xs[pick]][:, None]
+    N = s.normals[ys[pick], xs[pick]].astype(np.float64)
+    rng = np.random.default_rng(2)
+    L = np.where(rng.uniform(size=(len(P), 1)) < 0.2, [[0.1, 0.2, 1.0]], [[-0.4, 0.5, -0.7]])  # some toward the camera
+    L = L + 0.3 * rng.normal(size=L.shape)
+    L /= np.linalg.norm(L, axis=1, keepdims=True)
+    jit = rng.uniform(size=len(P))
+    kw = dict(cfg=MarchConfig(), steps=24, return_distance=True, return_texel=True, nearest=nearest)
+    vis, dist, tex = march_visibility(P, N, L, s.depth, s.camera, jitter=jit, **kw)
+    assert 0.1 < vis.mean() < 0.9  # both kinds of ray are there
+    for i in range(len(P)):
+        v1, d1, t1 = march_visibility(P[i:i + 1], N[i:i + 1], L[i], s.depth, s.camera, jitter=jit[i:i + 1], **kw)
+        assert v1[0] == vis[i] and d1[0] == dist[i] and np.array_equal(t1[0], tex[i])
+
+
 def test_long_shadow_grows_the_shading_mask():
     """Under a low sun the object's shadow runs past a tight shading mask: the renderer
     re-shades along it (``RenderOutput.shading_mask``) instead of cutting it, the grown

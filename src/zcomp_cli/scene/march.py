@@ -98,21 +98,19 @@ def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndar
         dmax = np.minimum(dmax, np.broadcast_to(np.asarray(max_distance, np.float64), (N,)))
     if not np.all(np.isfinite(dmax)):
         raise ValueError("march_visibility: give max_distance_rel or a finite max_distance")
-    jit = 0.0 if jitter is None else np.asarray(jitter, np.float64) - 0.5
+    jit = np.zeros(N) if jitter is None else np.broadcast_to(np.asarray(jitter, np.float64) - 0.5, (N,))
     texel = np.full((N, 2), -1, np.int64) if return_texel else None
     # the rays still marching: a ray that met an occluder has its answer, and one that
     # left the frame (its image a line leaving a convex frame) or passed behind the
     # camera never comes back in; each step works on the others alone
     act = np.arange(N)
     for k in range(1, steps + 1):
-        tk = dmax[act] * (np.minimum(np.maximum(k + (jit if np.ndim(jit) == 0 else jit[act]), 0.25), steps) / steps) ** 2
-        ax_, ay_, az_ = sx[act], sy[act], sz[act]
-        bx, by, bz = lx[act], ly[act], lz[act]
-        qz = -(az_ + bz * tk)
+        tk = dmax[act] * (np.minimum(np.maximum(k + jit[act], 0.25), steps) / steps) ** 2
+        qz = -(sz[act] + lz[act] * tk)
         with np.errstate(divide="ignore", invalid="ignore"):
             zs = np.where(qz > 1e-6, qz, np.nan)
-            x = camera.fx * (ax_ + bx * tk) / zs + camera.cx
-            y = -camera.fy * (ay_ + by * tk) / zs + camera.cy
+            x = camera.fx * (sx[act] + lx[act] * tk) / zs + camera.cx
+            y = -camera.fy * (sy[act] + ly[act] * tk) / zs + camera.cy
         inside = np.isfinite(x) & np.isfinite(y) & (x >= 0) & (x < W) & (y >= 0) & (y < H)
         if not inside.any():
             break
