@@ -550,12 +550,13 @@ class PhysicalRenderer(Renderer):
             same = up2(ok) & (up2(cls_w[::2, ::2]) == cls_w)
             vis = classwise_blur(up2(vis), cls_w, ok_full & same, 1.0, fill=ok_full)
             t_hit = up2(t_hit)
-            gy, gx, P, N, ok = grid_points(d, n, geo_all, camera, box, 1)
-            L = light.toward(P.reshape(-1, 3))[0].reshape(P.shape)
-            lit = ok & (np.sum(N * L, -1) > 0)
-        tan_g = light.tan_radius(P.reshape(-1, 3)).reshape(gy.shape) if light.varies else None
+        if light.varies:  # a lamp's angular size at each pixel of the window
+            yy, xx = np.mgrid[wy0:wy1, wx0:wx1]
+            Pw = camera.ray(xx + 0.5, yy + 0.5) * d[yy, xx][..., None]
+            tan_a = light.tan_radius(Pw.reshape(-1, 3)).reshape(yy.shape)
+        else:
+            tan_a = float(light.tan_radius(None))
         ok = ok_full
-        tan_a = float(light.tan_radius(None)) if tan_g is None else tan_g
         # filtered only over the box of the pixels asked for (the window's margin is
         # context for the blurs)
         by0, bx0 = int(ys.min()) - wy0, int(xs.min()) - wx0
