@@ -188,12 +188,35 @@ def test_visibility_primitives():
                                 d, floor_scene(10, 10).camera, cfg=MarchConfig(), steps=8)) == 0
 
 
-@pytest.mark.parametrize("nearest", [False, True])
-def test_a_batch_of_rays_marches_as_each_ray_alone(nearest):
-    """``march_visibility`` drops a ray from its batch once it has met an occluder, left
-    the frame or passed behind the camera: each ray's visibility, first hit's distance
-    and texel are the ones it gets marched alone, for rays that hit the box, leave the
-    frame lit, or head back toward the camera."""
+def _march_one(p, n, l, jit, depth, camera, cfg, steps):
+    """One ray marched step by step, every step (the definition ``march_visibility``
+    keeps): (visible, first hit's distance, its texel), nearest texels."""
+    H, W = depth.shape
+    z0 = max(-p[2], 1e-6)
+    start = p + n * (cfg.march_bias_rel * z0)
+    dmax = cfg.march_range_rel * z0
+    for k in range(1, steps + 1):
+        r = min(max(k + (jit - 0.5), 0.25), steps) / steps
+        t = dmax * (r * r)
+        q = start + l * t
+        qz = -q[2]
+        if not qz > 1e-6:
+            continue
+        x, y = camera.fx * q[0] / qz + camera.cx, -camera.fy * q[1] / qz + camera.cy
+        if not (0 <= x < W and 0 <= y < H):
+            continue
+        ds = depth[int(y), int(x)]
+        if ds > 0 and cfg.march_bias_rel * qz < qz - ds < cfg.march_thickness_rel * qz:
+            return 0.0, t, (int(y), int(x))
+    return 1.0, np.inf, (-1, -1)
+
+
+def test_a_batch_of_rays_marches_as_each_ray_alone():
+    """``march_visibility`` drops a ray from its batch once it has met an occluder, or has
+    been in the frame and left it: each ray's visibility, first hit's distance and texel
+    are the ones it gets marched alone, every step -- rays that hit the box, leave the
+    frame lit, head back toward the camera, or start outside the frame (their start
+    lifted off an edge pixel) and come in."""
     s = floor_scene(64, 48, with_box=True, box_center=(0.0, -3.0))
     ys, xs = np.nonzero(s.depth > 0)
     pick = np.linspace(0, len(ys) - 1, 300).astype(int)
@@ -202,14 +225,26 @@ def test_a_batch_of_rays_marches_as_each_ray_alone(nearest):
     rng = np.random.default_rng(2)
     L = np.where(rng.uniform(size=(len(P), 1)) < 0.2, [[0.1, 0.2, 1.0]], [[-0.4, 0.5, -0.7]])  # some toward the camera
     L = L + 0.3 * rng.normal(size=L.shape)
+    # floor points on the frame's left edge, lifted out of it, their rays toward the box
+    edge = np.nonzero((s.depth[:, 0] > 0))[0][::4]
+    Pe = s.camera.ray(np.full(len(edge), 0.5), edge + 0.5) * s.depth[edge, 0][:, None]
+    P, N = np.concatenate([P, Pe]), np.concatenate([N, np.tile([-1.0, 0.0, 0.0], (len(edge), 1))])
+    L = np.concatenate([L, np.tile([1.0, 0.25, -0.3], (len(edge), 1))])
     L /= np.linalg.norm(L, axis=1, keepdims=True)
     jit = rng.uniform(size=len(P))
-    kw = dict(cfg=MarchConfig(), steps=24, return_distance=True, return_texel=True, nearest=nearest)
-    vis, dist, tex = march_visibility(P, N, L, s.depth, s.camera, jitter=jit, **kw)
+    cfg = MarchConfig()
+    vis, dist, tex = march_visibility(P, N, L, s.depth, s.camera, cfg=cfg, steps=24, jitter=jit,
+                                      return_distance=True, return_texel=True, nearest=True)
+    want = [_march_one(P[i], N[i], L[i], jit[i], s.depth, s.camera, cfg, 24) for i in range(len(P))]
+    assert np.array_equal(vis, [w[0] for w in want])
+    assert np.array_equal(dist, [w[1] for w in want])
+    assert np.array_equal(tex, np.array([w[2] for w in want]))
     assert 0.1 < vis.mean() < 0.9  # both kinds of ray are there
-    for i in range(len(P)):
-        v1, d1, t1 = march_visibility(P[i:i + 1], N[i:i + 1], L[i], s.depth, s.camera, jitter=jit[i:i + 1], **kw)
-        assert v1[0] == vis[i] and d1[0] == dist[i] and np.array_equal(t1[0], tex[i])
+    lifted = np.arange(len(P) - len(edge), len(P))
+    z0 = np.maximum(-P[lifted, 2], 1e-6)
+    start = P[lifted] + N[lifted] * (cfg.march_bias_rel * z0)[:, None]
+    assert np.all(s.camera.project(start)[0][:, 0] < 0)  # they start outside the frame
+    assert (vis[lifted] == 0).any()  # and some come in and meet the box
 
 
 def test_long_shadow_grows_the_shading_mask():

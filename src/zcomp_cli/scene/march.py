@@ -101,9 +101,12 @@ def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndar
     jit = np.zeros(N) if jitter is None else np.broadcast_to(np.asarray(jitter, np.float64) - 0.5, (N,))
     texel = np.full((N, 2), -1, np.int64) if return_texel else None
     # the rays still marching: a ray that met an occluder has its answer, and one that
-    # left the frame (its image a line leaving a convex frame) or passed behind the
-    # camera never comes back in; each step works on the others alone
+    # was in the frame and is no longer never comes back in (in front of the camera its
+    # image is a line, run one way, leaving a convex frame; behind it, it stays behind);
+    # each step works on the others alone. A ray may start outside the frame (its start
+    # lifted off a pixel at the frame's edge) and come in: it marches on.
     act = np.arange(N)
+    entered = np.zeros(N, bool)
     for k in range(1, steps + 1):
         tk = dmax[act] * (np.minimum(np.maximum(k + jit[act], 0.25), steps) / steps) ** 2
         qz = -(sz[act] + lz[act] * tk)
@@ -112,8 +115,6 @@ def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndar
             x = camera.fx * (sx[act] + lx[act] * tk) / zs + camera.cx
             y = -camera.fy * (sy[act] + ly[act] * tk) / zs + camera.cy
         inside = np.isfinite(x) & np.isfinite(y) & (x >= 0) & (x < W) & (y >= 0) & (y < H)
-        if not inside.any():
-            break
         xs = np.where(inside, x, 0.5)
         ys = np.where(inside, y, 0.5)
         iy, ix = ys.astype(np.int64), xs.astype(np.int64)  # in the frame: no clip needed
@@ -128,7 +129,9 @@ def march_visibility(points: np.ndarray, normals: np.ndarray, light_dir: np.ndar
         if return_texel:
             texel[first] = np.stack([iy[hit], ix[hit]], 1)
         occluded[first] = True
-        act = act[inside & ~hit]
+        gone = hit | (~inside & entered[act])
+        entered[act] |= inside
+        act = act[~gone]
         if not len(act):
             break
     if walls:
