@@ -111,20 +111,15 @@ def _continuous(Pa, Na, Pb, Nb, ra, rb, ok, cfg: MeshConfig | None = None):
     return ok & (small | crease | predicted(Pa, Na, rb, za, zb) | predicted(Pb, Nb, ra, zb, za))
 
 
-# the (h, w) map's slices whose pixels pair as ``_edges``' right, down and anti-diagonal
-# neighbours, in its order
+# the (h, w) map's slices whose pixels pair as right, down and anti-diagonal neighbours
 _EDGE_VIEWS = ((np.s_[:, :-1], np.s_[:, 1:]), (np.s_[:-1, :], np.s_[1:, :]), (np.s_[:-1, 1:], np.s_[1:, :-1]))
 
 
-def _edges(valid):
-    """Index pairs (flat) of the right, down and anti-diagonal neighbours (of the
-    (h, w) map ``valid``'s shape)."""
-    h, w = valid.shape
-    idx = np.arange(h * w).reshape(h, w)
-    pairs = []
-    for a, b in ((idx[:, :-1], idx[:, 1:]), (idx[:-1, :], idx[1:, :]), (idx[:-1, 1:], idx[1:, :-1])):
-        pairs.append((a.ravel(), b.ravel()))
-    return pairs
+def _edges(shape):
+    """Index pairs (flat) of an (h, w) map's right, down and anti-diagonal neighbours
+    (``_EDGE_VIEWS``, in its order)."""
+    idx = np.arange(shape[0] * shape[1]).reshape(shape)
+    return [(idx[a].ravel(), idx[b].ravel()) for a, b in _EDGE_VIEWS]
 
 
 def support_mask(points: np.ndarray, normals: np.ndarray, valid: np.ndarray, up,
@@ -178,7 +173,7 @@ def build_depth_mesh(depth: np.ndarray, normals: np.ndarray, camera: Camera, up,
     occ = ok & ~support
     Pf, okf = P.reshape(-1, 3), ok.ravel()
     cont = {}
-    # each edge of ``_edges`` (in its order) on the map's shifted views: every pair at once,
+    # each edge of ``_EDGE_VIEWS`` on the map's shifted views: every pair at once,
     # without gathering them (the pairs with a pixel of no geometry are computed and
     # dropped: their 0/0 is no surface's)
     for k, (ea, eb) in enumerate(_EDGE_VIEWS):
@@ -199,9 +194,10 @@ def build_depth_mesh(depth: np.ndarray, normals: np.ndarray, camera: Camera, up,
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
+    edges = _edges((h, w))  # (flat pairs, in ``cont``'s order)
     ea, eb = [], []
     occf = occ.ravel()
-    for k, (pa, pb) in enumerate(_edges(ok)):
+    for k, (pa, pb) in enumerate(edges):
         m = cont[k] & occf[pa] & occf[pb]
         ea.append(pa[m])
         eb.append(pb[m])
@@ -215,7 +211,7 @@ def build_depth_mesh(depth: np.ndarray, normals: np.ndarray, camera: Camera, up,
     # bases: occluder pixels joined to a support pixel by a continuous edge
     supf = support.ravel()
     base = np.zeros(h * w, bool)
-    for k, (pa, pb) in enumerate(_edges(ok)):
+    for k, (pa, pb) in enumerate(edges):
         m = cont[k] & ((occf[pa] & supf[pb]) | (occf[pb] & supf[pa]))
         base[pa[m & occf[pa]]] = True
         base[pb[m & occf[pb]]] = True
@@ -225,7 +221,7 @@ def build_depth_mesh(depth: np.ndarray, normals: np.ndarray, camera: Camera, up,
     # scene, not a wall that meets the floor in a corner and the sky at its top
     zf_ = d.ravel()
     sil = np.zeros(h * w, bool)
-    for k, (pa, pb) in enumerate(_edges(ok)):
+    for k, (pa, pb) in enumerate(edges):
         jump = okf[pa] & okf[pb] & ~cont[k]
         sil[pa[jump & occf[pa] & (zf_[pa] < zf_[pb])]] = True
         sil[pb[jump & occf[pb] & (zf_[pb] < zf_[pa])]] = True
