@@ -17,11 +17,19 @@ the light's visibility ``V`` modelled three ways:
 * ``aligned``: the footprint's prediction, each block of ``--block-px`` pixels scored
   at its best whole-pixel shift within ``--shift-px`` (an outline the depth mesh puts a
   pixel or two off, as a caster's edge quantised to the grid, no longer reads as a
-  penumbra).
+  penumbra);
+* ``blurred``: the footprint's prediction seen through the photograph's own blur (a
+  Gaussian of ``BLURS_PX`` pixels, or none: the likeliest at each radius): a render's
+  pixel filter and denoiser, a camera's lens, widen every edge by the same pixels,
+  where a light's penumbra grows with the caster's distance.
 
 It prints each case's tempered log-likelihoods relative to the Sun's size and, per
 model, how many drawn sizes are right (``fit_light_constants.radius_right``: within x2,
-or < 2 deg for a truth < 1 deg) at the odds 0, 1 and ``search.default_radius_odds``.
+or < 2 deg for a truth < 1 deg) at the odds 0, 1 and ``search.default_radius_odds``:
+over all the suns, and apart for those where the scored light's are the only cast
+shadows the background shows and those where another light's show too (the generator's
+sun lamp beside the HDR map's own sun: two shadows of each caster, and one disc to
+cover them).
 
     PYTHONPATH=src python benchmarks/size_oracle_models.py CALIB/1618 CALIB/4242 [...] \\
         [--block-px 12] [--shift-px 2]
@@ -41,7 +49,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-MODELS = ("point", "footprint", "aligned")
+MODELS = ("point", "footprint", "aligned", "blurred")
+# the photograph's own blur tried (Gaussian sigma, working-grid pixels; none is the
+# footprint's model): from a render's pixel filter to a soft lens or a denoiser's smear
+BLURS_PX = (0.5, 1.0, 1.5, 2.0, 3.0)
 
 
 def footprint_visibility(caster, mesh, rec, direction, radius_deg: float, side: int = 4) -> np.ndarray:
@@ -102,6 +113,24 @@ def aligned_share(rec, shape, resid: np.ndarray, pred: np.ndarray, block: int, s
     return total / max(float(W.sum()), 1e-12)
 
 
+def blurred_columns(rec, shape, V: np.ndarray) -> np.ndarray:
+    """(R, 1 + len(BLURS_PX)) the receivers' visibility ``V`` (R,) as it is and seen
+    through each of ``BLURS_PX``: a Gaussian over the frame, normalised over the
+    receivers (what is not a receiver lends no value)."""
+    import cv2
+
+    ok = np.zeros(shape)
+    ok[rec.ys, rec.xs] = 1.0
+    g = np.zeros(shape)
+    g[rec.ys, rec.xs] = V
+    cols = [V]
+    for b in BLURS_PX:
+        num = cv2.GaussianBlur(g, (0, 0), b)
+        den = cv2.GaussianBlur(ok, (0, 0), b)
+        cols.append((num / np.maximum(den, 1e-9))[rec.ys, rec.xs])
+    return np.stack(cols, 1)
+
+
 def case_scores(case, s, sc, t, settings, block: int, shift: int):
     """A record of the case's three models' log-likelihoods over the radii at the true
     direction, or None where the case is not a shown-shadow sun within 10 deg."""
@@ -138,7 +167,10 @@ def case_scores(case, s, sc, t, settings, block: int, shift: int):
         pred = math.log(float(f.ratio[0])) * (1.0 - v_foot)
         share = aligned_share(rec, mesh.shape, f.resid[:, 0], pred, block, shift)
         ll["aligned"].append(-0.5 * f.blocks * share / sig ** 2)
+        ll["blurred"].append(float(shadow_fit(rec, blurred_columns(rec, mesh.shape, v_foot),
+                                              settings.search).loglik(sig).max()))
     return {"case": case["id"], "err_deg": err, "true_radius": float(_true_radius_deg(ref, case)),
+            "shown": len(t["shown"]),
             "radii": tuple(radii), **{m: np.asarray(v) for m, v in ll.items()}}
 
 
@@ -160,21 +192,25 @@ def main(argv=None) -> int:
         for r in _per_case(bench, settings, None, "",
                            lambda c, s, sc, t, up: case_scores(c, s, sc, t, settings, args.block_px, args.shift_px)):
             recs.append(r)
-            print(f"  {bench.name}/{r['case']}: {r['err_deg']:.1f} deg off, true radius {r['true_radius']:.2f} deg; "
+            print(f"  {bench.name}/{r['case']}: {r['err_deg']:.1f} deg off, true radius {r['true_radius']:.2f} deg, "
+                  f"{r['shown']} light(s)' shadows shown; "
                   "radii " + " ".join(f"{x:g}" for x in r["radii"]) + "; tempered, from the Sun's: "
                   + " | ".join(f"{m} " + " ".join(f"{(v - r[m][0]) / T:.1f}" for v in r[m]) for m in MODELS),
                   flush=True)
     odds_grid = sorted({0.0, 1.0, float(settings.search.default_radius_odds)})
-    print(f"right sizes at the true direction, {len(recs)} suns (temperature {T:g}):")
-    for m in MODELS:
-        counts = []
-        for odds in odds_grid:
-            drawn = [picked_radius(r["radii"], r[m], T, odds)[0] for r in recs]
-            counts.append(f"odds {odds:g}: {sum(radius_right(d, r['true_radius']) for d, r in zip(drawn, recs))}"
-                          f"/{len(recs)}")
-        best = [float(r["radii"][int(np.argmax(r[m]))]) for r in recs]
-        print(f"  {m}: " + ", ".join(counts) + "; the likeliest radius (deg: cases) "
-              + ", ".join(f"{x:g}: {best.count(x)}" for x in sorted(set(best))))
+    groups = (("all", recs), ("one light's shadows shown", [r for r in recs if r["shown"] <= 1]),
+              ("several lights' shadows shown", [r for r in recs if r["shown"] > 1]))
+    for name, group in groups:
+        print(f"right sizes at the true direction, {name}: {len(group)} suns (temperature {T:g}):")
+        for m in MODELS:
+            counts = []
+            for odds in odds_grid:
+                drawn = [picked_radius(r["radii"], r[m], T, odds)[0] for r in group]
+                counts.append(f"odds {odds:g}: {sum(radius_right(d, r['true_radius']) for d, r in zip(drawn, group))}"
+                              f"/{len(group)}")
+            best = [float(r["radii"][int(np.argmax(r[m]))]) for r in group]
+            print(f"  {m}: " + ", ".join(counts) + "; the likeliest radius (deg: cases) "
+                  + ", ".join(f"{x:g}: {best.count(x)}" for x in sorted(set(best))))
     return 0
 
 

@@ -516,3 +516,55 @@ def test_lights_setting_is_checked():
     assert BenchmarkSettings(lights="probe").lights == "probe"
     with pytest.raises(UsageError, match="--lights must be mixed or probe"):
         BenchmarkSettings(lights="suns")
+
+
+def _rerender_clean():
+    import sys
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "rerender_clean.py"
+    spec = importlib.util.spec_from_file_location("rerender_clean", path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["rerender_clean"] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_rerender_clean_refuses_bad_input_before_writing(tmp_path):
+    rr = _rerender_clean()
+    assert rr.parse_cases("7, 4,4") == [4, 7]
+    for bad in ("", "a,b", "-1"):
+        with pytest.raises(SystemExit, match="--cases"):
+            rr.parse_cases(bad)
+    with pytest.raises(SystemExit, match="no benchmark.json"):
+        rr.main([str(tmp_path), str(tmp_path / "out"), "--cases", "0"])
+    bench = tmp_path / "b"
+    bench.mkdir()
+    (bench / "benchmark.json").write_text(json.dumps({"settings": {"n": 2, "seed": 5, "resolution": [64, 48]},
+                                                      "cases": []}))
+    with pytest.raises(SystemExit, match=r"has 2 cases \(0..1\)"):
+        rr.main([str(bench), str(tmp_path / "out"), "--cases", "2"])
+    with pytest.raises(SystemExit, match="--samples"):
+        rr.main([str(bench), str(tmp_path / "out"), "--cases", "0", "--samples", "0"])
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.blender
+@pytest.mark.slow
+def test_rerender_clean_renders_the_chosen_background_again(tiny_bench, tmp_path):
+    """The chosen case's background is rendered again with the sky's radiance scaled, its
+    geometry passes kept; the other case and the original benchmark are untouched."""
+    out, _ = tiny_bench
+    before = {p: p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file()}
+    copy = tmp_path / "clean"
+    rr = _rerender_clean()
+    assert rr.main([str(out), str(copy), "--cases", "1", "--samples", "4", "--sky-scale", "0"]) == 0
+    assert {p: p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file()} == before
+    bench = json.loads((copy / "benchmark.json").read_text())
+    c0, c1 = bench["cases"]
+    assert "rerendered" not in c0 and c1["rerendered"]["sky_scale"] == 0 and not c1["rerendered"]["denoise"]
+    assert (copy / c0["files"]["image"]).read_bytes() == (out / c0["files"]["image"]).read_bytes()
+    old, new = _read(out / c1["files"]["image"]), _read(copy / c1["files"]["image"])
+    assert new.shape == old.shape and np.all(np.isfinite(new))
+    assert not np.allclose(new, old)
+    assert (copy / c1["files"]["depth"]).read_bytes() == (out / c1["files"]["depth"]).read_bytes()
