@@ -519,15 +519,14 @@ def test_lights_setting_is_checked():
 
 
 def _rerender_clean():
+    """``benchmarks/rerender_clean.py`` as a module (it imports the project lazily)."""
     import sys
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "rerender_clean.py"
-    spec = importlib.util.spec_from_file_location("rerender_clean", path)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["rerender_clean"] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    import rerender_clean
+
+    return rerender_clean
 
 
 def test_rerender_clean_refuses_bad_input_before_writing(tmp_path):
