@@ -17,7 +17,8 @@ so OUT is for diagnostics of the light's fit, not for scoring composites.
         [--samples 512] [--sky-scale 1]
 
 Then, e.g., ``size_oracle_models.py OUT/4242-clean``. An existing OUT is reused (its
-chosen cases rendered again); nothing is written outside OUT.
+chosen cases rendered again); nothing is written outside OUT (Blender's log:
+``OUT/rerender_blender.log``).
 """
 
 from __future__ import annotations
@@ -84,7 +85,7 @@ def main(argv=None) -> int:
             items.append({"id": f"{p.id}/bg", "out_dir": f"{tmp}/{p.id}/bg", "object": None, "samples": args.samples,
                           "seed": p.seed, "denoise": False, "max_bounces": settings.max_bounces,
                           "scene": scene_for_blender(scene)})
-        maps = render_scenes(items, threads=0, log_path=Path(tmp) / "blender.log",
+        maps = render_scenes(items, threads=0, log_path=args.out / "rerender_blender.log",
                              on_event=lambda ev: print(f"{ev.get('event')} {ev.get('id') or ''}", flush=True)
                              if ev.get("event") in ("done", "error") else None)
         out_bench = json.loads((args.out / BENCHMARK_FILE).read_text())

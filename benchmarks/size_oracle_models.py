@@ -8,7 +8,7 @@ background shows and whose drawn direction is within 10 deg of the truth, at the
 **true** direction, every candidate radius (``search.radius_scores``' radii) is scored
 by the search's own shadow fit (``shadowcast.shadow_fit``, its Gaussian log-likelihood
 at the case's noise scale) over every receiver of the working grid (no stride), with
-the light's visibility ``V`` modelled three ways:
+the light's visibility ``V`` modelled four ways:
 
 * ``point``: rays from each pixel's centre over the light's cone (the search's own);
 * ``footprint``: the rays' origins spread over the pixel's footprint on the support
@@ -132,8 +132,9 @@ def blurred_columns(rec, shape, V: np.ndarray) -> np.ndarray:
 
 
 def case_scores(case, s, sc, t, settings, block: int, shift: int):
-    """A record of the case's three models' log-likelihoods over the radii at the true
-    direction, or None where the case is not a shown-shadow sun within 10 deg."""
+    """A record of the case's models' log-likelihoods over the radii at the true
+    direction, and how many lights' cast shadows its background shows; None where the
+    case is not a shown-shadow sun within 10 deg."""
     from fit_light_constants import _reference, true_direction
     from run_benchmark import _true_radius_deg
     from zcomp_cli.light import search as estimate
