@@ -61,9 +61,8 @@ def main(argv=None) -> int:
     bench = json.loads(src.read_text())
     by_id = {c["id"]: c for c in bench["cases"]}
 
-    from zcomp_cli.benchsuite.generate import BenchmarkSettings, exposure_scale, plan_benchmark
+    from zcomp_cli.benchsuite.generate import BenchmarkSettings, exposure_scale, plan_benchmark, render_items
     from zcomp_cli.benchsuite.render import render_scenes
-    from zcomp_cli.benchsuite.scenes import scene_for_blender
     from zcomp_cli.imageio import write_exr, write_json_atomic, write_png
 
     st = bench["settings"]
@@ -82,24 +81,21 @@ def main(argv=None) -> int:
             if p.id not in by_id:
                 raise SystemExit(f"{args.bench}: the plan's {p.id} is not among its cases (another generator version?)")
             scene = dataclasses.replace(p.scene, hdr_strength=p.scene.hdr_strength * args.sky_scale)
-            items.append({"id": f"{p.id}/bg", "out_dir": f"{tmp}/{p.id}/bg", "object": None, "samples": args.samples,
-                          "seed": p.seed, "denoise": False, "max_bounces": settings.max_bounces,
-                          "scene": scene_for_blender(scene)})
+            items.append(render_items(dataclasses.replace(p, scene=scene), settings, tmp)[0])  # the background
         maps = render_scenes(items, threads=0, log_path=args.out / "rerender_blender.log",
                              on_event=lambda ev: print(f"{ev.get('event')} {ev.get('id') or ''}", flush=True)
                              if ev.get("event") in ("done", "error") else None)
         out_bench = json.loads((args.out / BENCHMARK_FILE).read_text())
+        out_cases = {c["id"]: c for c in out_bench["cases"]}
         for p in plans:
             image = maps[f"{p.id}/bg"].image
             scale = exposure_scale(image, settings.exposure_key)
             case_dir = args.out / "cases" / p.id
             write_exr(case_dir / "image.exr", image * scale)
             write_png(case_dir / "image.png", image * scale)
-            for c in out_bench["cases"]:
-                if c["id"] == p.id:
-                    c["exposure"] = float(scale)
-                    c["rerendered"] = {"samples": args.samples, "denoise": False, "sky_scale": args.sky_scale,
-                                       "ground_truth": "the original's (not rendered again)"}
+            out_cases[p.id]["exposure"] = float(scale)
+            out_cases[p.id]["rerendered"] = {"samples": args.samples, "denoise": False, "sky_scale": args.sky_scale,
+                                             "ground_truth": "the original's (not rendered again)"}
             print(f"{p.id}: background written", flush=True)
         write_json_atomic(args.out / BENCHMARK_FILE, out_bench)
     return 0

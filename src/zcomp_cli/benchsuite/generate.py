@@ -270,6 +270,18 @@ def _prepare_out(out_dir: Path, overwrite: bool) -> None:
     out_dir.mkdir(parents=True, exist_ok=True)
 
 
+def render_items(pl: CasePlan, settings: BenchmarkSettings, tmp) -> tuple[dict, dict]:
+    """Blender's two render items of case ``pl`` (``render.render_scenes``): its background
+    and its ground truth (the same scene with the object), same samples and seed, their
+    passes written under ``tmp/<id>/bg`` and ``tmp/<id>/gt``."""
+    common = {"samples": int(settings.samples), "seed": pl.seed, "denoise": bool(settings.denoise),
+              "max_bounces": int(settings.max_bounces), "scene": scene_for_blender(pl.scene)}
+    M = pl.pose.object_to_camera(pl.info["bbox_min"], pl.info["bbox_max"])
+    return ({"id": f"{pl.id}/bg", "out_dir": f"{tmp}/{pl.id}/bg", "object": None, **common},
+            {"id": f"{pl.id}/gt", "out_dir": f"{tmp}/{pl.id}/gt", **common,
+             "object": {"mesh": str(pl.mesh_path), "format": pl.info["format"], "mesh_to_camera": M.tolist()}})
+
+
 def generate_benchmark(out_dir, settings: BenchmarkSettings, *, overwrite: bool = False,
                        on_progress: Callable[[int, int, str], None] | None = None) -> BenchmarkResult:
     """Build the benchmark (see the module docstring). ``on_progress(done, total, label)``
@@ -294,16 +306,7 @@ def generate_benchmark(out_dir, settings: BenchmarkSettings, *, overwrite: bool 
                 on_progress(done[0], total, str(ev.get("id")))
 
     with tempfile.TemporaryDirectory(prefix="zcomp-bench-") as tmp:
-        items = []
-        for pl in plans:
-            desc = scene_for_blender(pl.scene)
-            common = {"samples": int(settings.samples), "seed": pl.seed, "denoise": bool(settings.denoise),
-                      "max_bounces": int(settings.max_bounces), "scene": desc}
-            M = pl.pose.object_to_camera(pl.info["bbox_min"], pl.info["bbox_max"])
-            items.append({"id": f"{pl.id}/bg", "out_dir": f"{tmp}/{pl.id}/bg", "object": None, **common})
-            items.append({"id": f"{pl.id}/gt", "out_dir": f"{tmp}/{pl.id}/gt", **common,
-                          "object": {"mesh": str(pl.mesh_path), "format": pl.info["format"],
-                                     "mesh_to_camera": M.tolist()}})
+        items = [item for pl in plans for item in render_items(pl, settings, tmp)]
         if on_progress:
             on_progress(0, total, "starting Blender")
         maps = render_scenes(items, threads=settings.threads, on_event=on_event,
