@@ -10,7 +10,7 @@ import pytest
 from zcomp_cli.scene.depthmesh import build_depth_mesh
 from zcomp_cli.scene.frame import scene_up
 from zcomp_cli.light.config import EvidenceConfig
-from zcomp_cli.light.evidence import (ShadowEvidence, lit_basis, shadow_evidence,
+from zcomp_cli.light.evidence import (ShadowEvidence, lit_basis, shadow_basins, shadow_evidence,
                                                           within_reach)
 from zcomp_cli.testing import floor_scene
 
@@ -155,6 +155,87 @@ def test_without_a_caster_nothing_is_tied():
     assert not m.casters.any()
     assert ev.dark.sum() > 150 and not ev.tied.any() and not ev.shown and not ev.reach.any()
     assert not ev.weight[ev.dark].any()
+
+
+def _banded(s, band, strip=None, band_ratio=0.4, strip_ratio=0.9):
+    """The scene's shading with an unseen occluder's band (``band_ratio`` of the light)
+    and a shallower ``strip`` (a wall's foot, which the wall's occlusion of the sky
+    shades a little), both (H, W) bool."""
+    f = np.ones((H, W))
+    f[band] = band_ratio
+    if strip is not None:
+        f[strip & ~band] = strip_ratio
+    return s.shading * f[..., None]
+
+
+def test_a_band_over_a_third_of_the_floor_leaves_the_open_floor_lit():
+    # the lit level fitted coarse to fine: a cubic fitted at once bends into the band
+    # and reads the open floor beside it at 0.91 of its level (0.82 at the 5th
+    # percentile), as the shipped example's job 0 did
+    s = _scene()
+    band = np.mgrid[0:H, 0:W][1] < W // 3
+    m, ev = _evidence(s, shading=_banded(s, band))
+    lit = m.support & ~band & (s.visibility > 0.99) & np.isfinite(ev.ratio)
+    assert lit.sum() > 0.4 * m.support.sum()
+    assert abs(float(np.median(ev.ratio[lit])) - 1.0) < 0.01
+    assert float(np.percentile(ev.ratio[lit], 5)) > 0.97
+    inside = m.support & band & np.isfinite(ev.ratio)
+    assert abs(float(np.median(ev.ratio[inside])) - 0.4) < 0.03 and ev.dark[inside].mean() > 0.95
+
+
+def test_an_unseen_band_joined_to_the_shadow_by_a_shallower_strip_is_not_tied():
+    # the band stands clear of the box, but a strip along the floor (at 0.9 of the
+    # light) joins it to the box's shadow: one dark region, two basins. Only the box's
+    # is tied (as one region, the band was tied wherever the box could reach)
+    s = _scene()
+    yy, xx = np.mgrid[0:H, 0:W]
+    band = xx < 22
+    strip = ((yy >= 62) & (yy < 68) & (xx < 106)) | ((xx >= 100) & (xx < 106) & (yy >= 45) & (yy < 68))
+    m, ev = _evidence(s, shading=_banded(s, band, strip))
+    box_shadow = m.support & (s.visibility < 0.5)
+    assert not (band & m.casters).any() and (box_shadow & strip).any()
+    assert ev.dark[band & m.support & np.isfinite(ev.ratio)].mean() > 0.95
+    assert ev.dark[strip & ~band & np.isfinite(ev.ratio)].mean() > 0.95
+    assert not ev.tied[band].any() and not ev.weight[band & ev.dark].any()
+    assert (ev.tied & box_shadow).sum() > 0.9 * box_shadow.sum()
+    # the band within the box's reach: had it been tied, it would have been there
+    assert (ev.reach & band & ev.dark).sum() > 100
+
+
+def test_shadow_basins_known_values():
+    h, w = 20, 40
+    r = np.ones((h, w))
+    r[5:15, 2:10] = 0.4   # one shadow
+    r[5:15, 30:38] = 0.3  # another
+    r[8:11, 10:30] = 0.9  # joined by a shallower strip
+    region = r < 0.95
+    n, lab = shadow_basins(r, region, 0.05, 0.0)
+    assert n == 3 and lab.shape == (h, w) and lab.dtype == np.int32
+    assert not lab[~region].any() and lab[region].min() >= 1
+    a, b = lab[10, 5], lab[10, 34]
+    assert a != b and (lab[5:15, 2:10] == a).all() and (lab[5:15, 30:38] == b).all()
+    assert set(np.unique(lab[8:11, 10:30])) == {a, b}
+    # a pass less than the depth above the shallower basin: one basin
+    r2 = r.copy()
+    r2[8:11, 10:30] = 0.42
+    n, lab = shadow_basins(r2, region, 0.05, 0.0)
+    assert n == 2 and len(np.unique(lab[region])) == 1
+    # one shadow over a checker's tiles whose albedo is read 5 % off either way (0.38
+    # and 0.42, nan on the unread edges between them) is one basin: no pass rises
+    # between its parts by the depth (which is the dark threshold, at least three times
+    # the lit floor's own misfit: 5 % of the lit level there, 2 % of the shadow's)
+    r3 = np.ones((h, w))
+    r3[4:16, 4:36] = np.where((np.arange(4, 36) // 4) % 2 == 0, 0.38, 0.42)[None, :]
+    r3[4:16, 8::8] = np.nan
+    reg3 = np.isnan(r3) | (r3 < 0.95)
+    reg3[:, :4] = reg3[:, 36:] = reg3[:4] = reg3[16:] = False
+    n, lab = shadow_basins(r3, reg3, 0.05, 1.0)
+    assert n == 2 and (lab[reg3] == 1).all()
+    # an empty region, or nothing read
+    n, lab = shadow_basins(r, np.zeros((h, w), bool), 0.05, 1.0)
+    assert n == 1 and not lab.any()
+    n, lab = shadow_basins(np.full((h, w), np.nan), region, 0.05, 1.0)
+    assert n == 1 and not lab.any()
 
 
 @pytest.mark.parametrize("case", ["no support", "all nan", "all zero", "unknown"])

@@ -5,14 +5,16 @@ On the support (``depthmesh``: the plane the scene stands on), the known shading
 light that reaches each point: a cast shadow is a region darker than its lit
 surroundings on the same surface. Dividing the shading by the **lit level** -- a smooth
 upper envelope of the support's shading, fitted on the pixels not yet called dark and
-refitted (``lit_iters``) -- leaves the **ratio** ``r = shading / lit level``: about 1
+refitted coarse to fine (``lit_iters``: one degree more at each fit) -- leaves the **ratio** ``r = shading / lit level``: about 1
 where the light reaches, the shadowed/lit ratio in an umbra (the sky's share of the
 light there, Madsen and Nielsen's measurement), in between across a penumbra. Dividing by
 the albedo (the caller's shading) keeps texture out of it.
 
-A dark region counts as a cast shadow only where it can be tied to a caster: its pixels
-next to (within ``attach_rel`` of the frame) an occluder of the depth mesh that stands on
-the support (has a base). Dark regions tied to nothing (the shadow of something outside
+The dark pixels are split into regions, one per basin of the ratio (``shadow_basins``:
+two shadows joined through a shallower strip are two). A region counts as a cast shadow
+only where it can be tied to a caster: its pixels next to (within ``attach_rel`` of the
+frame) an occluder of the depth mesh that stands on the support (has a base), and within
+its reach. Dark regions tied to nothing (the shadow of something outside
 the frame, an albedo error) are left out of the evidence: ``weight`` is 0 there, 1 on
 the lit support and on tied dark regions.
 
@@ -128,6 +130,53 @@ def within_reach(points: np.ndarray, casters: np.ndarray, up, support: np.ndarra
     return out
 
 
+def shadow_basins(ratio: np.ndarray, region: np.ndarray, depth: float, blur_px: float) -> tuple[int, np.ndarray]:
+    """The dark ``region`` split into its basins: ``(n, labels)``, labels (h, w) int in
+    [0, n) (0 off the region), one per minimum of the ratio at least ``depth`` deeper
+    than the lowest pass that joins it to a deeper one (an h-minimum), every pixel of the
+    region flooded to one of them (a watershed).
+
+    Two shadows joined only through a shallower strip (an unseen occluder's band and a
+    caster's shadow, reached along the floor at a wall's foot, which the wall's
+    occlusion of the sky shades a little) are two basins; one shadow over a checker's
+    tiles, or across the bands left unread between them, is one (no pass rises between
+    its parts). A region's global minimum is always a basin: the outside counts as lit.
+
+    Args:
+        ratio: (h, w) shading over the lit level (nan where unread: filled with the
+            nearest read pixel's value).
+        region: (h, w) bool, the pixels to split.
+        depth: the least depth of a basin below its pass (the dark threshold, in ratio).
+        blur_px: a Gaussian's sigma over the ratio first (a pixel's noise does not make
+            a basin); 0: none.
+    """
+    from scipy import ndimage as ndi
+    from skimage.morphology import local_minima, reconstruction
+    from skimage.segmentation import watershed
+
+    region = np.asarray(region, bool)
+    r = np.asarray(ratio, np.float64)
+    valid = np.isfinite(r)
+    if not region.any() or not valid.any():
+        return 1, np.zeros(region.shape, np.int32)
+    idx = ndi.distance_transform_edt(~valid, return_distances=False, return_indices=True)
+    filled = r[tuple(idx)]
+    if blur_px > 0:
+        import cv2
+
+        filled = cv2.GaussianBlur(filled, (0, 0), float(blur_px))
+    # (outside the region the ratio is taken as above any shadow's: 2, the lit floor's 1
+    # and more)
+    img = np.where(region, filled, 2.0)
+    # the h-minima transform: every basin filled up to ``depth`` above its floor, or to
+    # its pass where that is lower; its regional minima are the basins deeper than
+    # ``depth`` (a plateau where shallower ones joined: one basin, not one per floor)
+    filled_up = reconstruction(img + float(depth), img, method="erosion")
+    markers, _ = ndi.label(local_minima(filled_up, connectivity=2) & region, structure=np.ones((3, 3)))
+    lab = watershed(img, markers, mask=region, connectivity=2)
+    return int(lab.max()) + 1, lab.astype(np.int32)
+
+
 def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarray, points: np.ndarray, up,
                     known: np.ndarray | None = None, albedo: np.ndarray | None = None,
                     labels: np.ndarray | None = None, cfg: EvidenceConfig | None = None) -> ShadowEvidence:
@@ -181,14 +230,22 @@ def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarra
     med = 0.0
     res = np.full((h, w), np.nan)
     X_ok = X[ok]  # (the basis at the known pixels, gathered once for every iteration)
-    for _ in range(cfg.lit_iters):
+    # coarse to fine: the k-th fit has the monomials up to degree k (the albedo's terms
+    # always), so that the surface gains a degree of freedom only once the pixels the
+    # coarser fit calls dark are set aside. A cubic fitted at once to a floor a third of
+    # which an unseen occluder shades bends down into that band, calls the band lit and
+    # the open floor beside it dark (the shipped example's job 0: 0.85 of its level)
+    n_alb = X.shape[-1] - (cfg.lit_degree + 1) * (cfg.lit_degree + 2) // 2
+    for it in range(cfg.lit_iters):
+        d = min(it, cfg.lit_degree)
+        cols = np.r_[0:(d + 1) * (d + 2) // 2, X.shape[-1] - n_alb:X.shape[-1]]
         fit_px = np.flatnonzero(lit.ravel())
         if len(fit_px) > cfg.max_lit_pixels:  # a stride: a low-order surface needs few
             fit_px = fit_px[np.linspace(0, len(fit_px) - 1, cfg.max_lit_pixels).astype(np.int64)]
-        Xf = X.reshape(-1, X.shape[-1])[fit_px]
+        Xf = X.reshape(-1, X.shape[-1])[fit_px][:, cols]
         beta = np.linalg.lstsq(Xf, logs.ravel()[fit_px], rcond=None)[0]
         lv = np.full((h, w), np.nan)
-        lv[ok] = X_ok @ beta
+        lv[ok] = X_ok[:, cols] @ beta
         res = np.where(ok, logs - np.nan_to_num(lv), np.nan)
         rl = res[lit]
         if len(rl) < 10:
@@ -203,13 +260,15 @@ def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarra
         sigma = max(1.4826 * float(np.median(np.abs(rl - med))), sigma)
     ratio = np.where(ok, s / np.where(np.isfinite(level) & (level > 0), level, np.nan), np.nan)
     dark = ok & np.isfinite(ratio) & (ratio < 1.0 - min(max(cfg.dark_sigmas * sigma, cfg.weber), cfg.darkest))
-    # regions, and which of them touch a caster that stands on the support; a region is
-    # grouped across the unread bands (an albedo edge's, the outline's) it crosses: a
-    # shadow on a checker floor is one shadow, not a piece per tile
+    # regions (the dark region's basins, ``shadow_basins``), and which of them touch a
+    # caster that stands on the support; a region is grouped across the unread bands (an
+    # albedo edge's, the outline's) it crosses: a shadow on a checker floor is one
+    # shadow, not a piece per tile
     unread = np.asarray(support, bool) & ~ok
     k = 2 * cfg.unread_px + 1
     near_dark = cv2.dilate(dark.astype(np.uint8), np.ones((k, k), np.uint8)) > 0
-    n_lab, lab = cv2.connectedComponents((dark | (unread & near_dark)).astype(np.uint8), connectivity=8)
+    n_lab, lab = shadow_basins(ratio, dark | (unread & near_dark), min(max(cfg.dark_sigmas * sigma, cfg.weber), cfg.darkest),
+                               cfg.basin_blur_px)
     casters = np.asarray(casters, bool)
     reach_m = within_reach(points, casters, up, np.asarray(support, bool), labels, cfg)
     # (beyond the band the support's outline and the albedo's edges leave unread)
@@ -229,4 +288,4 @@ def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarra
                           lit_level=np.where(ok, level, np.nan), reach=reach_m, shading=s, basis=X)
 
 
-__all__ = ["ShadowEvidence", "shadow_evidence"]
+__all__ = ["ShadowEvidence", "shadow_basins", "shadow_evidence"]
