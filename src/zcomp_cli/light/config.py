@@ -63,7 +63,7 @@ class SearchConfig:
                                               "mean log score of the true direction over the calibration cases, "
                                               "with misled (benchmarks/fit_light_constants.py, "
                                               "docs/fit_light_constants.txt)")
-    misled: float = knob(0.3, "fitted", "the chance that the cues mislead the estimate together (a bias all their "
+    misled: float = knob(0.25, "fitted", "the chance that the cues mislead the estimate together (a bias all their "
                                          "pixels share: the depth mesh's caster, the lit level's basis): the "
                                          "posterior is mixed with the prior by this much (posterior.with_misled; "
                                          "the best mean log score with the temperature, fit_light_constants.py "

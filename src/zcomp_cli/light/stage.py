@@ -47,8 +47,9 @@ from zcomp_cli.scene.lightparams import LightParams
 # mislead, at the temperature fitted with it: issue 47. 8: the split read with the shadow
 # the drawn light casts at its size and moved by a lamp's fall-off to where it is stated;
 # a sun's size kept at the Sun's unless its shadows beat it by the fitted odds, a lamp's
-# the likeliest: issue 47.)
-FORMAT = 8
+# the likeliest: issue 47. 9: the lit level fitted coarse to fine, the dark region split
+# into its basins before each is tied to a caster: issue 47.)
+FORMAT = 9
 # Fits kept in memory (per process): a batch visits its scenes in order, so a few are
 # enough; each holds the posterior and the evidence's small maps.
 KEEP_IN_MEMORY = 8
