@@ -5,18 +5,19 @@ On the support (``depthmesh``: the plane the scene stands on), the known shading
 light that reaches each point: a cast shadow is a region darker than its lit
 surroundings on the same surface. Dividing the shading by the **lit level** -- a smooth
 upper envelope of the support's shading, fitted on the pixels not yet called dark and
-refitted coarse to fine (``lit_iters``: one degree more at each fit) -- leaves the **ratio** ``r = shading / lit level``: about 1
-where the light reaches, the shadowed/lit ratio in an umbra (the sky's share of the
-light there, Madsen and Nielsen's measurement), in between across a penumbra. Dividing by
-the albedo (the caller's shading) keeps texture out of it.
+refitted coarse to fine (``lit_iters``: one degree more at each fit) -- leaves the
+**ratio** ``r = shading / lit level``: about 1 where the light reaches, the shadowed/lit
+ratio in an umbra (the sky's share of the light there, Madsen and Nielsen's
+measurement), in between across a penumbra. Dividing by the albedo (the caller's
+shading) keeps texture out of it.
 
 The dark pixels are split into regions, one per basin of the ratio (``shadow_basins``:
 two shadows joined through a shallower strip are two). A region counts as a cast shadow
 only where it can be tied to a caster: its pixels next to (within ``attach_rel`` of the
 frame) an occluder of the depth mesh that stands on the support (has a base), and within
-its reach. Dark regions tied to nothing (the shadow of something outside
-the frame, an albedo error) are left out of the evidence: ``weight`` is 0 there, 1 on
-the lit support and on tied dark regions.
+its reach. Dark regions tied to nothing (the shadow of something outside the frame, an
+albedo error) are left out of the evidence: ``weight`` is 0 there, 1 on the lit support
+and on tied dark regions.
 
 ``ShadowEvidence`` is a soft mask with a confidence, on the working copy's pixel grid
 (the debug outputs show it).
@@ -259,7 +260,8 @@ def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarra
     if len(rl) >= 10:
         sigma = max(1.4826 * float(np.median(np.abs(rl - med))), sigma)
     ratio = np.where(ok, s / np.where(np.isfinite(level) & (level > 0), level, np.nan), np.nan)
-    dark = ok & np.isfinite(ratio) & (ratio < 1.0 - min(max(cfg.dark_sigmas * sigma, cfg.weber), cfg.darkest))
+    depth = min(max(cfg.dark_sigmas * sigma, cfg.weber), cfg.darkest)  # (how far below 1 a dark pixel is)
+    dark = ok & np.isfinite(ratio) & (ratio < 1.0 - depth)
     # regions (the dark region's basins, ``shadow_basins``), and which of them touch a
     # caster that stands on the support; a region is grouped across the unread bands (an
     # albedo edge's, the outline's) it crosses: a shadow on a checker floor is one
@@ -267,8 +269,7 @@ def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarra
     unread = np.asarray(support, bool) & ~ok
     k = 2 * cfg.unread_px + 1
     near_dark = cv2.dilate(dark.astype(np.uint8), np.ones((k, k), np.uint8)) > 0
-    n_lab, lab = shadow_basins(ratio, dark | (unread & near_dark), min(max(cfg.dark_sigmas * sigma, cfg.weber), cfg.darkest),
-                               cfg.basin_blur_px)
+    n_lab, lab = shadow_basins(ratio, dark | (unread & near_dark), depth, cfg.basin_blur_px)
     casters = np.asarray(casters, bool)
     reach_m = within_reach(points, casters, up, np.asarray(support, bool), labels, cfg)
     # (beyond the band the support's outline and the albedo's edges leave unread)
