@@ -34,7 +34,8 @@ class EvidenceConfig:
     basin_blur_px: float = knob(1.0, "heuristic", "the ratio's Gaussian blur (sigma, working pixels) before the "
                                                  "dark region is split into basins, so that a pixel's noise makes no "
                                                  "basin; against none, the calibration's mean log score was -1.027 / "
-                                                 "-0.083 (fit / held out) against -1.052 / -0.086",
+                                                 "-0.083 (fit / held out) against -1.052 / -0.086 (measured with "
+                                                 "the basins' first markers and four lit-level fits: design-notes)",
                                 lo=0.0, hi=8.0)
     dark_sigmas: float = knob(3.0, "statistical", "a pixel this many noise scales below the lit level is dark "
                                                  "(0.1 % of Gaussian noise)")
