@@ -58,6 +58,24 @@ def test_a_scenes_light_is_fitted_once_and_read_back_from_the_cache(tmp_path):
     assert SceneLight(dataclasses.replace(SMALL, cone_samples=4), tmp_path / "lights").key(_inputs(s), LightParams.estimate(), 469) != stage.key(_inputs(s), LightParams.estimate(), 469)
 
 
+def test_a_light_fitted_by_other_code_is_fitted_again(tmp_path, monkeypatch):
+    """The key holds the code's digest: a change that moves the fit but no config value
+    (an edit, an upgrade) does not read the light the code before it fitted."""
+    import zcomp_cli.light.stage as stage_mod
+
+    s = _scene()
+    first = SceneLight(SMALL, tmp_path)
+    first.get(_inputs(s), None, 469)
+    assert SceneLight(SMALL, tmp_path).get(_inputs(s), None, 469).how == "cache"
+    d = stage_mod.code_digest()
+    assert len(d) == 16 and d == stage_mod.code_digest()
+    before = first.key(_inputs(s), LightParams.estimate(), 469)
+    monkeypatch.setattr(stage_mod, "code_digest", lambda: "another code")
+    other = SceneLight(SMALL, tmp_path)
+    assert other.key(_inputs(s), LightParams.estimate(), 469) != before
+    assert other.get(_inputs(s), None, 469).how == "fitted" and other.fits == 1
+
+
 def test_a_damaged_cache_entry_is_fitted_again(tmp_path):
     s = _scene()
     SceneLight(SMALL, tmp_path).get(_inputs(s), None, 1)

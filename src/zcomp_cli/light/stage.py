@@ -8,8 +8,9 @@ filled tree (what ``written`` writes as the manifest's ``light:``), the searched
 posterior and the evidence the fit read.
 
 A fit is kept under an explicit key: the scene's content (its key, made from the
-image, the maps, the camera and the working size), the tree, the stage's config and
-the seed. In memory for the process, and on disk under zcomp's cache (``lights/``,
+image, the maps, the camera and the working size), the tree, the stage's config, the
+seed and the code (``code_digest``: an upgraded or edited zcomp fits again, whatever its
+config says). In memory for the process, and on disk under zcomp's cache (``lights/``,
 ``--cache-dir``): every job of a scene, every shard and Ray worker sharing the cache,
 ``preview-light`` and ``composite`` fit a scene's light once. A fit that fails (a given
 light that lights nothing the camera sees) is remembered with its reason, so every job
@@ -21,6 +22,7 @@ known pixels and kept in memory only.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import io
 import json
@@ -48,7 +50,9 @@ from zcomp_cli.scene.lightparams import LightParams
 # the drawn light casts at its size and moved by a lamp's fall-off to where it is stated;
 # a sun's size kept at the Sun's unless its shadows beat it by the fitted odds, a lamp's
 # the likeliest: issue 47. 9: the lit level fitted coarse to fine, the dark region split
-# into its basins before each is tied to a caster: issue 47.)
+# into its basins before each is tied to a caster: issue 47.) The key holds the code's
+# digest too (``code_digest``), so a change to the fit needs no new FORMAT; FORMAT now
+# names the entry's layout.
 FORMAT = 9
 # Fits kept in memory (per process): a batch visits its scenes in order, so a few are
 # enough; each holds the posterior and the evidence's small maps.
@@ -139,6 +143,26 @@ class FittedLight:
                 "key": self.key, "fit_s": round(self.seconds, 4)}
 
 
+@functools.lru_cache(maxsize=1)
+def code_digest() -> str:
+    """A digest of zcomp's own Python sources (every ``.py`` under the package, by its
+    path and bytes), once per process: a light fitted by other code is another entry.
+    ``FORMAT`` alone relied on each change that moves a fit but not its config being
+    marked by hand (a change to the sky's solve kept every config value, and a run of
+    it read the lights the code before had fitted)."""
+    root = Path(__file__).resolve().parents[1]
+    h = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        try:
+            data = path.read_bytes()
+        except OSError:  # (an editor's lock file, a dangling link: no source)
+            continue
+        h.update(path.relative_to(root).as_posix().encode())
+        h.update(b"\0")
+        h.update(data)
+    return h.hexdigest()[:16]
+
+
 class SceneLight:
     """The light stage (module docstring): ``get`` fits a scene's light tree, once per
     key, kept in memory and under ``cache_dir`` (None: memory only). ``fits`` counts the
@@ -152,11 +176,12 @@ class SceneLight:
         self.fits = 0
 
     def key(self, inputs: LightInputs, params: LightParams, seed: int) -> str:
-        """The entry's key: the scene's content, the tree, the config, the seed."""
+        """The entry's key: the scene's content, the tree, the config, the seed, the code."""
         from zcomp_cli.knobs import as_dict
 
         scene = inputs.scene_key if inputs.scene_key is not None else f"arrays:{inputs.memo()}"
-        text = json.dumps([FORMAT, scene, params.key(), as_dict(self.cfg), int(seed)], sort_keys=True, default=str)
+        text = json.dumps([FORMAT, scene, params.key(), as_dict(self.cfg), int(seed), code_digest()], sort_keys=True,
+                          default=str)
         return hashlib.sha256(text.encode()).hexdigest()[:32]
 
     def get(self, inputs: LightInputs, params: LightParams | None, seed: int) -> FittedLight:
