@@ -328,25 +328,22 @@ def snapshot_source(dest: Path) -> dict:
     install), so a sweep of many minutes compares settings of ONE version of the code
     even while the working tree changes under it. ``sha256`` covers every .py file.
     """
-    import hashlib
-
     import zcomp_cli
+    from zcomp_cli.filedigest import sources_sha256
 
     src = Path(zcomp_cli.__file__).resolve().parent
     if dest.exists():
         shutil.rmtree(dest)
     ignore = shutil.ignore_patterns("__pycache__", "*.pyc")
     shutil.copytree(src, dest / "zcomp_cli", ignore=ignore)
-    h = hashlib.sha256()
-    for f in sorted((dest / "zcomp_cli").rglob("*.py")):
-        h.update(f.relative_to(dest).as_posix().encode() + b"\0" + f.read_bytes())
+    digest = sources_sha256(dest / "zcomp_cli", dest)
     commit = None
     try:  # read-only: which commit the working tree sits on (it may have local edits)
         r = subprocess.run(["git", "-C", str(src), "rev-parse", "HEAD"], text=True, capture_output=True, timeout=10)
         commit = r.stdout.strip() or None if r.returncode == 0 else None
     except (OSError, subprocess.SubprocessError):
         pass
-    info = {"path": str(dest), "sha256": h.hexdigest(), "git_commit": commit, "origin": str(src)}
+    info = {"path": str(dest), "sha256": digest, "git_commit": commit, "origin": str(src)}
     (dest / "SOURCE.json").write_text(json.dumps(info, indent=1))
     return info
 

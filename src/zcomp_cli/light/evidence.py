@@ -178,6 +178,12 @@ def shadow_basins(ratio: np.ndarray, region: np.ndarray, depth: float, blur_px: 
     return int(lab.max()) + 1, lab.astype(np.int32)
 
 
+def dark_depth(sigma: float, cfg: EvidenceConfig) -> float:
+    """How far below the lit level (in ratio) a pixel is dark, at noise scale ``sigma``:
+    ``cfg.dark_sigmas`` of it, at least Weber's contrast, at most ``cfg.darkest``."""
+    return min(max(cfg.dark_sigmas * sigma, cfg.weber), cfg.darkest)
+
+
 def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarray, points: np.ndarray, up,
                     known: np.ndarray | None = None, albedo: np.ndarray | None = None,
                     labels: np.ndarray | None = None, cfg: EvidenceConfig | None = None) -> ShadowEvidence:
@@ -252,7 +258,7 @@ def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarra
         if len(rl) < 10:
             break
         med = float(np.median(rl))
-        lit = ok & ~(res < med + math.log(1.0 - min(max(cfg.dark_sigmas * sigma, cfg.weber), cfg.darkest)))
+        lit = ok & ~(res < med + math.log(1.0 - dark_depth(sigma, cfg)))
         level = np.exp(lv + med)
     # then the noise of a pixel's ratio is the lit level's own misfit on the lit pixels
     # (at least the pixels' noise): what a dark pixel must stand out of
@@ -260,7 +266,7 @@ def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarra
     if len(rl) >= 10:
         sigma = max(1.4826 * float(np.median(np.abs(rl - med))), sigma)
     ratio = np.where(ok, s / np.where(np.isfinite(level) & (level > 0), level, np.nan), np.nan)
-    depth = min(max(cfg.dark_sigmas * sigma, cfg.weber), cfg.darkest)  # (how far below 1 a dark pixel is)
+    depth = dark_depth(sigma, cfg)
     dark = ok & np.isfinite(ratio) & (ratio < 1.0 - depth)
     # regions (the dark region's basins, ``shadow_basins``), and which of them touch a
     # caster that stands on the support; a region is grouped across the unread bands (an

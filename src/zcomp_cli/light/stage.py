@@ -150,17 +150,10 @@ def code_digest() -> str:
     ``FORMAT`` alone relied on each change that moves a fit but not its config being
     marked by hand (a change to the sky's solve kept every config value, and a run of
     it read the lights the code before had fitted)."""
+    from zcomp_cli.filedigest import sources_sha256
+
     root = Path(__file__).resolve().parents[1]
-    h = hashlib.sha256()
-    for path in sorted(root.rglob("*.py")):
-        try:
-            data = path.read_bytes()
-        except OSError:  # (an editor's lock file, a dangling link: no source)
-            continue
-        h.update(path.relative_to(root).as_posix().encode())
-        h.update(b"\0")
-        h.update(data)
-    return h.hexdigest()[:16]
+    return sources_sha256(root, root)[:16]
 
 
 class SceneLight:
