@@ -55,6 +55,12 @@ the error of the part added between them:
   from one direction;
 * ``size``: the same, plus each light's true angular radius (a sun's; the HDR map's
   brightest source's as measured on it) or an area lamp's radius (a disc of its area);
+* ``sky``: the true sky and every light where it is, their strengths fitted: ``full``'s
+  light (below) with each sun's irradiance and each lamp's power ``auto``, so its
+  share against the sky is the light stage's own (read off the shadows, else the
+  prior). Its gap to ``size`` is the sky's shape (the HDR map against the fitted
+  sky's lobes) and the HDR map's own sun (which only ``full`` and this row hold); its
+  gap to ``full``, the sun/sky and lamp/sky splits of the lights the generator added;
 * ``full``: everything the path tracer knew: the scene's HDR map as a probe (its
   rotation, Blender's convention, its strength), every lamp at its position with its
   power (suns with their irradiance and size), and the camera's pitch; only the
@@ -287,7 +293,7 @@ def _share_under(vals: list[float], deg: float) -> float | None:
 SECOND_TRUE_LIGHT_FRAC = 0.25
 
 
-ORACLE_LEVELS = ("direction", "size", "full", "exposure")
+ORACLE_LEVELS = ("direction", "size", "sky", "full", "exposure")
 
 
 def _true_radius_deg(t: dict, case: dict) -> float:
@@ -355,21 +361,25 @@ def write_oracle_jobs(bench_dir: Path, level: str) -> Path:
         if c["id"] not in doc["scenes"]:
             continue
         scene = doc["scenes"][c["id"]]
-        if level in ("full", "exposure"):
+        if level in ("sky", "full", "exposure"):
             from zcomp_cli.benchsuite.scenes import BenchScene, lamps_for_blender
 
             probe, tilt = _probe_spec(c)
             lights = [probe]
+            fitted = level == "sky"  # the lights' strengths (and colours) fitted, not given
             for lp in lamps_for_blender(BenchScene.from_dict(c["scene"])):
                 travel = np.asarray(lp["direction"], np.float64)
+                colour = {} if fitted else {"color": [float(v) for v in lp["color"]]}
                 if lp["kind"] == "SUN":
                     lights.append({"type": "sun", "direction": [float(v) for v in -travel],
                                    "angular_radius_deg": 0.5 * float(lp["angle_deg"]),
-                                   "irradiance": float(lp["strength"]), "color": [float(v) for v in lp["color"]]})
+                                   **({"strength": "auto"} if fitted else {"irradiance": float(lp["strength"])}),
+                                   **colour})
                 else:
                     lights.append({"type": "lamp", "position": [float(v) for v in lp["position"]],
-                                   "radius_m": float(lp["size"]) / math.sqrt(math.pi), "power": float(lp["strength"]),
-                                   "facing": [float(v) for v in travel], "color": [float(v) for v in lp["color"]]})
+                                   "radius_m": float(lp["size"]) / math.sqrt(math.pi),
+                                   "power": "auto" if fitted else float(lp["strength"]),
+                                   "facing": [float(v) for v in travel], **colour})
             scene["light"] = lights
             scene.update(tilt)
             if level == "exposure":
@@ -438,7 +448,8 @@ def main(argv=None) -> int:
     ap.add_argument("--skip-composite", action="store_true", help="reuse results already in OUT/results")
     ap.add_argument("--true-direction", action="store_true", help="the same as --oracle direction")
     ap.add_argument("--oracle", default="", metavar="LEVELS",
-                    help="comma-separated oracle levels to add as rows: direction, size, full (module docstring)")
+                    help="comma-separated oracle levels to add as rows: direction, size, sky, full, exposure "
+                         "(module docstring)")
     ap.add_argument("--oracle-renderers", default="physical", metavar="NAMES",
                     help="the renderers the oracle rows run (comma-separated; default physical)")
     args = ap.parse_args(argv)
