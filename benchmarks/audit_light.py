@@ -36,7 +36,9 @@ manifest's working size, every valid pixel known), and the audit prints:
 * ``split/true``: the sun/sky split (the sky's share of the support's light) the fit
   tied its key light to (``*``: read off the shadows' shadowed/lit ratio, else the
   prior's) and the truth's at the object's base (the generator's HDR sky against its
-  sun and lamps);
+  sun and lamps); in the summary also the share the drawn sky holds, all its lobes
+  against the suns (``LightModel.ambient_share``: what a full shadow keeps), beside the
+  truth;
 * ``in50/68/90``: whether the truth lies inside the stated 50, 68 and 90 % cones (the
   smallest cones about the posterior's mean direction holding that much of its mass);
   in the summary, beside them, inside the 50, 68 and 90 % highest-density sets
@@ -177,6 +179,9 @@ def audit_case(bench: Path, case: dict, truth: dict, settings=None) -> dict:
     row["split_est"] = float(getattr(model.fit, "sky_share", float("nan")))
     row["split_true"] = float(true_sky_share(case))
     row["split_read"] = bool(float(getattr(model.fit, "shadow_blocks", 0.0)) > 0)
+    # and the sky's share as the composite draws it: every lobe of the fitted sky against
+    # the suns on a floor facing up (a model with lamps: not stated, their light falls off)
+    row["split_drawn"] = float(model.ambient_share()) if not model.lamps else float("nan")
     est = model.key_direction
     if est is None and post is not None:
         est = post.mean_direction
@@ -254,6 +259,11 @@ def summarise(rows: list[dict]) -> str:
         if d:
             lines.append(f"the sun/sky split {name}: n={len(d)}, median |estimate - truth| {statistics.median(d):.3f}, "
                          f"within 0.1: {100 * np.mean(np.array(d) <= 0.1):.0f} %")
+    drawn = [r["split_drawn"] - r["split_true"] for r in rows if math.isfinite(r.get("split_drawn", math.nan))]
+    if drawn:
+        lines.append(f"the sky's share as drawn (all its lobes against the suns; models without lamps): "
+                     f"n={len(drawn)}, median |drawn - truth| {statistics.median(np.abs(drawn)):.3f}, "
+                     f"median drawn - truth {statistics.median(drawn):+.3f}")
     lp = [r["logp_true"] for r in rows if math.isfinite(r.get("logp_true", math.nan))]
     if lp:
         lines.append(f"mean log score of the truth: {statistics.mean(lp):.3f} (log density per sr; uniform "

@@ -73,7 +73,10 @@ adds each level's row for each renderer (``cycles-oracle-full``: the path tracer
 depth map's mesh under the full oracle; beside ``physical-oracle-full``, their gap is the
 hand-written transport's error, and what ``cycles`` still misses the 2.5-D geometry's).
 Besides the paper's metrics each row has PSNR near the object and on the object's own
-pixels (``psnr_object``: what a viewer looks at first).
+pixels (``psnr_object``: what a viewer looks at first), and ``shadow_bias``: inside the
+ground truth's darkened region (``metrics.shadow.darkened_region``), the mean of the
+composite's ratio to the background less the truth's, averaged over the cases that have
+one -- the sign the darkness error does not tell (positive: the shadows are too pale).
 """
 
 from __future__ import annotations
@@ -88,7 +91,7 @@ import sys
 from pathlib import Path
 
 COLUMNS = ["psnr", "rmse", "si-rmse", "ssim", "mae", "lpips", "flip", "shadow-iou", "shadow-darkness"]
-EXTRA = ["psnr_near", "psnr_object", "light_dir_err_deg",
+EXTRA = ["psnr_near", "psnr_object", "shadow_bias", "light_dir_err_deg",
          "dominant_light_err_deg", "dominant_under_10", "dominant_under_20",
          "shown_light_err_deg", "shown_under_10", "shown_under_20", "cast_shadow_err_deg",
          "sphere_si_rmse_diffuse", "sphere_si_rmse_silver", "median_s_per_job", "jobs_done"]
@@ -175,7 +178,7 @@ def per_case(bench_dir: Path, res_dir: Path, truths: dict[str, dict] | None = No
 
     from zcomp_cli.conventions import linear_to_srgb
     from zcomp_cli.imageio import read_alpha_or_grey, read_image
-    from zcomp_cli.metrics.shadow import darkened_region
+    from zcomp_cli.metrics.shadow import darkened_region, shadow_ratio
 
     bench = json.loads((bench_dir / "benchmark.json").read_text())
     truths = case_truths(bench_dir) if truths is None else truths
@@ -183,7 +186,7 @@ def per_case(bench_dir: Path, res_dir: Path, truths: dict[str, dict] | None = No
     for c in bench["cases"]:
         job = next(iter(sorted(res_dir.glob(f"*{c['id']}*"))), None)
         row = {"case": c["id"], "psnr_near": float("nan"), "psnr_object": float("nan"),
-               "light_dir_err_deg": float("nan"),
+               "shadow_bias": float("nan"), "light_dir_err_deg": float("nan"),
                "shadow_in_frame": False, "lamp": "", "lamp_blocked": ""}
         lights = truths[c["id"]]["lights"]
         # a lamp counts only where it reaches the object: a sun behind a wall casts none
@@ -207,7 +210,10 @@ def per_case(bench_dir: Path, res_dir: Path, truths: dict[str, dict] | None = No
             err2 = (linear_to_srgb(np.clip(pred, 0, None)) - linear_to_srgb(np.clip(gt, 0, None))) ** 2
             row["psnr_near"] = float(10 * np.log10(1.0 / max(float(np.mean(err2[near])), 1e-12)))
             row["psnr_object"] = float(10 * np.log10(1.0 / max(float(np.mean(err2[om])), 1e-12)))
-        row["shadow_in_frame"] = bool(darkened_region(gt, bg, om).sum() >= 30)
+        dark = darkened_region(gt, bg, om)
+        row["shadow_in_frame"] = bool(dark.sum() >= 30)
+        if dark.any():
+            row["shadow_bias"] = float((shadow_ratio(pred, bg)[0] - shadow_ratio(gt, bg)[0])[dark].mean())
         rep = json.loads((job / "report.json").read_text())
         light = (((rep.get("renderer") or {}).get("info") or {}).get("light") or {})
         seen = [t for t in lights if t["visible"]]
@@ -505,6 +511,7 @@ def main(argv=None) -> int:
         import math
         near = [c["psnr_near"] for c in cases if math.isfinite(c["psnr_near"])]
         obj = [c["psnr_object"] for c in cases if math.isfinite(c["psnr_object"])]
+        bias = [c["shadow_bias"] for c in cases if math.isfinite(c.get("shadow_bias", math.nan))]
         errs = [c["light_dir_err_deg"] for c in cases
                 if c["lamp"] and c["shadow_in_frame"] and math.isfinite(c["light_dir_err_deg"])]
         dom = [c["dominant_err_deg"] for c in cases
@@ -520,6 +527,7 @@ def main(argv=None) -> int:
         rows.append({"method": name, **{c: means.get(c) for c in COLUMNS},
                      "psnr_near": statistics.mean(near) if near else None,
                      "psnr_object": statistics.mean(obj) if obj else None,
+                     "shadow_bias": statistics.mean(bias) if bias else None,
                      "light_dir_err_deg": statistics.median(errs) if errs else None,
                      "dominant_light_err_deg": _median_n(dom),
                      **{f"dominant_under_{d:g}": _share_under(dom, d) for d in UNDER_DEG},
@@ -570,7 +578,7 @@ def main(argv=None) -> int:
         w.writerows(rows)
     with open(out / "cases.csv", "w", newline="") as f:
         keys = ["method", "case", "lamp", "lamp_blocked", "shadow_in_frame", "psnr_near", "psnr_object",
-                "light_dir_err_deg",
+                "shadow_bias", "light_dir_err_deg",
                 "dominant_light", "dominant_err_deg", "cast_shadows_shown", "shown_light_err_deg", "fallback",
                 "sphere_si_rmse_diffuse", "sphere_si_rmse_silver"]
         w = csv.DictWriter(f, fieldnames=keys, extrasaction="ignore")

@@ -61,3 +61,19 @@ def test_the_highest_density_set_reaching_a_direction():
                                       ({"shown": False, "truth": "HDR-sun"}, "bare floor")])
 def test_strata(row, want):
     assert stratum(row) == want
+
+
+def test_the_summary_states_the_drawn_skys_share_beside_the_truth():
+    """The sky's share as drawn (all its lobes against the suns: what a full shadow keeps)
+    beside the truth's, its median gap and its sign (a drawn sky above the truth: pale
+    shadows); a model with lamps does not state it."""
+    from audit_light import summarise
+
+    base = {"truth": "SUN", "shown": False, "err_deg": 5.0, "spread_deg": 10.0, "split_est": 0.5,
+            "split_read": True, "seconds": 0.5}
+    rows = [{**base, "split_true": 0.4, "split_drawn": 0.7}, {**base, "split_true": 0.6, "split_drawn": 0.65},
+            {**base, "split_true": 0.5, "split_drawn": 0.4}, {**base, "split_true": 0.5, "split_drawn": math.nan}]
+    text = summarise(rows)
+    line = [x for x in text.splitlines() if x.startswith("the sky's share as drawn")]
+    assert len(line) == 1
+    assert "n=3" in line[0] and "median |drawn - truth| 0.100" in line[0] and "median drawn - truth +0.050" in line[0]

@@ -67,3 +67,39 @@ def test_the_sky_level_is_the_full_light_with_the_lights_strengths_fitted(rb, tm
     problems = []
     parse_light(sky["light"], "scenes.case_0000.light", lambda *a: problems.append(a))
     assert problems == []  # a manifest zcomp takes: an auto strength may stand beside a probe
+
+
+def test_the_shadow_bias_is_the_composites_ratio_less_the_truths_inside_the_true_shadow(rb, tmp_path):
+    """``shadow_bias`` per case: the sign the darkness error does not tell. The truth
+    halves the floor's light in a square, the composite takes a quarter off it: +0.25
+    (too pale); a composite darker than the truth, below 0; no true shadow: nan."""
+    from zcomp_cli.imageio import write_exr, write_image
+
+    H, W = 32, 48
+    bg = np.full((H, W, 3), 0.5, np.float32)
+    gt = bg.copy()
+    gt[8:16, 8:16] *= 0.5
+    om = np.zeros((H, W), np.float32)
+    om[20:28, 30:40] = 1.0  # the object, off the shadow
+    cases = []
+    for i, (truth, k) in enumerate(((gt, 0.75), (gt, 0.25), (bg, 0.75))):
+        cid = f"case_{i:04d}"
+        d = tmp_path / "cases" / cid
+        d.mkdir(parents=True)
+        write_image(d / "image.exr", bg)
+        write_image(d / "gt.exr", truth)
+        write_exr(d / "object_mask.exr", om)
+        pred = bg.copy()
+        pred[8:16, 8:16] *= k
+        job = tmp_path / "res" / f"{i:03d}_{cid}_o"
+        job.mkdir(parents=True)
+        write_image(job / "composite.exr", pred)
+        (job / "report.json").write_text(json.dumps({"renderer": {"info": {}}}))
+        cases.append({"id": cid, "files": {"image": f"cases/{cid}/image.exr", "gt": f"cases/{cid}/gt.exr",
+                                           "object_mask": f"cases/{cid}/object_mask.exr"}})
+    (tmp_path / "benchmark.json").write_text(json.dumps({"cases": cases}))
+    truths = {c["id"]: {"lights": [], "shown": []} for c in cases}
+    rows = rb.per_case(tmp_path, tmp_path / "res", truths)
+    assert rows[0]["shadow_bias"] == pytest.approx(0.25, abs=1e-6)
+    assert rows[1]["shadow_bias"] == pytest.approx(-0.25, abs=1e-6)
+    assert np.isnan(rows[2]["shadow_bias"])
