@@ -326,6 +326,18 @@ def test_cache_lookup_ignores_incomplete_and_copy_cleans_stale(tmp_path):
     assert not (dst / "roughness.exr").exists() and ObjectBundle.is_complete(dst)
 
 
+def test_a_copied_cache_hit_names_the_requests_own_mesh(tmp_path):
+    """A cache entry names the mesh file it was first rendered from; a copy made for
+    another request of the same content names that request's file (the first may be gone)."""
+    src, dst = tmp_path / "src", tmp_path / "dst"
+    _tiny_bundle(src)
+    icache.copy_bundle(src, dst, meta_update={"mesh": "/now/here.glb"})
+    got, was = ObjectBundle.load(dst), ObjectBundle.load(src)
+    assert got.meta["mesh"] == "/now/here.glb" and got.meta["x"] == 1
+    assert "mesh" not in was.meta and was.meta["x"] == 1  # the cache's entry is left as it was
+    np.testing.assert_array_equal(got.camera.K, was.camera.K)  # the rest of meta.json kept
+
+
 # ------------------------------------------------------------------------------------
 # the API without Blender: failures are reported, not raised
 # ------------------------------------------------------------------------------------

@@ -1,6 +1,7 @@
 """`zcomp composite` end to end on the shipped example (Blender renders the objects)."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -132,3 +133,30 @@ def test_physical_example_casts_shadow_far_pixels_unchanged(tmp_path, small_exam
     s_lum = lum(shade) / np.maximum(lum(alb), 1e-4)
     assert (m & facing).sum() > 5 and (m & away).sum() > 5
     assert np.median(s_lum[m & facing]) > 1.2 * np.median(s_lum[m & away])
+
+
+def test_a_cached_object_render_shadows_with_this_manifests_mesh(tmp_path, small_example):
+    """The object's render is cached by its mesh's content; the cached bundle names the
+    file it was first rendered from. A second manifest of the same mesh elsewhere, the
+    first file gone, still casts the object's shadow from its mesh (it fell back to the
+    bundle's maps, extruded: other shadows, up to 65 of 255 apart in the demo)."""
+    import shutil
+
+    reports = []
+    for name in ("first", "second"):
+        d = tmp_path / name
+        d.mkdir()
+        manifest = small_example(d, jobs=[0])
+        m = yaml.safe_load(manifest.read_text())
+        for o in m["objects"].values():
+            copy = d / Path(o["mesh"]).name
+            shutil.copy2(o["mesh"], copy)
+            o["mesh"] = str(copy)
+        manifest.write_text(yaml.safe_dump(m))
+        r = _run("composite", str(manifest), "--out", str(d / "out"), "--renderer", "naive")
+        assert r.exit_code == 0, r.output
+        reports += [json.loads(p.read_text()) for p in (d / "out").glob("*/report.json")]
+        for o in m["objects"].values():
+            Path(o["mesh"]).unlink()  # the first checkout's file, gone
+    assert len(reports) == 2
+    assert [r["occluder"] for r in reports] == ["mesh", "mesh"]

@@ -99,10 +99,12 @@ def _discard(cache_dir, d: Path) -> None:
     shutil.rmtree(trash, ignore_errors=True)
 
 
-def copy_bundle(src, dst) -> None:
+def copy_bundle(src, dst, meta_update: dict | None = None) -> None:
     """Copy a bundle folder's files into ``dst`` (real copies, not links), meta.json
     last so a reader never sees a complete-looking partial copy. Stale optional maps
-    already in ``dst`` are removed."""
+    already in ``dst`` are removed. ``meta_update``: keys whose values the copy's
+    meta.json takes instead of the source's (a cached bundle's mesh path: the request's
+    own file)."""
     src, dst = Path(src), Path(dst)
     dst.mkdir(parents=True, exist_ok=True)
     stale_meta = dst / "meta.json"
@@ -117,7 +119,11 @@ def copy_bundle(src, dst) -> None:
         tmp = dst / f".{name}.tmp"
         if tmp.exists():
             tmp.unlink()
-        shutil.copy2(src / name, tmp)  # a copy: an edited output must not poison the cache
+        if name == "meta.json" and meta_update:
+            meta = read_json_file(src / name)
+            tmp.write_text(json.dumps({**meta, **meta_update}, indent=2))
+        else:
+            shutil.copy2(src / name, tmp)  # a copy: an edited output must not poison the cache
         os.replace(tmp, target)
 
 

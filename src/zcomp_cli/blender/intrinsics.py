@@ -364,8 +364,8 @@ def render_object_intrinsics(
         if hit is not None:
             try:
                 bundle_dir = hit
-                if req.out_dir is not None:
-                    _cache.copy_bundle(hit, req.out_dir)
+                if req.out_dir is not None:  # naming this request's mesh file, not the first one's
+                    _cache.copy_bundle(hit, req.out_dir, meta_update={"mesh": str(p.mesh.path)})
                     bundle_dir = Path(req.out_dir)
                 report(i, IntrinsicsResult(str(req.id), True, bundle_dir, cached=True,
                                            seconds=time.monotonic() - t0))

@@ -338,7 +338,12 @@ def load_object_bundle(ctx: BatchContext, w: JobWork, scene):
 
     obj = ctx.manifest.objects[w.job.object]
     if obj.kind == "mesh":
-        return ObjectBundle.load(w.bundle_dir)
+        b = ObjectBundle.load(w.bundle_dir)
+        # the job's own mesh file: a cached bundle names the file it was first rendered
+        # from, maybe another checkout's since moved or deleted, whose content the cache's
+        # key shares with this one (without it the object's shadow fell back to its maps)
+        b.meta["mesh"] = str(Path(obj.mesh).resolve())
+        return b
     if obj.kind == "bundle":  # a given bundle: its normals may be in another frame
         from zcomp_cli.conventions import facing_problem, valid_depth_mask
 
