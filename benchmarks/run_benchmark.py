@@ -73,10 +73,10 @@ adds each level's row for each renderer (``cycles-oracle-full``: the path tracer
 depth map's mesh under the full oracle; beside ``physical-oracle-full``, their gap is the
 hand-written transport's error, and what ``cycles`` still misses the 2.5-D geometry's).
 Besides the paper's metrics each row has PSNR near the object and on the object's own
-pixels (``psnr_object``: what a viewer looks at first), and ``shadow_bias``: inside the
-ground truth's darkened region (``metrics.shadow.darkened_region``), the mean of the
-composite's ratio to the background less the truth's, averaged over the cases that have
-one -- the sign the darkness error does not tell (positive: the shadows are too pale).
+pixels (``psnr_object``: what a viewer looks at first), and ``shadow_bias``
+(``metrics.shadow.shadow_bias``): inside the ground truth's darkened region, the mean
+of the composite's ratio to the background less the truth's, averaged over the cases
+that have one -- the sign the darkness error does not tell (positive: too pale).
 """
 
 from __future__ import annotations
@@ -178,7 +178,7 @@ def per_case(bench_dir: Path, res_dir: Path, truths: dict[str, dict] | None = No
 
     from zcomp_cli.conventions import linear_to_srgb
     from zcomp_cli.imageio import read_alpha_or_grey, read_image
-    from zcomp_cli.metrics.shadow import darkened_region, shadow_ratio
+    from zcomp_cli.metrics.shadow import darkened_region, shadow_bias
 
     bench = json.loads((bench_dir / "benchmark.json").read_text())
     truths = case_truths(bench_dir) if truths is None else truths
@@ -210,10 +210,8 @@ def per_case(bench_dir: Path, res_dir: Path, truths: dict[str, dict] | None = No
             err2 = (linear_to_srgb(np.clip(pred, 0, None)) - linear_to_srgb(np.clip(gt, 0, None))) ** 2
             row["psnr_near"] = float(10 * np.log10(1.0 / max(float(np.mean(err2[near])), 1e-12)))
             row["psnr_object"] = float(10 * np.log10(1.0 / max(float(np.mean(err2[om])), 1e-12)))
-        dark = darkened_region(gt, bg, om)
-        row["shadow_in_frame"] = bool(dark.sum() >= 30)
-        if dark.any():
-            row["shadow_bias"] = float((shadow_ratio(pred, bg)[0] - shadow_ratio(gt, bg)[0])[dark].mean())
+        row["shadow_in_frame"] = bool(darkened_region(gt, bg, om).sum() >= 30)
+        row["shadow_bias"] = shadow_bias(pred, gt, bg, om)
         rep = json.loads((job / "report.json").read_text())
         light = (((rep.get("renderer") or {}).get("info") or {}).get("light") or {})
         seen = [t for t in lights if t["visible"]]

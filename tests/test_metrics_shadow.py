@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from zcomp_cli.errors import InputError
-from zcomp_cli.metrics.shadow import darkened_region, shadow_darkness, shadow_iou
+from zcomp_cli.metrics.shadow import darkened_region, shadow_bias, shadow_darkness, shadow_iou
 
 
 def _img(val=0.5, h=20, w=30):
@@ -28,6 +28,10 @@ def test_partial_overlap_and_darkness():
     assert shadow_iou(pred, ref, bg) == pytest.approx(25 / 75)
     # union 75 px: |0.85-0.25| on 25, |1-0.25| on 25, |0.85-1| on 25
     assert shadow_darkness(pred, ref, bg) == pytest.approx((0.6 + 0.75 + 0.15) / 3, abs=1e-6)
+    # signed, over ref's 50 px only: 0.85-0.25 on 25, 1-0.25 on 25 (pred too pale); none: nan
+    assert shadow_bias(pred, ref, bg) == pytest.approx((0.6 + 0.75) / 2, abs=1e-6)
+    assert shadow_bias(ref, pred, bg) == pytest.approx((-0.6 + 0.15) / 2, abs=1e-6)  # over pred's 50 px
+    assert np.isnan(shadow_bias(pred, bg, bg))
 
 
 def test_threshold_object_mask_and_black_background():

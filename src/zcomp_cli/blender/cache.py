@@ -23,6 +23,7 @@ import uuid
 from pathlib import Path
 
 from zcomp_cli.bundle import ObjectBundle
+from zcomp_cli.imageio import dumps_strict
 from zcomp_cli.safe_read import read_json_file
 
 
@@ -119,9 +120,8 @@ def copy_bundle(src, dst, meta_update: dict | None = None) -> None:
         tmp = dst / f".{name}.tmp"
         if tmp.exists():
             tmp.unlink()
-        if name == "meta.json" and meta_update:
-            meta = read_json_file(src / name)
-            tmp.write_text(json.dumps({**meta, **meta_update}, indent=2))
+        if name == "meta.json" and meta_update:  # (as ObjectBundle.save writes it)
+            tmp.write_text(dumps_strict({**read_json_file(src / name), **meta_update}, indent=2) + "\n")
         else:
             shutil.copy2(src / name, tmp)  # a copy: an edited output must not poison the cache
         os.replace(tmp, target)

@@ -7,7 +7,9 @@ Both compare each image with the background photograph it was composited into:
 * ``shadow_iou``: intersection over union of the two darkened regions (1.0 when both
   are empty: neither casts a shadow);
 * ``shadow_darkness``: mean absolute error of the ratio ``lum(image) / lum(background)``
-  (clamped to [0, 1.5]) over the union of both regions (0.0 when the union is empty).
+  (clamped to [0, 1.5]) over the union of both regions (0.0 when the union is empty);
+* ``shadow_bias``: the mean signed error of that ratio over the reference's region alone
+  (nan when it is empty): above 0, the prediction's shadow is too pale.
 
 Inputs: H x W x 3 linear RGB float arrays (the ratio does not depend on the encoding's
 scale, and linear values keep it physical); ``object_mask`` H x W, > 0.5 on the object.
@@ -74,3 +76,12 @@ def shadow_darkness(pred, ref, background, object_mask=None, threshold: float = 
     rp, _ = shadow_ratio(pred, background)
     rr, _ = shadow_ratio(ref, background)
     return float(np.abs(rp - rr)[u].mean())
+
+
+def shadow_bias(pred, ref, background, object_mask=None, threshold: float = SHADOW_THRESHOLD) -> float:
+    """Mean ratio_pred - ratio_ref over ``ref``'s darkened region (nan if it has none):
+    the sign ``shadow_darkness`` does not tell (above 0: ``pred``'s shadow too pale)."""
+    b = darkened_region(ref, background, object_mask, threshold)
+    if not b.any():
+        return float("nan")
+    return float((shadow_ratio(pred, background)[0] - shadow_ratio(ref, background)[0])[b].mean())
