@@ -258,3 +258,27 @@ def test_walls_beyond_the_frame_join_as_quads():
     assert rc.occluded(O, low_left / np.linalg.norm(low_left)).mean() > 0.95
     assert not rc.occluded(O, right).any()
     assert not rc.occluded(O, up).any()
+
+
+# a wall 1.5 m high across the frame, 5 m ahead: the camera (1.2 m up, pitched down 10 deg)
+# sees its top edge against the sky
+TOPPED_WALL = [((0.0, -5.0), (30.0, 1.5, 0.3))]
+
+
+def test_a_wall_whose_top_edge_is_seen_is_a_caster_where_sky_edges_cast():
+    # a wall meets the floor in a corner: where its top edge stands against the sky
+    # (pixels of no geometry above it), that edge casts its shadow on the floor. With
+    # ``sky_edges_cast`` the wall is a caster; a wall the frame cuts at its top stays none;
+    # by default (off: design notes) no wall is
+    from zcomp_cli.scene.config import MeshConfig
+
+    on = MeshConfig(sky_edges_cast=True)
+    s = floor_scene(W, H, pitch_deg=-10.0, occluders=TOPPED_WALL)
+    m, up = _mesh(s, cfg=on)
+    wall = (s.depth > 0) & (np.abs(s.normals @ up) < 0.2)
+    assert wall.sum() > 1000 and (s.depth[0] == 0).all()  # the sky above it
+    assert m.casters[wall].mean() > 0.98 and not m.casters[~wall].any()
+    assert not _mesh(s)[0].casters.any()
+    cut = floor_scene(W, H, pitch_deg=-25.0, occluders=TOPPED_WALL)
+    assert (cut.depth[0] > 0).all()  # the frame's top cuts the wall
+    assert not _mesh(cut, cfg=on)[0].casters.any()

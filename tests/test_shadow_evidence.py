@@ -338,3 +338,86 @@ def test_lit_basis_columns():
     y = 0.3 - 0.2 * u + 0.1 * v + 0.05 * u * v
     beta = np.linalg.lstsq(X[ok], y[ok], rcond=None)[0]
     np.testing.assert_allclose(X[ok] @ beta, y[ok], atol=1e-9)
+
+
+# a wall 1.5 m high across the frame, 5 m ahead, its top edge seen against the sky (a
+# caster where ``sky_edges_cast``: test_depthmesh); the sky (ambient 1.0) the wall hides
+# darkens its foot
+TOPPED_WALL = [((0.0, -5.0), (30.0, 1.5, 0.3))]
+
+
+def _walled(light):
+    from zcomp_cli.scene.config import MeshConfig
+    from zcomp_cli.scene.skyvis import support_sky_view
+
+    s = floor_scene(W, H, pitch_deg=-10.0, occluders=TOPPED_WALL, light_dir=light, sky_occlusion=True,
+                    ambient=1.0, light_intensity=0.4)
+    up, _ = scene_up(None, s.normals, s.depth > 0)
+    m = build_depth_mesh(s.depth, s.normals, s.camera, up, cfg=MeshConfig(sky_edges_cast=True))
+    view = support_sky_view(m.points, m.support, m.up, m.caster(), directions=256, stride=2, bias_rel=1e-3)
+    return s, m, up, view
+
+
+def _read(s, m, up, **kw):
+    return shadow_evidence(s.shading.mean(-1), m.support, m.casters, m.points, up, known=s.depth > 0,
+                           albedo=s.albedo.mean(-1), labels=m.labels, **kw)
+
+
+def test_the_sky_a_wall_hides_is_the_lit_levels_not_a_shadow():
+    # the sun in front of the wall: its foot is darker only by the sky the wall hides
+    # (the light's 0.94 there at 0.64 of the sky). Without the sky's term, that foot is
+    # read as the wall's cast shadow (thousands of pixels tied); with it, as lit
+    s, m, up, view = _walled((0.3, 1.0, 0.8))
+    assert (s.visibility[m.support] > 0.99).all()  # no cast shadow at all
+    foot = m.support & (view < 0.85)
+    assert foot.sum() > 500
+    bare = _read(s, m, up)
+    assert bare.tied[foot].mean() > 0.9
+    ev = _read(s, m, up, sky_view=view, sky_share=0.52)
+    assert ev.dark.sum() < 0.01 * foot.sum() and not ev.tied.any()
+    assert ev.basis.shape[-1] == bare.basis.shape[-1] + 1  # (the term joins the lit level's basis)
+
+
+def test_a_walls_cast_shadow_is_read_past_the_sky_it_hides():
+    # the sun behind the wall: its top edge casts a band on the floor, tied to the wall,
+    # and with the sky's term nothing else is dark
+    s, m, up, view = _walled((0.3, 1.0, -0.8))
+    shadow = m.support & (s.visibility < 0.5)
+    assert shadow.sum() > 1000
+    ev = _read(s, m, up, sky_view=view, sky_share=0.52)
+    assert (ev.tied & shadow).sum() > 0.9 * shadow.sum()
+    assert not (ev.dark & ~shadow).any()
+
+
+def test_a_sky_view_that_does_not_vary_changes_nothing():
+    s = _scene()
+    up, _ = scene_up(None, s.normals, s.depth > 0)
+    m = build_depth_mesh(s.depth, s.normals, s.camera, up)
+    a = _read(s, m, up)
+    b = _read(s, m, up, sky_view=np.ones((H, W)), sky_share=0.52)
+    for x, y in ((a.ratio, b.ratio), (a.lit_level, b.lit_level), (a.basis, b.basis)):
+        np.testing.assert_array_equal(x, y)
+    assert (a.tied == b.tied).all()
+
+
+def test_the_light_stage_reads_the_sky_view_where_its_directions_are_set():
+    # the scorer's evidence (``search.search_scorer``): with ``sky_view_directions`` the
+    # lit level has the sky's term (one more basis column) and the wall's foot is lit;
+    # by default (0: off, design notes) neither
+    import dataclasses
+
+    from zcomp_cli.light import search as sr
+    from zcomp_cli.light.config import DEFAULT_LIGHT
+    from zcomp_cli.light.prepare import prepare
+
+    s = floor_scene(W, H, pitch_deg=-10.0, occluders=TOPPED_WALL, light_dir=(0.3, 1.0, 0.8), sky_occlusion=True,
+                    ambient=1.0, light_intensity=0.4)
+    known = s.depth > 0
+    up, _ = scene_up(None, s.normals, known)
+    walls = dataclasses.replace(DEFAULT_LIGHT, mesh=dataclasses.replace(DEFAULT_LIGHT.mesh, sky_edges_cast=True))
+    on = dataclasses.replace(walls, evidence=dataclasses.replace(walls.evidence, sky_view_directions=256))
+    pp = prepare(s.depth, s.normals, s.shading, known, s.albedo, s.camera, up, walls)
+    off, _ = sr.search_scorer(pp, walls)
+    ev, _ = sr.search_scorer(pp, on)
+    assert ev.basis.shape[-1] == off.basis.shape[-1] + 1
+    assert off.tied.sum() > 100 and ev.tied.sum() < 0.1 * off.tied.sum()

@@ -54,6 +54,16 @@ class EvidenceConfig:
     albedo_edge: float = knob(0.05, "heuristic", "a change of the albedo's log this large between neighbours is an "
                                                 "edge, where image and albedo rarely line up")
     min_region_rel: float = knob(1e-3, "heuristic", "a dark region smaller than this share of the support is noise")
+    sky_view_directions: int = knob(0, "setting", "directions the share of the sky the scene's geometry leaves each "
+                                                 "support pixel is traced in, the same for every pixel (256: steps "
+                                                 "of 1/256, under Weber's contrast; 32 called a wall's foot dark), "
+                                                 "for the lit level's term of it (shadow_evidence); 0: no such term. "
+                                                 "Off: with 256, near the object on the four development seeds of "
+                                                 "benchmarks/run_benchmark.py -0.07 / -0.01 / +0.03 / -0.13 dB "
+                                                 "(docs/design-notes.md)", lo=0, hi=4096)
+    sky_view_stride: int = knob(2, "sampling", "the share is traced at the support's pixels this far apart and spread "
+                                              "between them (it varies over many pixels; at 4 a wall's foot is "
+                                              "0.12 off where every pixel is traced)", hi=64)
 
 @dataclass(frozen=True, kw_only=True)
 class SearchConfig:

@@ -34,6 +34,7 @@ from zcomp_cli.light.config import EvidenceConfig
 
 
 
+
 @dataclass(frozen=True)
 class ShadowEvidence:
     """On the (h, w) working grid: ``ratio`` shading over the lit level (1 where lit;
@@ -186,7 +187,8 @@ def dark_depth(sigma: float, cfg: EvidenceConfig) -> float:
 
 def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarray, points: np.ndarray, up,
                     known: np.ndarray | None = None, albedo: np.ndarray | None = None,
-                    labels: np.ndarray | None = None, cfg: EvidenceConfig | None = None) -> ShadowEvidence:
+                    labels: np.ndarray | None = None, sky_view: np.ndarray | None = None,
+                    sky_share: float = 0.5, cfg: EvidenceConfig | None = None) -> ShadowEvidence:
     """The support's cast-shadow evidence (module docstring).
 
     Args:
@@ -200,6 +202,11 @@ def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarra
         albedo: (h, w) luminance of the albedo: where it changes from pixel to pixel the
             image and the albedo map rarely line up (an anti-aliased edge over a sampled
             one), and the ratio there tells nothing (weight 0).
+        sky_view: (h, w) in [0, 1], the share of a uniform sky each support pixel sees
+            past the scene's geometry (``skyvis.mesh_sky_view``), None: not known; and
+            ``sky_share`` the sky's share of the open support's light: the lit level is
+            ``(1 - sky_share) + sky_share * sky_view`` of its smooth surface (module
+            docstring).
     """
     cfg = EvidenceConfig() if cfg is None else cfg
     import cv2
@@ -224,6 +231,7 @@ def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarra
                               basis=np.ones((h, w, 1)))
     logs = np.where(ok, np.log(np.where(ok, s, 1.0)), 0.0)
     X = lit_basis(points, up, ok, albedo, albedo_spread=cfg.albedo_spread, degree=cfg.lit_degree)
+    view = _view(sky_view, ok)
     lit = ok.copy()
     # the lit level is fitted on the pixels not called dark, called dark at the pixels'
     # own noise (the differences between neighbours on the support: a render's noise, a
@@ -250,9 +258,15 @@ def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarra
         if len(fit_px) > cfg.max_lit_pixels:  # a stride: a low-order surface needs few
             fit_px = fit_px[np.linspace(0, len(fit_px) - 1, cfg.max_lit_pixels).astype(np.int64)]
         Xf = X.reshape(-1, X.shape[-1])[fit_px][:, cols]
-        beta = np.linalg.lstsq(Xf, logs.ravel()[fit_px], rcond=None)[0]
+        yf = logs.ravel()[fit_px]
         lv = np.full((h, w), np.nan)
-        lv[ok] = X_ok[:, cols] @ beta
+        if view is not None:
+            g = np.log((1.0 - sky_share) + sky_share * view)
+            beta = np.linalg.lstsq(Xf, yf - g.ravel()[fit_px], rcond=None)[0]
+            lv[ok] = X_ok[:, cols] @ beta + g[ok]
+        else:
+            beta = np.linalg.lstsq(Xf, yf, rcond=None)[0]
+            lv[ok] = X_ok[:, cols] @ beta
         res = np.where(ok, logs - np.nan_to_num(lv), np.nan)
         rl = res[lit]
         if len(rl) < 10:
@@ -292,7 +306,19 @@ def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarra
         tied = keep[lab] & dark & reach_m
     weight = np.where(ok & ~(dark & ~tied), 1.0, 0.0)
     return ShadowEvidence(ratio=ratio, dark=dark, tied=tied, weight=weight, sigma=float(sigma),
-                          lit_level=np.where(ok, level, np.nan), reach=reach_m, shading=s, basis=X)
+                          lit_level=np.where(ok, level, np.nan), reach=reach_m, shading=s,
+                          basis=X if view is None else np.concatenate(
+                              [X, np.log((1.0 - sky_share) + sky_share * view)[..., None]], -1))
+
+
+def _view(sky_view, ok: np.ndarray) -> np.ndarray | None:
+    """(h, w) the sky's visible share (``shadow_evidence``'s ``sky_view``) in [0, 1];
+    None where none is given or it does not vary over the support (nothing stands on
+    it: no term)."""
+    if sky_view is None:
+        return None
+    v = np.clip(np.nan_to_num(np.asarray(sky_view, np.float64), nan=1.0, posinf=1.0, neginf=1.0), 0.0, 1.0)
+    return v if ok.sum() >= 10 and float(np.ptp(v[ok])) > 1e-6 else None
 
 
 __all__ = ["ShadowEvidence", "shadow_basins", "shadow_evidence"]

@@ -398,9 +398,17 @@ def search_scorer(pp: Prepared, settings: LightConfig):
     and what step 3 scores with."""
     from zcomp_cli.light.evidence import shadow_evidence
 
+    from zcomp_cli.scene.skyvis import support_sky_view
+
     mesh = pp.grid.mesh
+    ec = settings.evidence
+    view = None
+    if ec.sky_view_directions > 0:
+        view = support_sky_view(mesh.points, mesh.support, mesh.up, pp.grid.caster, directions=ec.sky_view_directions,
+                                stride=ec.sky_view_stride, bias_rel=settings.search.bias_rel)
     ev = shadow_evidence(pp.grid.shading, mesh.support, mesh.casters, mesh.points, mesh.up, known=pp.grid.known,
-                         albedo=pp.grid.albedo, labels=mesh.labels, cfg=settings.evidence)
+                         albedo=pp.grid.albedo, labels=mesh.labels, sky_view=view,
+                         sky_share=settings.search.prior_sky_share, cfg=settings.evidence)
     return ev, _Scorer(pp, ev, settings)
 
 

@@ -23,7 +23,10 @@ A depth map holds only the surfaces the camera sees. As a mesh:
   silhouette (somewhere its outline is a depth discontinuity in front of a farther
   surface): an object standing in the scene, whose shadow on the support is attached
   to it in the image. A wall meets the floor in a corner and the sky at its top: no
-  silhouette, no caster (its shadow is cast by a top edge the frame rarely shows);
+  silhouette, no caster (its shadow is cast by a top edge the frame rarely shows). With
+  ``MeshConfig.sky_edges_cast``, an occluder edge with the sky (no geometry) above it is
+  a silhouette too: a wall whose top edge is seen casts (off by default: measured,
+  docs/design-notes.md, "A wall's long shadow");
 * the walls beyond the frame (``planes.Wall``) join as large quads.
 
 Pure numpy; ``RayCaster`` (``raycast``) answers the rays.
@@ -225,6 +228,8 @@ def build_depth_mesh(depth: np.ndarray, normals: np.ndarray, camera: Camera, up,
         jump = okf[pa] & okf[pb] & ~cont[k]
         sil[pa[jump & occf[pa] & (zf_[pa] < zf_[pb])]] = True
         sil[pb[jump & occf[pb] & (zf_[pb] < zf_[pa])]] = True
+        if k == 1 and cfg.sky_edges_cast:  # the sky above it (no geometry): a wall's top edge
+            sil[pb[occf[pb] & ~(zf_[pa] > 0)]] = True
     K0 = int(labels.max())
     has_base = np.bincount(labels[base], minlength=K0 + 1) > 0
     has_sil = np.bincount(labels.ravel()[sil], minlength=K0 + 1) > 0

@@ -81,4 +81,57 @@ def weighted_visibility(dirs: np.ndarray, vis: np.ndarray, radiance, *, sums: bo
     return np.where(den > 1e-12, num / np.maximum(den, 1e-300), 1.0)
 
 
-__all__ = ["hemisphere_directions", "sky_samples", "weighted_visibility"]
+def mesh_sky_view(points: np.ndarray, up, caster, *, directions: int, bias_rel: float) -> np.ndarray:
+    """The share of a uniform sky's irradiance that reaches each of (N,) points of the
+    support (camera frame, facing ``up``) past the scene's depth mesh (``caster``:
+    ``raycast.RayCaster``, the walls beyond the frame included): (N,) in [0, 1], 1 where
+    nothing stands around it. ``directions`` cosine-distributed directions about ``up``,
+    the same for every point (a smooth share; a pixel's own turn would need a blur);
+    each ray starts ``bias_rel`` of its point's depth above the support."""
+    P = np.asarray(points, np.float64).reshape(-1, 3)
+    if len(P) == 0:
+        return np.ones(0)
+    up = np.asarray(up, np.float64)
+    up = up / max(float(np.linalg.norm(up)), 1e-12)
+    dirs = np.stack(hemisphere_directions(up[None], np.zeros(1), int(directions)))[:, 0]
+    origins = P + up[None] * (float(bias_rel) * np.maximum(-P[:, 2], 1e-6))[:, None]
+    hidden = caster.occluded_grid(origins, dirs)
+    return 1.0 - hidden.mean(0)
+
+
+def support_sky_view(points: np.ndarray, support: np.ndarray, up, caster, *, directions: int, stride: int,
+                     bias_rel: float) -> np.ndarray:
+    """(h, w) the share of a uniform sky each pixel of the support sees past the scene's
+    depth mesh (``mesh_sky_view``), 1 off the support: traced at the support's pixels on
+    a ``stride`` x ``stride`` lattice and spread between them by a normalised bilinear
+    resize (the share varies over a wall's height, many pixels; ``points`` (h, w, 3)
+    camera frame, ``support`` (h, w) bool)."""
+    import cv2
+
+    support = np.asarray(support, bool)
+    h, w = support.shape
+    out = np.ones((h, w))
+    if not support.any():
+        return out
+    st = max(1, int(stride))
+    ys = np.arange(st // 2, h, st)
+    xs = np.arange(st // 2, w, st)
+    sub = support[np.ix_(ys, xs)]
+    if not sub.any():  # a support thinner than the lattice: its own pixels
+        out[support] = mesh_sky_view(points[support], up, caster, directions=directions, bias_rel=bias_rel)
+        return out
+    P = np.asarray(points, np.float64)[np.ix_(ys, xs)][sub]
+    coarse = np.zeros(sub.shape)
+    coarse[sub] = mesh_sky_view(P, up, caster, directions=directions, bias_rel=bias_rel)
+    # the lattice's cells resized to the full grid, each pixel the weighted mean of the
+    # traced cells around it (cells off the support weigh 0)
+    size = (len(xs) * st, len(ys) * st)
+    num = cv2.resize((coarse * sub).astype(np.float32), size, interpolation=cv2.INTER_LINEAR)[:h, :w]
+    den = cv2.resize(sub.astype(np.float32), size, interpolation=cv2.INTER_LINEAR)[:h, :w]
+    near = cv2.resize(coarse.astype(np.float32), size, interpolation=cv2.INTER_NEAREST)[:h, :w]
+    full = np.where(den > 1e-3, num / np.maximum(den, 1e-3), near)
+    out[support] = np.clip(full[support], 0.0, 1.0)
+    return out
+
+
+__all__ = ["hemisphere_directions", "mesh_sky_view", "support_sky_view", "sky_samples", "weighted_visibility"]
