@@ -9,7 +9,11 @@ refitted coarse to fine (``lit_iters``: one degree more at each fit) -- leaves t
 **ratio** ``r = shading / lit level``: about 1 where the light reaches, the shadowed/lit
 ratio in an umbra (the sky's share of the light there, Madsen and Nielsen's
 measurement), in between across a penumbra. Dividing by the albedo (the caller's
-shading) keeps texture out of it.
+shading) keeps texture out of it. Where the caller gives the share of the sky the
+scene's geometry leaves each support pixel (``sky_view``: a wall's foot sees half the
+sky), the lit level is ``(1 - s) + s V`` of its smooth surface, ``s`` the sky's share of
+the open support's light: the sky a wall hides is no cast shadow (off in the light
+stage by default: ``EvidenceConfig.sky_view_directions``).
 
 The dark pixels are split into regions, one per basin of the ratio (``shadow_basins``:
 two shadows joined through a shallower strip are two). A region counts as a cast shadow
@@ -31,7 +35,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from zcomp_cli.light.config import EvidenceConfig
-
 
 
 

@@ -397,7 +397,6 @@ def search_scorer(pp: Prepared, settings: LightConfig):
     """(the support's shadow evidence, the scorer of candidate lights over it): step 2
     and what step 3 scores with."""
     from zcomp_cli.light.evidence import shadow_evidence
-
     from zcomp_cli.scene.skyvis import support_sky_view
 
     mesh = pp.grid.mesh

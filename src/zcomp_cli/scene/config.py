@@ -46,9 +46,10 @@ class MeshConfig:
     sky_edges_cast: bool = knob(False, "setting", "an occluder's edge with the sky above it (pixels of no geometry: "
                                                  "a wall's top seen) is a silhouette, and the wall a caster whose "
                                                  "shadow is read. Off: on the four development seeds of "
-                                                 "benchmarks/run_benchmark.py (88 cases) it moved 6 cases, +0.7, +0.6, "
-                                                 "+0.3, -0.1, -0.1 and -9.9 dB near the object (a far floor past a wall's end "
-                                                 "tied to it: a low sun drawn; docs/design-notes.md)")
+                                                 "benchmarks/run_benchmark.py (88 cases) it moved 6 cases, +0.7, "
+                                                 "+0.6, +0.3, -0.1, -0.1 and -9.9 dB near the object (a far floor "
+                                                 "past a wall's end tied to it: a low sun drawn; "
+                                                 "docs/design-notes.md)")
 
 @dataclass(frozen=True, kw_only=True)
 class FrameConfig:
