@@ -235,6 +235,8 @@ def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarra
     logs = np.where(ok, np.log(np.where(ok, s, 1.0)), 0.0)
     X = lit_basis(points, up, ok, albedo, albedo_spread=cfg.albedo_spread, degree=cfg.lit_degree)
     view = _view(sky_view, ok)
+    # the sky the geometry hides, as a log factor of the lit level (0: none given)
+    g = np.zeros((h, w)) if view is None else np.log((1.0 - sky_share) + sky_share * view)
     lit = ok.copy()
     # the lit level is fitted on the pixels not called dark, called dark at the pixels'
     # own noise (the differences between neighbours on the support: a render's noise, a
@@ -261,15 +263,9 @@ def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarra
         if len(fit_px) > cfg.max_lit_pixels:  # a stride: a low-order surface needs few
             fit_px = fit_px[np.linspace(0, len(fit_px) - 1, cfg.max_lit_pixels).astype(np.int64)]
         Xf = X.reshape(-1, X.shape[-1])[fit_px][:, cols]
-        yf = logs.ravel()[fit_px]
+        beta = np.linalg.lstsq(Xf, logs.ravel()[fit_px] - g.ravel()[fit_px], rcond=None)[0]
         lv = np.full((h, w), np.nan)
-        if view is not None:
-            g = np.log((1.0 - sky_share) + sky_share * view)
-            beta = np.linalg.lstsq(Xf, yf - g.ravel()[fit_px], rcond=None)[0]
-            lv[ok] = X_ok[:, cols] @ beta + g[ok]
-        else:
-            beta = np.linalg.lstsq(Xf, yf, rcond=None)[0]
-            lv[ok] = X_ok[:, cols] @ beta
+        lv[ok] = X_ok[:, cols] @ beta + g[ok]
         res = np.where(ok, logs - np.nan_to_num(lv), np.nan)
         rl = res[lit]
         if len(rl) < 10:
@@ -310,8 +306,7 @@ def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarra
     weight = np.where(ok & ~(dark & ~tied), 1.0, 0.0)
     return ShadowEvidence(ratio=ratio, dark=dark, tied=tied, weight=weight, sigma=float(sigma),
                           lit_level=np.where(ok, level, np.nan), reach=reach_m, shading=s,
-                          basis=X if view is None else np.concatenate(
-                              [X, np.log((1.0 - sky_share) + sky_share * view)[..., None]], -1))
+                          basis=X if view is None else np.concatenate([X, g[..., None]], -1))
 
 
 def _view(sky_view, ok: np.ndarray) -> np.ndarray | None:
