@@ -421,3 +421,20 @@ def test_the_light_stage_reads_the_sky_view_where_its_directions_are_set():
     ev, _ = sr.search_scorer(pp, on)
     assert ev.basis.shape[-1] == off.basis.shape[-1] + 1
     assert off.tied.sum() > 100 and ev.tied.sum() < 0.1 * off.tied.sum()
+
+
+def test_a_pixel_that_sees_no_sky_under_the_skys_whole_share_stays_finite():
+    # sky_share 1 (all the light the sky's) and a pixel with no sky: the factor is 0,
+    # its log floored (``EvidenceConfig.min_sky_factor``) so that the fit still runs and
+    # stays finite
+    s = _scene()
+    up, _ = scene_up(None, s.normals, s.depth > 0)
+    m = build_depth_mesh(s.depth, s.normals, s.camera, up)
+    view = np.ones((H, W))
+    view[m.support & (np.mgrid[0:H, 0:W][1] < 10)] = 0.0
+    ev = _read(s, m, up, sky_view=view, sky_share=1.0)
+    bare = _read(s, m, up)
+    # finite wherever the lit level is read at all (the support less its unread outline)
+    assert (np.isfinite(ev.lit_level) == np.isfinite(bare.lit_level)).all()
+    assert (np.isfinite(ev.ratio) == np.isfinite(bare.ratio)).all()
+    assert np.isfinite(ev.basis[m.support]).all() and ev.shown

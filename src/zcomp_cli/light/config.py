@@ -61,6 +61,10 @@ class EvidenceConfig:
                                                  "Off: with 256, near the object on the four development seeds of "
                                                  "benchmarks/run_benchmark.py -0.07 / -0.01 / +0.03 / -0.13 dB "
                                                  "(docs/design-notes.md)", lo=0, hi=4096)
+    min_sky_factor: float = knob(1e-3, "physical", "the least share of the open support's light that term leaves a "
+                                                  "pixel that sees no sky (with all the light the sky's): the bounce "
+                                                  "still reaches it, and a log of 0 would stop the fit; below any "
+                                                  "shadow the evidence reads", hi=1.0)
     sky_view_stride: int = knob(2, "sampling", "the share is traced at the support's pixels this far apart and spread "
                                               "between them (it varies over many pixels; at 4 a wall's foot is "
                                               "0.12 off where every pixel is traced)", hi=64)

@@ -236,7 +236,8 @@ def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarra
     X = lit_basis(points, up, ok, albedo, albedo_spread=cfg.albedo_spread, degree=cfg.lit_degree)
     view = _view(sky_view, ok)
     # the sky the geometry hides, as a log factor of the lit level (0: none given)
-    g = np.zeros((h, w)) if view is None else np.log((1.0 - sky_share) + sky_share * view)
+    g = np.zeros((h, w)) if view is None else np.log(np.maximum((1.0 - sky_share) + sky_share * view,
+                                                                cfg.min_sky_factor))
     lit = ok.copy()
     # the lit level is fitted on the pixels not called dark, called dark at the pixels'
     # own noise (the differences between neighbours on the support: a render's noise, a
