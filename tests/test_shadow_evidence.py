@@ -438,3 +438,13 @@ def test_a_pixel_that_sees_no_sky_under_the_skys_whole_share_stays_finite():
     assert (np.isfinite(ev.lit_level) == np.isfinite(bare.lit_level)).all()
     assert (np.isfinite(ev.ratio) == np.isfinite(bare.ratio)).all()
     assert np.isfinite(ev.basis[m.support]).all() and ev.shown
+
+
+def test_a_sky_view_of_another_shape_or_a_share_outside_0_1_is_refused():
+    s = _scene()
+    up, _ = scene_up(None, s.normals, s.depth > 0)
+    m = build_depth_mesh(s.depth, s.normals, s.camera, up)
+    with pytest.raises(ValueError, match="sky_view is"):
+        _read(s, m, up, sky_view=np.ones((H, W + 1)), sky_share=0.5)
+    with pytest.raises(ValueError, match="outside"):
+        _read(s, m, up, sky_view=np.ones((H, W)), sky_share=1.5)

@@ -234,7 +234,7 @@ def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarra
                               basis=np.ones((h, w, 1)))
     logs = np.where(ok, np.log(np.where(ok, s, 1.0)), 0.0)
     X = lit_basis(points, up, ok, albedo, albedo_spread=cfg.albedo_spread, degree=cfg.lit_degree)
-    view = _view(sky_view, ok)
+    view = _view(sky_view, ok, sky_share)
     # the sky the geometry hides, as a log factor of the lit level (0: none given)
     g = np.zeros((h, w)) if view is None else np.log(np.maximum((1.0 - sky_share) + sky_share * view,
                                                                 cfg.min_sky_factor))
@@ -310,12 +310,17 @@ def shadow_evidence(shading: np.ndarray, support: np.ndarray, casters: np.ndarra
                           basis=X if view is None else np.concatenate([X, g[..., None]], -1))
 
 
-def _view(sky_view, ok: np.ndarray) -> np.ndarray | None:
+def _view(sky_view, ok: np.ndarray, sky_share: float) -> np.ndarray | None:
     """(h, w) the sky's visible share (``shadow_evidence``'s ``sky_view``) in [0, 1];
     None where none is given or it does not vary over the support (nothing stands on
-    it: no term)."""
+    it: no term). Raises ValueError on a share map of another shape than the shading's
+    or a ``sky_share`` outside [0, 1]."""
     if sky_view is None:
         return None
+    if np.shape(sky_view) != ok.shape:
+        raise ValueError(f"shadow_evidence: sky_view is {np.shape(sky_view)}, the shading {ok.shape}")
+    if not 0.0 <= float(sky_share) <= 1.0:
+        raise ValueError(f"shadow_evidence: sky_share {sky_share} is outside [0, 1]")
     v = np.clip(np.nan_to_num(np.asarray(sky_view, np.float64), nan=1.0, posinf=1.0, neginf=1.0), 0.0, 1.0)
     return v if ok.sum() >= 10 and float(np.ptp(v[ok])) > 1e-6 else None
 
